@@ -1,0 +1,43 @@
+"""The `fabline` command line: a thin layer that parses arguments and calls the stage packages.
+
+Each module listed in STAGE_COMMANDS defines `register(subparsers)`, which adds its subcommands
+and sets `func` on each parser; `func(args)` returns the exit code (0 on success).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from fabline import __version__
+from fabline.errors import FablineError
+
+STAGE_COMMANDS = ("model",)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full argument parser with every stage's subcommands."""
+    parser = argparse.ArgumentParser(prog="fabline", description="Fabrication pipeline for elastic lamella gridshells.")
+    parser.add_argument("--version", action="version", version=f"fabline {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in STAGE_COMMANDS:
+        importlib.import_module(f"fabline.cli.{name}").register(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: run one subcommand; a user's mistake becomes one line on stderr and exit code 2."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except FablineError as exc:
+        print(f"fabline {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"fabline {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
