@@ -1,1 +1,5 @@
-"""The geometry stage."""
+"""The geometry stage: arc length, Darboux frame and curvatures along every lamella, crossing angles at nodes."""
+
+from fabline.geometry.darboux import CurveFit, LamellaGeometry, NetworkGeometry, analyse, lamella_geometry
+
+__all__ = ["CurveFit", "LamellaGeometry", "NetworkGeometry", "analyse", "lamella_geometry"]

@@ -1,0 +1,162 @@
+"""Curvature along each lamella in its Darboux frame (domain.md section 2).
+
+The centreline and its normals are interpolated by cubic splines over the chord-length parameter, so
+arc lengths and curvatures are accurate to fourth and second order in the sample spacing. Frame:
+tangent t, surface normal n, sideways u = n x t, with dt/ds = k_g u + k_n n and dn/ds = -k_n t - tau_g u.
+All lengths in millimetres, curvatures in 1/mm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from fabline.errors import FablineError
+from fabline.model.network import Lamella, Network
+from fabline.progress import progress
+
+_GAUSS_X, _GAUSS_W = np.polynomial.legendre.leggauss(5)
+NODE_OFF_CURVE_MM = 1.0  # a lamella's node farther than this from its centreline is an error in the model
+
+
+@dataclass
+class CurveFit:
+    """Spline interpolation of a lamella's centreline and normals over the chord-length parameter `tau`."""
+
+    tau: np.ndarray
+    curve: CubicSpline
+    normals: CubicSpline
+    s_at_samples: np.ndarray
+
+    @classmethod
+    def of(cls, points: np.ndarray, normals: np.ndarray) -> "CurveFit":
+        tau = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        curve = CubicSpline(tau, points, bc_type="not-a-knot" if len(tau) > 3 else "natural")
+        fit = cls(tau, curve, CubicSpline(tau, normals, bc_type="not-a-knot" if len(tau) > 3 else "natural"), tau)
+        fit.s_at_samples = np.concatenate([[0.0], np.cumsum(fit._arc(tau[:-1], tau[1:]))])
+        return fit
+
+    def _arc(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Arc length from lo to hi (arrays of equal shape) by 5-point Gauss-Legendre on the spline speed."""
+        half, mid = (hi - lo) / 2.0, (hi + lo) / 2.0
+        x = mid[:, None] + half[:, None] * _GAUSS_X[None, :]
+        speed = np.linalg.norm(self.curve(x, 1), axis=-1)
+        return half * (speed @ _GAUSS_W)
+
+    def arc_length(self, tau: np.ndarray) -> np.ndarray:
+        """Arc length from the start to each parameter value."""
+        tau = np.asarray(tau, dtype=float)
+        k = np.clip(np.searchsorted(self.tau, tau, side="right") - 1, 0, len(self.tau) - 2)
+        return self.s_at_samples[k] + self._arc(self.tau[k], tau)
+
+    @property
+    def length(self) -> float:
+        return float(self.s_at_samples[-1])
+
+    def parameter_at(self, s: np.ndarray) -> np.ndarray:
+        """Chord parameter at arc length s (Newton steps from the linear estimate; |c'| is close to 1)."""
+        s = np.asarray(s, dtype=float)
+        tau = np.interp(s, self.s_at_samples, self.tau)
+        for _ in range(3):
+            tau = tau - (self.arc_length(tau) - s) / np.linalg.norm(self.curve(tau, 1), axis=-1)
+        return np.clip(tau, self.tau[0], self.tau[-1])
+
+    def frame(self, tau: np.ndarray) -> dict[str, np.ndarray]:
+        """Darboux frame and curvatures at parameters `tau`: t, u, n (N, 3) and k_g, k_n, tau_g (N,)."""
+        d1, d2 = self.curve(tau, 1), self.curve(tau, 2)
+        speed = np.linalg.norm(d1, axis=-1)
+        t = d1 / speed[:, None]
+        raw_n = self.normals(tau)
+        along = np.einsum("ij,ij->i", raw_n, t)
+        n = raw_n - along[:, None] * t
+        n_len = np.linalg.norm(n, axis=-1)
+        n /= n_len[:, None]
+        u = np.cross(n, t)
+        kappa = (d2 - np.einsum("ij,ij->i", d2, t)[:, None] * t) / (speed**2)[:, None]
+        k_g = np.einsum("ij,ij->i", kappa, u)
+        k_n = np.einsum("ij,ij->i", kappa, n)
+        # tau_g = -(dn/ds).u; d(n)/dtau.u = N'.u - (t'.u)(t.N) for n the normalised projection of N.
+        dn_u = np.einsum("ij,ij->i", self.normals(tau, 1), u) - k_g * speed * along
+        tau_g = -dn_u / (speed * n_len)
+        return {"t": t, "u": u, "n": n, "k_g": k_g, "k_n": k_n, "tau_g": tau_g}
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Closest points on the sampled centreline to `points` (M, 3): their parameters and distances."""
+        p = self.curve(self.tau)
+        a, seg = p[:-1], np.diff(p, axis=0)
+        rel = points[:, None, :] - a[None, :, :]
+        f = np.clip(np.einsum("mkj,kj->mk", rel, seg) / np.einsum("kj,kj->k", seg, seg), 0.0, 1.0)
+        dist = np.linalg.norm(rel - f[..., None] * seg[None], axis=-1)
+        k = np.argmin(dist, axis=1)
+        rows = np.arange(len(points))
+        return self.tau[k] + f[rows, k] * np.diff(self.tau)[k], dist[rows, k]
+
+
+@dataclass
+class LamellaGeometry:
+    """A lamella's arc length, frame and curvatures at its samples, and where its nodes lie along it (mm, 1/mm)."""
+
+    lamella: Lamella
+    fit: CurveFit
+    s: np.ndarray
+    t: np.ndarray
+    u: np.ndarray
+    n: np.ndarray
+    k_g: np.ndarray
+    k_n: np.ndarray
+    tau_g: np.ndarray
+    node_ids: list[str]
+    node_s: np.ndarray
+    node_tangents: np.ndarray
+
+    @property
+    def length(self) -> float:
+        return self.fit.length
+
+
+@dataclass
+class NetworkGeometry:
+    """The geometry of every lamella of a network in millimetres, and the crossing angle at every node."""
+
+    network: Network
+    lamellas: dict[str, LamellaGeometry]
+    crossing_angles: dict[str, float]
+
+
+def lamella_geometry(lamella: Lamella, network: Network) -> LamellaGeometry:
+    """Fit, frame and curvatures of one lamella of a millimetre network, with its nodes' arc-length positions."""
+    fit = CurveFit.of(lamella.curve, lamella.normals)
+    frame = fit.frame(fit.tau)
+    node_xyz = np.array([network.nodes[nid].xyz for nid in lamella.nodes]).reshape(-1, 3)
+    node_tau, off = fit.project(node_xyz)
+    far = np.flatnonzero(off > NODE_OFF_CURVE_MM)
+    if far.size:
+        k = far[0]
+        raise FablineError(f"lamella {lamella.id}: node {lamella.nodes[k]} lies {off[k]:.2f} mm off its centreline "
+                           f"(more than {NODE_OFF_CURVE_MM:g} mm): it is on no lamella there")
+    node_s = fit.arc_length(node_tau)
+    if np.any(np.diff(node_s) <= 0):
+        k = int(np.flatnonzero(np.diff(node_s) <= 0)[0])
+        raise FablineError(f"lamella {lamella.id}: nodes {lamella.nodes[k]} and {lamella.nodes[k + 1]} "
+                           "are not in order along the curve")
+    tangents = fit.frame(node_tau)["t"]
+    return LamellaGeometry(lamella, fit, fit.s_at_samples, frame["t"], frame["u"], frame["n"], frame["k_g"],
+                           frame["k_n"], frame["tau_g"], list(lamella.nodes), node_s, tangents)
+
+
+def analyse(network: Network) -> NetworkGeometry:
+    """Geometry of every lamella (network in mm) and at every node the smallest crossing angle (degrees, 0..90)."""
+    network = network.in_mm()
+    geometries = {lam.id: lamella_geometry(lam, network) for lam in progress(network.lamellas, "geometry")}
+    tangents: dict[str, list[np.ndarray]] = {}
+    for geo in geometries.values():
+        for nid, t in zip(geo.node_ids, geo.node_tangents):
+            tangents.setdefault(nid, []).append(t)
+    angles = {}
+    for nid, ts in tangents.items():
+        if len(ts) >= 2:
+            cosines = [abs(float(np.dot(a, b))) for i, a in enumerate(ts) for b in ts[i + 1:]]
+            angles[nid] = float(np.degrees(np.arccos(min(1.0, max(cosines)))))
+    return NetworkGeometry(network, geometries, angles)
