@@ -1,9 +1,79 @@
-"""CLI for the model stage: `fabline design`, `fabline import`, `fabline inspect`."""
+"""CLI for the model stage: `fabline design` (built-in networks) and `fabline inspect` (the curvature table)."""
 
 from __future__ import annotations
 
 import argparse
+import json
+
+from fabline.errors import FablineError
+from fabline.geometry import analyse, lamella_table
+from fabline.model import load_network, save_network
+from fabline.model.designs import BOUNDARIES, DESIGNS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the model stage's subcommands."""
+    """Add `design` and `inspect`."""
+    design = subparsers.add_parser("design", help="build an asymptotic network on a minimal surface")
+    kinds = design.add_subparsers(dest="design", metavar="SURFACE", required=True)
+    enneper = kinds.add_parser("enneper", help="Enneper surface, sized like the reference pavilion by default")
+    enneper.add_argument("--size", type=_size, default=(9.0, 12.0), help="footprint x by y in metres (default 9x12)")
+    enneper.add_argument("--spacing", type=float, default=0.35, help="node spacing along the axes in metres")
+    enneper.add_argument("--k-max", type=float, default=1.1, help="largest principal curvature, 1/m (default 1.1)")
+    enneper.add_argument("--boundary", choices=BOUNDARIES, default="ellipse", help="shape of the parameter domain")
+    catenoid = kinds.add_parser("catenoid", help="catenoid, axis z, waist circle at z = 0")
+    catenoid.add_argument("--waist", type=float, default=1.0, help="waist radius in metres")
+    catenoid.add_argument("--height", type=float, default=3.0, help="height in metres, centred on the waist")
+    catenoid.add_argument("--count", type=int, default=16, help="lamellas per family")
+    helicoid = kinds.add_parser("helicoid", help="helicoid: straight rulings and helices")
+    helicoid.add_argument("--pitch", type=float, default=6.0, help="rise per turn in metres")
+    helicoid.add_argument("--radius", type=float, default=3.0, help="outer radius in metres")
+    helicoid.add_argument("--turns", type=float, default=0.5, help="how many turns the patch spans")
+    helicoid.add_argument("--spacing", type=float, default=0.35, help="node spacing in metres")
+    for sub in (enneper, catenoid, helicoid):
+        sub.add_argument("-o", "--output", required=True, help="network JSON to write")
+        sub.set_defaults(func=run_design)
+
+    inspect = subparsers.add_parser("inspect", help="table of lamellas, lengths, curvatures and crossing angles")
+    inspect.add_argument("model", help="a fabline.network/1 JSON file")
+    inspect.add_argument("--json", action="store_true", help="print the table as JSON")
+    inspect.set_defaults(func=run_inspect)
+
+
+def _size(text: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must look like 9x12, got {text!r}") from None
+    return x, y
+
+
+def run_design(args: argparse.Namespace) -> int:
+    """Build the chosen design and write it."""
+    options = {k: v for k, v in vars(args).items() if k not in ("command", "design", "output", "func")}
+    network = DESIGNS[args.design](**options)
+    save_network(network, args.output)
+    print(f"{args.output}: {args.design} network, {len(network.nodes)} nodes, {len(network.lamellas)} lamellas (units m)")
+    return 0
+
+
+def run_inspect(args: argparse.Namespace) -> int:
+    """Print the lamella table and a one-line summary for the whole network."""
+    network = load_network(args.model)
+    try:
+        rows = lamella_table(analyse(network))
+    except FablineError as exc:
+        raise FablineError(f"{args.model}: {exc}") from None
+    if args.json:
+        print(json.dumps({"model": args.model, "units": network.units, "lamellas": rows}, indent=1))
+        return 0
+    print(f"{'lamella':<10}{'fam':>4}{'nodes':>6}{'length m':>10}{'max k_g':>9}{'max tau_g':>10}{'max k_n':>9}{'angle min..max':>16}")
+    for r in rows:
+        angle = f"{r['min_angle']:.2f}..{r['max_angle']:.2f}" if r["min_angle"] is not None else "-"
+        print(f"{r['lamella']:<10}{r['family']:>4}{r['nodes']:>6}{r['length_m']:>10.3f}{r['max_k_g']:>9.3f}"
+              f"{r['max_tau_g']:>10.3f}{r['max_k_n']:>9.2e}{angle:>16}")
+    angles = [a for r in rows for a in (r["min_angle"], r["max_angle"]) if a is not None]
+    print(f"\n{len(rows)} lamellas, {len(network.nodes)} nodes, total length {sum(r['length_m'] for r in rows):.2f} m; "
+          f"max k_g {max(r['max_k_g'] for r in rows):.3f} 1/m, max tau_g {max(r['max_tau_g'] for r in rows):.3f} 1/m, "
+          f"max k_n {max(r['max_k_n'] for r in rows):.2e} 1/m; crossing angles "
+          + (f"{min(angles):.2f}..{max(angles):.2f} deg" if angles else "none"))
+    return 0

@@ -160,3 +160,18 @@ def analyse(network: Network) -> NetworkGeometry:
             cosines = [abs(float(np.dot(a, b))) for i, a in enumerate(ts) for b in ts[i + 1:]]
             angles[nid] = float(np.degrees(np.arccos(min(1.0, max(cosines)))))
     return NetworkGeometry(network, geometries, angles)
+
+
+def lamella_table(geometry: NetworkGeometry) -> list[dict]:
+    """One row per lamella in display units (m, 1/m, degrees): length, node count, curvature maxima, crossing angles."""
+    rows = []
+    for lam_id, geo in geometry.lamellas.items():
+        angles = [geometry.crossing_angles[n] for n in geo.node_ids if n in geometry.crossing_angles]
+        rows.append({
+            "lamella": lam_id, "family": geo.lamella.family, "nodes": len(geo.node_ids),
+            "length_m": geo.length / 1000.0,
+            "max_k_g": float(np.abs(geo.k_g).max() * 1000.0), "max_tau_g": float(np.abs(geo.tau_g).max() * 1000.0),
+            "max_k_n": float(np.abs(geo.k_n).max() * 1000.0),
+            "min_angle": min(angles) if angles else None, "max_angle": max(angles) if angles else None,
+        })
+    return rows

@@ -87,12 +87,12 @@ def helicoid_surface(pitch: float) -> AsymptoticSurface:
 
 
 def network_on_grid(surface: AsymptoticSurface, a_values: np.ndarray, b_values: np.ndarray,
-                    inside: Callable[[np.ndarray, np.ndarray], np.ndarray], name: str, meta: dict,
-                    b_of_lamella: Callable[[int, int], tuple[float, int]] | None = None) -> Network:
+                    inside: Callable[[np.ndarray, np.ndarray], np.ndarray], name: str, meta: dict) -> Network:
     """Nodes at the grid points (a_i, b_j) inside the domain; A lamellas along a, B lamellas along b.
 
     Each lamella is the longest contiguous run of inside nodes on its grid line (at least two), its
     centreline sampled every SAMPLE_STEP_M with every node as a sample, normals from the surface.
+    Node N{i:03d}-{j:03d} lies at (a_i, b_j); meta["grid"] records both lists for reproducibility.
     """
     ai, bj = np.meshgrid(np.arange(len(a_values)), np.arange(len(b_values)), indexing="ij")
     mask = inside(a_values[ai], b_values[bj])
@@ -121,7 +121,8 @@ def network_on_grid(surface: AsymptoticSurface, a_values: np.ndarray, b_values: 
         a, b = np.array(a_values[i]), np.array(b_values[j])
         nodes[nid] = Node(nid, surface.point(a, b), surface.normal(a, b))
     _assign_kinds(nodes, lamellas)
-    return Network("m", nodes, lamellas, name, meta)
+    grid = {"a": np.round(a_values, 12).tolist(), "b": np.round(b_values, 12).tolist()}
+    return Network("m", nodes, lamellas, name, {**meta, "grid": grid})
 
 
 def _node_id(i: int, j: int) -> str:

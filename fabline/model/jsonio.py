@@ -14,11 +14,12 @@ from fabline.model.network import Lamella, Network, Node, validate
 SCHEMA = "fabline.network/1"
 
 
-def network_to_dict(network: Network, decimals: int = 7) -> dict[str, Any]:
-    """The JSON-ready form of a network, coordinates rounded to `decimals` places."""
+def network_to_dict(network: Network) -> dict[str, Any]:
+    """The JSON-ready form of a network; coordinates kept to 1e-6 mm, normals to 1e-9."""
+    decimals = 6 + int(np.ceil(np.log10(network.mm_per_unit)))
 
-    def rows(a: np.ndarray) -> list:
-        return np.round(a, decimals).tolist()
+    def rows(a: np.ndarray, places: int = decimals) -> list:
+        return np.round(a, places).tolist()
 
     return {
         "schema": SCHEMA,
@@ -26,12 +27,12 @@ def network_to_dict(network: Network, decimals: int = 7) -> dict[str, Any]:
         "units": network.units,
         "meta": network.meta,
         "nodes": [
-            {"id": n.id, "xyz": rows(n.xyz), "normal": rows(n.normal), "kind": n.kind}
+            {"id": n.id, "xyz": rows(n.xyz), "normal": rows(n.normal, 9), "kind": n.kind}
             for n in network.nodes.values()
         ],
         "lamellas": [
             {"id": lam.id, "family": lam.family, "nodes": list(lam.nodes),
-             "curve": rows(lam.curve), "normals": rows(lam.normals)}
+             "curve": rows(lam.curve), "normals": rows(lam.normals, 9)}
             for lam in network.lamellas
         ],
     }
