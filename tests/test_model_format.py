@@ -63,6 +63,11 @@ def _break(data, how):
     elif how == "self-overlapping":
         lam["curve"] = lam["curve"] + lam["curve"][::-1][1:]
         lam["normals"] = lam["normals"] + lam["normals"][::-1][1:]
+    elif how == "looping":  # one and a quarter turns of a circle: the second pass runs over the first
+        t = 2 * np.pi * np.arange(100) / 80
+        lam["curve"] = np.stack([np.cos(t), np.sin(t), 0 * t], axis=1).tolist()
+        lam["normals"] = [[0.0, 0.0, 1.0]] * 100
+        lam["nodes"] = []
     elif how == "duplicate node id":
         data["nodes"][3]["id"] = node["id"]
     elif how == "duplicate lamella id":
@@ -88,6 +93,7 @@ CASES = {
     "infinite": "curve point 3 contains NaN or infinite",
     "zero length": "zero length",
     "self-overlapping": "doubles back",
+    "looping": "curve overlaps itself",
     "duplicate node id": "duplicate node id",
     "duplicate lamella id": "duplicate lamella id",
     "node on no lamella": "node LOOSE lies on no lamella",

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from fabline.errors import FablineError
 
@@ -81,7 +82,7 @@ def validate(network: Network, source: str = "model") -> Network:
     """Check a network for the mistakes that would silently spoil fabrication; raise naming the element.
 
     Checks units, finite coordinates, unit normals, unique ids, known families and kinds, curves with
-    at least two distinct points and no doubling back, node references, and that every node lies on a
+    at least two distinct points that neither double back nor overlap themselves, node references, and that every node lies on a
     lamella (a crossing on two of different families unless it is an edge end or support).
     """
     if network.units not in UNIT_TO_MM:
@@ -123,6 +124,18 @@ def _check_vector(value: np.ndarray, where: str) -> None:
         raise FablineError(f"{where}: contains NaN or infinite values")
 
 
+def _check_no_self_overlap(curve: np.ndarray, lengths: np.ndarray, where: str) -> None:
+    """A curve that comes back within half a sample step of itself, away from its neighbours, overlaps itself."""
+    radius = 0.5 * float(np.min(lengths))
+    pairs = cKDTree(curve).query_pairs(radius, output_type="ndarray")
+    if len(pairs):
+        s = np.concatenate([[0.0], np.cumsum(lengths)])
+        apart = np.abs(s[pairs[:, 0]] - s[pairs[:, 1]]) > 4 * radius
+        if np.any(apart):
+            i, j = sorted(pairs[np.argmax(apart)])
+            raise FablineError(f"{where}: curve overlaps itself (points {i} and {j} coincide within {radius:.3g})")
+
+
 def _check_curve(lam: Lamella, where: str) -> None:
     curve, normals = lam.curve, lam.normals
     if curve.ndim != 2 or curve.shape[1] != 3 or len(curve) < 2:
@@ -145,6 +158,7 @@ def _check_curve(lam: Lamella, where: str) -> None:
     reversal = np.flatnonzero(np.einsum("ij,ij->i", steps[1:], steps[:-1]) < -0.5)
     if reversal.size:
         raise FablineError(f"{where}: curve doubles back on itself at point {reversal[0] + 1}")
+    _check_no_self_overlap(curve, lengths, where)
     norms = np.linalg.norm(normals, axis=1)
     bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
     if bad.size:
