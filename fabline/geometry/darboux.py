@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.spatial import cKDTree
 
 from fabline.errors import FablineError
 from fabline.model.network import Lamella, Network
@@ -23,20 +24,30 @@ NODE_OFF_CURVE_MM = 1.0  # a lamella's node farther than this from its centrelin
 
 @dataclass
 class CurveFit:
-    """Spline interpolation of a lamella's centreline and normals over the chord-length parameter `tau`."""
+    """Spline interpolation of a lamella's centreline and normals over the chord-length parameter `tau`.
+
+    One cubic spline carries both, six columns: x, y, z and the normal's three components.
+    """
 
     tau: np.ndarray
-    curve: CubicSpline
-    normals: CubicSpline
+    spline: CubicSpline
     s_at_samples: np.ndarray
 
     @classmethod
     def of(cls, points: np.ndarray, normals: np.ndarray) -> "CurveFit":
-        tau = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-        curve = CubicSpline(tau, points, bc_type="not-a-knot" if len(tau) > 3 else "natural")
-        fit = cls(tau, curve, CubicSpline(tau, normals, bc_type="not-a-knot" if len(tau) > 3 else "natural"), tau)
+        tau = np.concatenate([[0.0], np.cumsum(_norm(np.diff(points, axis=0)))])
+        spline = CubicSpline(tau, np.hstack([points, normals]), bc_type="not-a-knot" if len(tau) > 3 else "natural")
+        fit = cls(tau, spline, tau)
         fit.s_at_samples = np.concatenate([[0.0], np.cumsum(fit._arc(tau[:-1], tau[1:]))])
         return fit
+
+    def curve(self, tau: np.ndarray, derivative: int = 0) -> np.ndarray:
+        """Centreline point (or its derivative) at parameters tau."""
+        return self.spline(tau, derivative)[..., :3]
+
+    def normals(self, tau: np.ndarray, derivative: int = 0) -> np.ndarray:
+        """Interpolated (not renormalised) surface normal, or its derivative, at parameters tau."""
+        return self.spline(tau, derivative)[..., 3:]
 
     def _arc(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """Arc length from lo to hi (arrays of equal shape) by 5-point Gauss-Legendre on the spline speed."""
@@ -65,33 +76,52 @@ class CurveFit:
 
     def frame(self, tau: np.ndarray) -> dict[str, np.ndarray]:
         """Darboux frame and curvatures at parameters `tau`: t, u, n (N, 3) and k_g, k_n, tau_g (N,)."""
-        d1, d2 = self.curve(tau, 1), self.curve(tau, 2)
-        speed = np.linalg.norm(d1, axis=-1)
+        first, d2 = self.spline(tau, 1), self.spline(tau, 2)[:, :3]
+        d1, dn = first[:, :3], first[:, 3:]
+        speed = _norm(d1)
         t = d1 / speed[:, None]
         raw_n = self.normals(tau)
-        along = np.einsum("ij,ij->i", raw_n, t)
+        along = _dot(raw_n, t)
         n = raw_n - along[:, None] * t
-        n_len = np.linalg.norm(n, axis=-1)
+        n_len = _norm(n)
         n /= n_len[:, None]
         u = np.cross(n, t)
-        kappa = (d2 - np.einsum("ij,ij->i", d2, t)[:, None] * t) / (speed**2)[:, None]
-        k_g = np.einsum("ij,ij->i", kappa, u)
-        k_n = np.einsum("ij,ij->i", kappa, n)
+        kappa = (d2 - _dot(d2, t)[:, None] * t) / (speed**2)[:, None]
+        k_g = _dot(kappa, u)
+        k_n = _dot(kappa, n)
         # tau_g = -(dn/ds).u; d(n)/dtau.u = N'.u - (t'.u)(t.N) for n the normalised projection of N.
-        dn_u = np.einsum("ij,ij->i", self.normals(tau, 1), u) - k_g * speed * along
+        dn_u = _dot(dn, u) - k_g * speed * along
         tau_g = -dn_u / (speed * n_len)
         return {"t": t, "u": u, "n": n, "k_g": k_g, "k_n": k_n, "tau_g": tau_g}
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Closest points on the sampled centreline to `points` (M, 3): their parameters and distances."""
+        """Closest points on the sampled centreline to `points` (M, 3): their parameters and distances.
+
+        The nearest sample (KD-tree) decides the neighbourhood; the exact foot lies on one of its two segments.
+        """
         p = self.curve(self.tau)
-        a, seg = p[:-1], np.diff(p, axis=0)
-        rel = points[:, None, :] - a[None, :, :]
-        f = np.clip(np.einsum("mkj,kj->mk", rel, seg) / np.einsum("kj,kj->k", seg, seg), 0.0, 1.0)
-        dist = np.linalg.norm(rel - f[..., None] * seg[None], axis=-1)
-        k = np.argmin(dist, axis=1)
-        rows = np.arange(len(points))
-        return self.tau[k] + f[rows, k] * np.diff(self.tau)[k], dist[rows, k]
+        nearest = np.clip(cKDTree(p).query(points)[1], 1, len(p) - 2) if len(p) > 2 else np.ones(len(points), int)
+        best_tau, best_dist = None, None
+        for start in (nearest - 1, np.minimum(nearest, len(p) - 2)):
+            a, seg = p[start], p[start + 1] - p[start]
+            rel = points - a
+            f = np.clip(_dot(rel, seg) / _dot(seg, seg), 0.0, 1.0)
+            dist = _norm(rel - f[:, None] * seg)
+            tau = self.tau[start] + f * (self.tau[start + 1] - self.tau[start])
+            if best_tau is None:
+                best_tau, best_dist = tau, dist
+            else:
+                closer = dist < best_dist
+                best_tau, best_dist = np.where(closer, tau, best_tau), np.minimum(dist, best_dist)
+        return best_tau, best_dist
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _norm(a: np.ndarray) -> np.ndarray:
+    return np.sqrt(_dot(a, a))
 
 
 @dataclass
@@ -128,7 +158,6 @@ class NetworkGeometry:
 def lamella_geometry(lamella: Lamella, network: Network) -> LamellaGeometry:
     """Fit, frame and curvatures of one lamella of a millimetre network, with its nodes' arc-length positions."""
     fit = CurveFit.of(lamella.curve, lamella.normals)
-    frame = fit.frame(fit.tau)
     node_xyz = np.array([network.nodes[nid].xyz for nid in lamella.nodes]).reshape(-1, 3)
     node_tau, off = fit.project(node_xyz)
     far = np.flatnonzero(off > NODE_OFF_CURVE_MM)
@@ -141,7 +170,10 @@ def lamella_geometry(lamella: Lamella, network: Network) -> LamellaGeometry:
         k = int(np.flatnonzero(np.diff(node_s) <= 0)[0])
         raise FablineError(f"lamella {lamella.id}: nodes {lamella.nodes[k]} and {lamella.nodes[k + 1]} "
                            "are not in order along the curve")
-    tangents = fit.frame(node_tau)["t"]
+    frame = fit.frame(np.concatenate([fit.tau, node_tau]))
+    samples = len(fit.tau)
+    tangents = frame["t"][samples:]
+    frame = {key: value[:samples] for key, value in frame.items()}
     return LamellaGeometry(lamella, fit, fit.s_at_samples, frame["t"], frame["u"], frame["n"], frame["k_g"],
                            frame["k_n"], frame["tau_g"], list(lamella.nodes), node_s, tangents)
 
