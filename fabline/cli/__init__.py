@@ -13,7 +13,7 @@ import sys
 from fabline import __version__
 from fabline.errors import FablineError
 
-STAGE_COMMANDS = ("model",)
+STAGE_COMMANDS = ("model", "importing", "unroll", "export", "survey", "nest", "jobs", "link")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,128 @@
+"""Export benchmark: time to export a pavilion-sized job, and travel/time of fabline's ordering against peers.
+
+    python benchmarks/export_bench.py [--nesting nesting.json] [--machine grbl-laser] [--sheets N] [--no-peers]
+
+Without --nesting it uses the synthetic pavilion job (fabline.export.samplejob.pavilion_job: 700 strips,
+1400 washers, 350 clamps). Travel and estimated machine time are compared for the same kerf-offset
+toolpaths in three orders: the nesting's plain part order, fabline's (nearest neighbour + 2-opt with start
+points), and vpype's `linesort` (greedy, and with --two-opt), the peer from PyPI (`bench` extra).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from fabline.export import (OPERATIONS, ToolpathOptions, export_job, load_job, load_machine,  # noqa: E402
+                            sheet_toolpaths, summarise)
+from fabline.export.contours import reverse  # noqa: E402
+from fabline.export.gcode import sheet_program  # noqa: E402
+from fabline.export.samplejob import pavilion_job  # noqa: E402
+from fabline.export.toolpath import Toolpath  # noqa: E402
+
+
+def benchmark_job(nesting_path: str | None):
+    """The job to measure: a real nesting file when given, else the synthetic pavilion (re-point this for real data)."""
+    if nesting_path:
+        return load_job(nesting_path)
+    nesting, partset = pavilion_job()
+    return nesting, {p.id: p for p in partset.parts}
+
+
+def timed(function, *args, **kwargs):
+    """(result, wall seconds, CPU seconds): CPU time is what counts on a shared machine."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    result = function(*args, **kwargs)
+    return result, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def vpype_order(paths: list[Toolpath], two_opt: bool) -> list[Toolpath]:
+    """The same toolpaths ordered by vpype's linesort, operation group by operation group (cutting order kept)."""
+    import vpype as vp
+    import vpype_cli
+
+    ordered = []
+    for operation in OPERATIONS:
+        group = [p for p in paths if p.operation == operation]
+        if len(group) < 2:
+            ordered.extend(group)
+            continue
+        by_ends = defaultdict(list)
+        lines = vp.LineCollection()
+        for path in group:
+            points = path.contour[:, 0] + 1j * path.contour[:, 1]
+            by_ends[(_key(points[0]), _key(points[-1]))].append(path)
+            lines.append(points)
+        document = vp.Document(lines)
+        result = vpype_cli.execute("linesort --two-opt" if two_opt else "linesort", document)
+        for line in next(iter(result.layers.values())):
+            key = (_key(line[0]), _key(line[-1]))
+            if by_ends.get(key):
+                ordered.append(by_ends[key].pop())
+            else:
+                path = by_ends[key[::-1]].pop()
+                ordered.append(Toolpath(path.operation, path.part, reverse(path.contour), path.closed))
+    return ordered
+
+
+def _key(point: complex) -> tuple[float, float]:
+    return (round(point.real, 6), round(point.imag, 6))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--nesting", help="a fabline.nesting/1 file (default: the synthetic pavilion job)")
+    parser.add_argument("--machine", default="grbl-laser")
+    parser.add_argument("--sheets", type=int, default=0, help="compare orders on the first N sheets only (0: all)")
+    parser.add_argument("--no-peers", action="store_true", help="skip vpype")
+    args = parser.parse_args(argv)
+
+    nesting, parts = benchmark_job(args.nesting)
+    profile = load_machine(args.machine)
+    options = ToolpathOptions(kerf=profile.kerf)
+    print(f"job: {len(nesting.sheets)} sheets, {sum(len(s.placements) for s in nesting.sheets)} placements, "
+          f"{len(parts)} parts; machine {profile.name}, kerf {profile.kerf} mm")
+
+    print("\nexport time (seconds)")
+    print(f"{'what':<34}{'wall':>8}{'CPU':>8}")
+    with tempfile.TemporaryDirectory() as folder:
+        for label, dxf_dir, gcode_dir in (("toolpaths + G-code", None, Path(folder) / "g"),
+                                          ("toolpaths + G-code + DXF", Path(folder) / "d", Path(folder) / "g2")):
+            _, wall, cpu = timed(export_job, nesting, parts, profile, ToolpathOptions(kerf=profile.kerf),
+                                 dxf_dir, gcode_dir, "bench")
+            print(f"{label:<34}{wall:>8.2f}{cpu:>8.2f}")
+
+    sheets = nesting.sheets[: args.sheets] if args.sheets else nesting.sheets
+    orders = {"plain (nesting order)": lambda s: sheet_toolpaths(s, parts, ToolpathOptions(kerf=profile.kerf, optimise=False)),
+              "fabline (NN + 2-opt + starts)": lambda s: sheet_toolpaths(s, parts, options)}
+    if not args.no_peers:
+        try:
+            import vpype  # noqa: F401  (only to see whether the peer is installed)
+            orders["vpype linesort"] = lambda s: vpype_order(orders["plain (nesting order)"](s), False)
+            orders["vpype linesort --two-opt"] = lambda s: vpype_order(orders["plain (nesting order)"](s), True)
+        except ImportError:
+            print("vpype is not installed (pip install 'fabline[bench]'): peers skipped", file=sys.stderr)
+    print(f"\ntravel and estimated machine time over {len(sheets)} sheets (same toolpaths, different order)")
+    print(f"{'order':<32}{'travel m':>10}{'vs plain':>10}{'time h':>9}{'order s':>9}")
+    plain_travel = None
+    for label, make in orders.items():
+        travel = hours = seconds = 0.0
+        for sheet in sheets:
+            paths, _, cpu = timed(make, sheet)
+            seconds += cpu
+            summary = summarise(sheet_program(paths, profile)[1], profile.acceleration, profile.junction_deviation)
+            travel += summary.travel / 1000
+            hours += summary.time / 3600
+        plain_travel = plain_travel or travel
+        print(f"{label:<32}{travel:>10.1f}{(travel / plain_travel - 1) * 100:>9.1f}%{hours:>9.2f}{seconds:>9.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,66 @@
+"""Streaming throughput: character counting vs send-response over a real pseudo-terminal at 115200 baud.
+
+A GRBL simulator runs in its own process behind `pty.openpty`, pacing bytes to 11520 bytes/s each way
+like a 115200-baud serial line, with motion sped up so the controller is not the bottleneck. Prints
+lines/s and the host-to-controller link utilisation (bytes sent / line capacity) for both modes.
+Run: python benchmarks/stream_bench.py [--lines 20000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from fabline.link import SimulatorServer, Streamer, executed_file_lines, load_program  # noqa: E402
+
+BAUD = 115200
+BYTES_PER_SECOND = BAUD / 10
+
+
+def write_program(path: Path, lines: int) -> None:
+    """Laser cuts along a spiral, like the export stage writes them: one short G1 per line."""
+    body = ["G21", "G90", "G17", "G94", "M4 S800", "F6000"]
+    for step in range(lines - len(body) - 1):
+        radius = 20 + step * 0.01
+        angle = step * 0.05
+        body.append(f"G1 X{500 + radius * math.cos(angle):.3f} Y{500 + radius * math.sin(angle):.3f}")
+    body.append("M5")
+    path.write_text("\n".join(body) + "\n", encoding="ascii")
+
+
+def measure(program: Path, mode: str, workdir: Path) -> dict:
+    log = workdir / f"executed-{mode}.log"
+    with SimulatorServer(log=log, time_scale=1e4, transport="pty", baud=BAUD) as server:
+        result = Streamer(server.url, mode=mode, status_interval=0.2).run(
+            program, journal=workdir / f"{mode}.journal")
+    executed = executed_file_lines(log)
+    expected = [line.file_line for line in load_program(program).lines]
+    assert result.completed and executed == expected, f"{mode}: controller did not execute the program exactly"
+    return {"mode": mode, "lines": result.total, "seconds": result.elapsed, "rate": result.total / result.elapsed,
+            "bytes": result.bytes_sent, "utilisation": result.bytes_sent / (result.elapsed * BYTES_PER_SECOND)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--lines", type=int, default=20000)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as folder:
+        workdir = Path(folder)
+        program = workdir / "bench.gcode"
+        write_program(program, args.lines)
+        rows = [measure(program, mode, workdir) for mode in ("counting", "send-response")]
+    print(f"{'mode':<14} {'lines':>7} {'seconds':>8} {'lines/s':>8} {'bytes':>9} {'link use':>9}")
+    for row in rows:
+        print(f"{row['mode']:<14} {row['lines']:>7} {row['seconds']:>8.1f} {row['rate']:>8.0f} {row['bytes']:>9} "
+              f"{row['utilisation']:>8.1%}")
+    print(f"character counting / send-response: {rows[0]['rate'] / rows[1]['rate']:.2f}x "
+          f"(link {BAUD} baud = {BYTES_PER_SECOND:.0f} bytes/s each way)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,99 @@
+"""Survey benchmark: a synthetic 24 MP photo set of the pavilion-sized model, surveyed end to end.
+
+Prints detection time per photo (fabline and, when installed, pupil-apriltags), the whole survey time,
+tags found against tags visible, false tags, and the RMS of recovered against injected deviations.
+Run: python benchmarks/survey_bench.py [--model FILE] [--photos 32] [--size 6000x4000] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from fabline.model import Network, load_network  # noqa: E402
+from fabline.survey import (MeasureOptions, SyntheticSpec, detect_tags, list_photos, load_camera, load_tag_map,  # noqa: E402
+                            measure_survey, read_gray, rigid_fit, simulate_survey)
+
+
+def pavilion_model() -> Network:
+    """The pavilion-sized design surveyed by default (the Enneper network, about 9 x 12 m)."""
+    from fabline.model.designs import enneper_network
+
+    return enneper_network()
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", help="fabline.network/1 file (default: the built-in pavilion design)")
+    parser.add_argument("--photos", type=int, default=32)
+    parser.add_argument("--size", default="6000x4000")
+    parser.add_argument("--out", help="folder for the photo set and the survey (default: a temporary folder)")
+    args = parser.parse_args()
+    width, height = (int(v) for v in args.size.split("x"))
+    network = load_network(args.model) if args.model else pavilion_model()
+    out = Path(args.out or tempfile.mkdtemp(prefix="survey-bench-"))
+    spec = SyntheticSpec(photos=args.photos, width=width, height=height, focal_px=width * 5 / 6,
+                         every=1 if len(network.nodes) <= 587 else 2)
+    rows = []
+    start = time.perf_counter()
+    truth = simulate_survey(network, out / "set", spec)
+    rows.append(("render photo set", f"{time.perf_counter() - start:.1f} s", f"{args.photos} photos {width}x{height}"))
+
+    photos = list_photos(out / "set" / "photos")
+    sample = photos[:3]
+    start = time.perf_counter()
+    for path in sample:
+        detect_tags(read_gray(path))
+    per_photo = (time.perf_counter() - start) / len(sample)
+    rows.append(("detect, fabline", f"{per_photo:.2f} s/photo", "OpenCV quads + edge refinement"))
+    try:
+        import pupil_apriltags
+
+        detector = pupil_apriltags.Detector(families="tag36h11", quad_decimate=1.0)
+        start = time.perf_counter()
+        for path in sample:
+            detector.detect(read_gray(path))
+        rows.append(("detect, pupil-apriltags", f"{(time.perf_counter() - start) / len(sample):.2f} s/photo", "reference, quad_decimate 1"))
+    except ImportError:
+        rows.append(("detect, pupil-apriltags", "n/a", "not installed (pip install fabline[bench])"))
+
+    camera, tag_map = load_camera(out / "set" / "camera.json"), load_tag_map(out / "set" / "tagmap.json")
+    start = time.perf_counter()
+    record = measure_survey(photos, network, camera, tag_map, out / "survey", MeasureOptions(reference="supports"))
+    rows.append(("whole survey (measure)", f"{time.perf_counter() - start:.1f} s", "detect + adjust + register + pictures"))
+
+    visible = sum(len(p["visible"]) for p in truth["photos"])
+    found = sum(len(set(map(int, p["visible"])) & set(r["tags"])) for p, r in zip(truth["photos"], record["photos"]))
+    false = sum(len(set(r["tags"]) - set(p["rendered"])) for p, r in zip(truth["photos"], record["photos"]))
+    rows.append(("visible tags found", f"{found} / {visible}", f"{false} false tags"))
+    ids = list(record["nodes"])
+    recovered = np.array([record["nodes"][n]["deviation_mm"] for n in ids])
+    injected = np.array([truth["nodes"][n]["deviation_mm"] for n in ids])
+    rms = float(np.sqrt(np.mean(np.sum((recovered - injected) ** 2, axis=1))))
+    rows.append(("deviation error, RMS", f"{rms:.3f} mm", f"{len(ids)} of {len(network.nodes)} nodes, reference = supports"))
+    built = np.array([truth["nodes"][n]["built_mm"] for n in ids])
+    design = np.array([truth["nodes"][n]["design_mm"] for n in ids])
+    rotation, translation = rigid_fit(built, design)
+    sigma = np.array([np.linalg.norm(record["nodes"][n]["sigma_mm"]) for n in ids])
+    rows.append(("node sigma, median", f"{np.median(sigma):.3f} mm", f"reprojection RMS {record['summary']['reprojection_rms_px']} px"))
+    record_all = measure_survey(photos, network, camera, tag_map, out / "survey-all", MeasureOptions(pictures=False))
+    recovered_all = np.array([record_all["nodes"][n]["deviation_mm"] for n in ids])
+    rms_all = float(np.sqrt(np.mean(np.sum((recovered_all - (built @ rotation.T + translation - design)) ** 2, axis=1))))
+    rows.append(("deviation error, RMS", f"{rms_all:.3f} mm", "reference = all nodes (truth fitted the same way)"))
+    width_col = max(len(r[0]) for r in rows)
+    print(f"survey benchmark: {network.name or 'model'}, {len(network.nodes)} nodes, {len(tag_map.node_of_tag)} tags, output {out}")
+    for name, value, note in rows:
+        print(f"  {name:<{width_col}}  {value:>18}  {note}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,73 @@
+"""CLI for the export stage: `fabline export` (DXF and G-code per sheet) and `fabline gcode-check`."""
+
+from __future__ import annotations
+
+import argparse
+
+from fabline.errors import FablineError
+from fabline.export import ToolpathOptions, check_gcode, export_nesting, load_machine
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add `export` and `gcode-check`."""
+    export = subparsers.add_parser("export", help="nested sheets to DXF and G-code",
+                                   description="Write per sheet a DXF (R2010, mm, one layer per operation) and a "
+                                               "G-code program for the machine, plus an all-sheets DXF.")
+    export.add_argument("nesting", help="nesting.json (fabline.nesting/1); its parts file is read too")
+    export.add_argument("--dxf", metavar="DIR", help="folder for the DXF files")
+    export.add_argument("--gcode", metavar="DIR", help="folder for the G-code programs")
+    export.add_argument("--machine", default="grbl-laser",
+                        help="machine profile: a built-in name (grbl-laser, grbl-plotter, rs274-mill) or a .toml path")
+    export.add_argument("--kerf", type=float, help="cut width in mm (default: the profile's)")
+    export.add_argument("--lead-in", type=float, default=0.0, metavar="MM", help="lead-in length for closed cuts")
+    export.add_argument("--tabs", type=int, default=0, help="uncut bridges per outer contour (micro-joints)")
+    export.add_argument("--tab-width", type=float, default=1.0, metavar="MM", help="width of each tab")
+    export.add_argument("--no-optimise", action="store_true", help="keep the nesting's part order (no travel optimisation)")
+    export.set_defaults(func=run_export)
+
+    check = subparsers.add_parser("gcode-check", help="read a G-code program back and check it against a machine",
+                                  description="Report unsupported words, long lines, out-of-bed moves and travel with "
+                                              "the tool on; recompute cut length, travel and run time.")
+    check.add_argument("file", help="G-code program")
+    check.add_argument("--machine", default="grbl-laser", help="machine profile name or .toml path")
+    check.set_defaults(func=run_check)
+
+
+def run_export(args: argparse.Namespace) -> int:
+    """Export and print a per-sheet summary table."""
+    profile = load_machine(args.machine)
+    kerf = profile.kerf if args.kerf is None else args.kerf
+    for name, value, low in (("--kerf", kerf, 0.0), ("--lead-in", args.lead_in, 0.0), ("--tabs", args.tabs, 0),
+                             ("--tab-width", args.tab_width, 1e-9)):
+        if value < low:
+            raise FablineError(f"{name}: must be at least {low:g}, got {value}")
+    options = ToolpathOptions(kerf=kerf, lead_in=args.lead_in, tabs=args.tabs, tab_width=args.tab_width,
+                              optimise=not args.no_optimise)
+    result = export_nesting(args.nesting, profile, options, args.dxf, args.gcode)
+    print(f"machine {result.machine}, kerf {result.kerf:.3f} mm")
+    print(f"{'sheet':<12}{'parts':>6}{'cut m':>10}{'mark m':>10}{'travel m':>10}{'time':>10}")
+    for sheet in result.sheets + [None]:
+        summary = sheet.summary if sheet else result.totals()
+        label, count = (sheet.sheet, sheet.parts) if sheet else ("total", sum(s.parts for s in result.sheets))
+        print(f"{label:<12}{count:>6}{summary.cut_length / 1000:>10.2f}{summary.mark_length / 1000:>10.2f}"
+              f"{summary.travel / 1000:>10.2f}{_duration(summary.time):>10}")
+    for path in result.files:
+        print(f"wrote {path}")
+    return 0
+
+
+def run_check(args: argparse.Namespace) -> int:
+    """Check one program; exit 1 when problems were found."""
+    report = check_gcode(args.file, load_machine(args.machine))
+    for problem in report.problems:
+        print(f"{args.file}: {problem}")
+    s = report.summary
+    print(f"{args.file}: {report.lines} lines, {s.moves} moves, cut {s.cut_length:.3f} mm, mark {s.mark_length:.3f} mm, "
+          f"travel {s.travel:.3f} mm, estimated {_duration(s.time)} ({s.time:.1f} s)")
+    print(f"{args.file}: {len(report.problems)} problem(s)" if report.problems else f"{args.file}: ok")
+    return 1 if report.problems else 0
+
+
+def _duration(seconds: float) -> str:
+    minutes, secs = divmod(round(seconds), 60)
+    return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}"

@@ -1,0 +1,36 @@
+"""CLI for importing a network model: `fabline import FILE [--surface MESH] -o out.network.json`."""
+
+from __future__ import annotations
+
+import argparse
+
+from fabline.model import save_network
+from fabline.model.importers import FORMATS, import_model
+from fabline.model.network import UNIT_TO_MM
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add `import`."""
+    parser = subparsers.add_parser(
+        "import", help="read a network model from CAD curves or fabline JSON, validate it and write it",
+        description=f"Read lamella curves ({', '.join(FORMATS)}), find the nodes where the two families "
+                    "cross, take normals from the reference surface, and write a fabline.network/1 model.")
+    parser.add_argument("file", help="curves (.obj, .dxf, .3dm) or a fabline.network/1 JSON file")
+    parser.add_argument("--surface", help="reference surface mesh for the normals (.obj, .stl, .ply, .dxf, .3dm, ...); "
+                                          "default: faces, meshes or surfaces in FILE")
+    parser.add_argument("--units", choices=tuple(UNIT_TO_MM),
+                        help="units of a file that declares none (OBJ); default m, with a note")
+    parser.add_argument("--tolerance", type=float, default=1.0,
+                        help="two lamellas closer than this (mm) cross at a node (default 1)")
+    parser.add_argument("-o", "--output", required=True, help="network JSON to write")
+    parser.set_defaults(func=run_import)
+
+
+def run_import(args: argparse.Namespace) -> int:
+    """Import, print the summary (counts, near-misses, notes), write the model."""
+    network, report = import_model(args.file, args.surface, args.units, args.tolerance)
+    save_network(network, args.output)
+    for line in report.summary():
+        print(line)
+    print(f"wrote {args.output}")
+    return 0

@@ -1,0 +1,159 @@
+"""CLI for the jobs stage: `fabline run JOB.toml` (the whole pipeline) and `fabline runner ...` (the shop-floor runner)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import secrets
+import sys
+from pathlib import Path
+
+from fabline.errors import FablineError
+
+RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add `run` and `runner` (serve, submit, status, pause, resume, cancel, confirm)."""
+    run = subparsers.add_parser("run", help="run a job file end to end: model, unroll, nest, export, stream, report")
+    run.add_argument("job", help="a job file (jobs/*.toml)")
+    run.add_argument("-y", "--yes", action="store_true",
+                     help="do not ask before each sheet on a real machine (the sheets are already loaded)")
+    run.add_argument("-q", "--quiet", action="store_true", help="print only where the report is")
+    run.set_defaults(func=run_job_command)
+
+    runner = subparsers.add_parser("runner", help="the shop-floor runner: a persistent job queue with a web page")
+    commands = runner.add_subparsers(dest="runner_command", metavar="ACTION", required=True)
+    serve = commands.add_parser("serve", help="run the queue, the machines and the web page until interrupted")
+    serve.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1, this computer only)")
+    serve.add_argument("--port", type=int, default=8080, help="web page port (default 8080)")
+    serve.add_argument("--machine", action="append", default=[], metavar="NAME=PORT",
+                       help="a machine and its port, repeatable (default: sim1=sim://sim1)")
+    serve.add_argument("--token", help="the token for state-changing requests (default: a new random one, printed)")
+    serve.add_argument("--auto-confirm", action="store_true",
+                       help="start every sheet without an operator's confirmation (sheets fed automatically)")
+    serve.add_argument("--scan", type=float, default=2.0, help="seconds between scans of the jobs folder")
+    serve.set_defaults(func=run_serve)
+    submit = commands.add_parser("submit", help="queue a job file, or ready G-code programs (one per sheet)")
+    submit.add_argument("job", nargs="?", help="a job file")
+    submit.add_argument("--gcode", nargs="+", metavar="PROGRAM", help="sheet programs to cut in this order, "
+                        "instead of a job file (each gets a journal beside it)")
+    submit.add_argument("--name", help="the job's name with --gcode (default: the first program's name)")
+    submit.set_defaults(func=run_submit)
+    status = commands.add_parser("status", help="the queue and the machines")
+    status.add_argument("--json", action="store_true", help="print the state as JSON")
+    status.set_defaults(func=run_status)
+    for action in RUNNER_ACTIONS:
+        sub = commands.add_parser(action, help=f"{action} a job" if action != "confirm" else
+                                  "confirm the job's next sheet is loaded")
+        sub.add_argument("job_id", type=int, metavar="JOB", help="job number (see `fabline runner status`)")
+        sub.set_defaults(func=run_action, action=action)
+    for sub in (serve, submit, status, *(commands.choices[a] for a in RUNNER_ACTIONS)):
+        sub.add_argument("--jobs", default="jobs", help="the jobs folder (default ./jobs)")
+        sub.add_argument("--db", help="the queue database (default JOBS/runner.sqlite)")
+
+
+def _db(args: argparse.Namespace) -> Path:
+    return Path(args.db) if args.db else Path(args.jobs) / "runner.sqlite"
+
+
+def run_job_command(args: argparse.Namespace) -> int:
+    """Run every stage of the job and print where the report is."""
+    from fabline.jobs.pipeline import run_job
+
+    def say(text: str) -> None:
+        if not args.quiet:
+            print(text, flush=True)
+
+    def confirm(k: int, count: int, sheet: str) -> None:
+        input(f"load sheet {k + 1} of {count} ({sheet}) on the machine, then press Enter ")
+
+    from fabline.jobs.jobfile import load_job_file
+
+    spec = load_job_file(args.job)
+    interactive = not spec.machine["port"].startswith("sim://") and not args.yes and sys.stdin.isatty()
+    result = run_job(spec, say, confirm if interactive else None)
+    total = sum(result.timings.values())
+    if result.report_path:
+        print(f"report: {result.report_path} (JSON: {result.report_path.with_suffix('.json')}); {total:.1f} s")
+    else:
+        print(f"done in {total:.1f} s; outputs in {spec.output_folder} (no report stage)")
+    return 0
+
+
+def run_serve(args: argparse.Namespace) -> int:
+    """Start the runner's threads and the web page; stop cleanly on Ctrl-C (the queue keeps its state)."""
+    import uvicorn
+
+    from fabline.jobs.runner import MachineConfig, Runner, parse_machine
+    from fabline.jobs.web import create_app
+
+    jobs = Path(args.jobs)
+    if not jobs.is_dir():
+        raise FablineError(f"--jobs {args.jobs}: not a folder")
+    machines = [parse_machine(m) for m in args.machine] or [MachineConfig("sim1", "sim://sim1")]
+    token = args.token or secrets.token_urlsafe(18)
+    runner = Runner(_db(args), machines, auto_confirm=args.auto_confirm)
+    runner.watch_folder(jobs, args.scan)
+    runner.start()
+    print(f"fabline runner: {len(machines)} machine(s): {', '.join(f'{m.name}={m.port}' for m in machines)}; "
+          f"queue {_db(args)}", flush=True)
+    print(f"token: {token}", flush=True)
+    print(f"open http://{args.host}:{args.port}/?token={token}", flush=True)
+    try:
+        uvicorn.Server(uvicorn.Config(create_app(_db(args), token), host=args.host, port=args.port,
+                                      log_level="warning")).run()
+    finally:
+        runner.stop()
+    return 0
+
+
+def run_submit(args: argparse.Namespace) -> int:
+    """Queue a job file (checked first) or ready sheet programs (checked by the link stage's parser)."""
+    from fabline.jobs.jobfile import load_job_file
+    from fabline.jobs.queue import JobQueue
+
+    if (args.job is None) == (args.gcode is None):
+        raise FablineError("runner submit: give a job file or --gcode PROGRAM..., not both")
+    queue = JobQueue(_db(args))
+    if args.gcode:
+        programs = [(Path(p).stem, str(Path(p).resolve()), "") for p in args.gcode]
+        name = args.name or programs[0][0]
+        job_id = queue.submit(name, programs=programs)
+        print(f"job {job_id}: {name} ready, {len(programs)} sheet(s)")
+        return 0
+    spec = load_job_file(args.job)
+    job_id = queue.submit(spec.name, job_file=str(spec.path))
+    print(f"job {job_id}: {spec.name} queued")
+    return 0
+
+
+def run_status(args: argparse.Namespace) -> int:
+    """Print the queue and the machines."""
+    from fabline.jobs.queue import JobQueue
+
+    if not _db(args).is_file():
+        raise FablineError(f"{_db(args)}: no runner queue here (start one with `fabline runner serve`)")
+    state = JobQueue(_db(args)).snapshot()
+    if args.json:
+        print(json.dumps(state, indent=1))
+        return 0
+    for machine in state["machines"]:
+        x, y, z = machine["position"]
+        job = f", job {machine['job_id']}" if machine["job_id"] is not None else ""
+        print(f"machine {machine['name']} ({machine['port']}): {machine['state']}{job}, at X{x} Y{y} Z{z}")
+    for job in state["jobs"]:
+        print(f"job {job['id']:>4} {job['name']:<20} {job['status']}" + (f" on {job['machine']}" if job["machine"] else ""))
+    return 0
+
+
+def run_action(args: argparse.Namespace) -> int:
+    """Pause, resume, cancel a job or confirm its next sheet."""
+    from fabline.jobs.queue import JobQueue
+
+    if not _db(args).is_file():
+        raise FablineError(f"{_db(args)}: no runner queue here")
+    queue = JobQueue(_db(args))
+    job = queue.confirm_sheet(args.job_id) if args.action == "confirm" else queue.request(args.job_id, args.action)
+    print(f"job {job.id}: {job.describe()}" + (f" ({args.action} requested)" if job.request else ""))
+    return 0

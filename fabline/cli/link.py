@@ -1,0 +1,155 @@
+"""CLI for the hardware link: `fabline stream` (G-code to a GRBL controller) and `fabline grbl-sim` (a simulator)."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import select
+import signal
+import sys
+import termios
+import threading
+import tty
+import urllib.parse
+
+from tqdm import tqdm
+
+from fabline.errors import FablineError
+from fabline.link import Progress, Streamer, default_journal_path
+from fabline.link.streamer import MODES
+
+KEYS_HELP = "keys: p = pause/resume (feed hold), q = abort safely"
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add `stream` and `grbl-sim`."""
+    stream = subparsers.add_parser("stream", help="stream a G-code file to a GRBL 1.1 controller (journaled, resumable)")
+    stream.add_argument("gcode", help="G-code file")
+    stream.add_argument("--port", required=True,
+                        help="serial device or pyserial URL: /dev/ttyUSB0, socket://HOST:PORT, rfc2217://..., sim://grbl")
+    stream.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    stream.add_argument("--check", action="store_true", help="run the program through GRBL check mode ($C) first")
+    stream.add_argument("--resume", action="store_true", help="continue an interrupted job from its journal")
+    stream.add_argument("--unlock", action="store_true", help="clear an alarm ($X) left by an interrupted job")
+    stream.add_argument("--from-line", type=int, metavar="N", help="with --resume: restart at file line N")
+    stream.add_argument("--journal", help="journal file (default: <gcode>.journal)")
+    stream.add_argument("--log", help="exchange log (default: <gcode>.link.log)")
+    stream.add_argument("--mode", choices=MODES, default="counting",
+                        help="character counting (default) or simple send-response")
+    stream.add_argument("--status-rate", type=float, default=5.0, help="status reports per second (default 5)")
+    stream.add_argument("--connect-timeout", type=float, default=5.0, help="seconds to wait for GRBL (default 5)")
+    stream.add_argument("--reconnect-timeout", type=float, default=30.0,
+                        help="seconds to wait for a dropped port to come back (default 30; 0 = stop at once)")
+    stream.set_defaults(func=_stream)
+
+    sim = subparsers.add_parser("grbl-sim", help="run a GRBL 1.1h simulator on 127.0.0.1 TCP or a pseudo-terminal")
+    sim.add_argument("--transport", choices=("tcp", "pty"), default="tcp")
+    sim.add_argument("--listen-port", type=int, default=0, help="TCP port on 127.0.0.1 (default: any free port)")
+    sim.add_argument("--log", help="executed-line log (append-only)")
+    sim.add_argument("--time-scale", type=float, default=1.0, help="run motion this many times faster")
+    sim.add_argument("--baud", type=int, help="pace bytes like a serial line at this rate")
+    sim.add_argument("--fault", action="append", default=[], metavar="KEY=VALUE",
+                     help="inject a fault: drop_at=BYTES, corrupt_at=BYTES, error_line=N, alarm_line=N, stall_at=BYTES ...")
+    sim.set_defaults(func=_grbl_sim)
+
+
+def _stream(args: argparse.Namespace) -> int:
+    if args.status_rate <= 0:
+        raise FablineError(f"--status-rate must be positive, got {args.status_rate}")
+    streamer = Streamer(args.port, baud=args.baud, mode=args.mode, status_interval=1.0 / args.status_rate,
+                        connect_timeout=args.connect_timeout, reconnect_timeout=args.reconnect_timeout,
+                        exchange_log=args.log or f"{args.gcode}.link.log")
+    journal = args.journal or default_journal_path(args.gcode)
+    interactive = sys.stdin.isatty() and sys.stderr.isatty()
+    bar = tqdm(total=None, unit="line", disable=not sys.stderr.isatty(), dynamic_ncols=True,
+               bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}<{remaining}] {postfix}")
+    if interactive:
+        print(KEYS_HELP, file=sys.stderr)
+
+    def show(progress: Progress) -> None:
+        bar.total = progress.total
+        bar.n = progress.acked
+        position = ",".join(f"{v:.2f}" for v in progress.position) if progress.position else "?"
+        state = "Paused" if streamer.paused and progress.state != "Hold" else progress.state
+        bar.set_postfix_str(f"{state} @ {position} line {progress.file_line or '-'}", refresh=False)
+        bar.refresh()
+
+    with _keyboard(streamer, interactive), _abort_on_interrupt(streamer):
+        try:
+            result = streamer.run(args.gcode, on_progress=show, journal=journal, resume=args.resume, check=args.check,
+                                  unlock=args.unlock, start_line=args.from_line)
+        finally:
+            bar.close()
+    if not result.completed:
+        print(f"stopped ({result.reason}) with {result.executed} of {result.total} lines executed; "
+              f"continue with: fabline stream {args.gcode} --port {args.port} --resume", file=sys.stderr)
+        return 1
+    rate = result.total / result.elapsed if result.elapsed > 0 else float("inf")
+    print(f"{args.gcode}: {result.total} lines streamed to {args.port} in {result.elapsed:.1f} s ({rate:.0f} lines/s)")
+    return 0
+
+
+@contextlib.contextmanager
+def _keyboard(streamer: Streamer, interactive: bool):
+    """On a terminal, read single keys in a thread: p toggles pause, q aborts. Does nothing otherwise."""
+    if not interactive:
+        yield
+        return
+    descriptor = sys.stdin.fileno()
+    saved = termios.tcgetattr(descriptor)
+    stop = threading.Event()
+
+    def listen() -> None:
+        while not stop.is_set():
+            ready, _, _ = select.select([descriptor], [], [], 0.1)
+            if not ready:
+                continue
+            key = os.read(descriptor, 1).decode("ascii", errors="ignore").lower()
+            if key in ("p", " "):
+                streamer.resume() if streamer.paused else streamer.pause()
+            elif key in ("q", "a"):
+                streamer.abort()
+
+    tty.setcbreak(descriptor)
+    thread = threading.Thread(target=listen, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+        termios.tcsetattr(descriptor, termios.TCSADRAIN, saved)
+
+
+@contextlib.contextmanager
+def _abort_on_interrupt(streamer: Streamer):
+    """Ctrl-C stops the machine safely (feed hold, reset) instead of abandoning it mid-move."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, lambda *_: streamer.abort())
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _grbl_sim(args: argparse.Namespace) -> int:
+    from fabline.link.server import serve
+
+    options = {"time_scale": args.time_scale}
+    if args.log:
+        options["log"] = args.log
+    for fault in args.fault:
+        key, equals, value = fault.partition("=")
+        if not equals:
+            raise FablineError(f"--fault {fault!r}: expected KEY=VALUE")
+        options[key] = value
+    try:
+        serve(args.transport, urllib.parse.urlencode(options), args.baud, args.listen_port)
+    except ValueError as exc:
+        raise FablineError(f"grbl-sim: {exc}") from None
+    except OSError as exc:
+        raise FablineError(f"grbl-sim: cannot listen: {exc.strerror}") from None
+    return 0

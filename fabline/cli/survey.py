@@ -1,0 +1,178 @@
+"""CLI for the as-built survey: `fabline survey tags | detect | calibrate | simulate | measure`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from fabline.errors import FablineError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the `survey` command group."""
+    survey = subparsers.add_parser("survey", help="as-built survey with AprilTags: tags, calibration, measurement")
+    commands = survey.add_subparsers(dest="survey_command", metavar="SUBCOMMAND", required=True)
+
+    tags = commands.add_parser("tags", help="printable tag sheets (SVG, PDF) and the tag map for a model")
+    tags.add_argument("--model", required=True, help="fabline.network/1 model file")
+    tags.add_argument("-o", "--output", required=True, help="folder for the sheets and tagmap.json")
+    tags.add_argument("--tag-size", type=float, default=65.0, help="edge of the tag's black square, mm (default 65)")
+    tags.add_argument("--mount-offset", type=float, default=20.0,
+                      help="tag face above the node along its normal, mm (default 20)")
+    tags.add_argument("--every", type=int, default=1, help="tag every N-th node (supports always); default 1")
+    tags.set_defaults(func=_tags)
+
+    detect = commands.add_parser("detect", help="detect AprilTag 36h11 tags in photos (corners, optional poses)")
+    detect.add_argument("photos", nargs="+", help="image files")
+    detect.add_argument("--camera", help="camera.json, to estimate each tag's pose")
+    detect.add_argument("--tag-size", type=float, help="tag black-square edge in metres, for poses (e.g. 0.065)")
+    detect.add_argument("--json", action="store_true", help="print JSON (the default prints a table)")
+    detect.set_defaults(func=_detect)
+
+    calibrate = commands.add_parser("calibrate", help="camera intrinsics from ChArUco photos")
+    calibrate.add_argument("photos", nargs="?", help="folder of ChArUco board photos")
+    calibrate.add_argument("-o", "--output", help="camera.json to write")
+    calibrate.add_argument("--board", default="7x5", help="squares across x down (default 7x5)")
+    calibrate.add_argument("--square", type=float, default=40.0, help="square edge, mm (default 40)")
+    calibrate.add_argument("--marker", type=float, default=30.0, help="marker edge, mm (default 30)")
+    calibrate.add_argument("--write-board", metavar="PNG", help="write the board image to print, then stop")
+    calibrate.set_defaults(func=_calibrate)
+
+    simulate = commands.add_parser("simulate", help="render a synthetic photo set of the built structure with known truth")
+    simulate.add_argument("--model", required=True, help="fabline.network/1 model file")
+    simulate.add_argument("-o", "--output", required=True, help="folder for photos/, camera.json, tagmap.json, truth.json")
+    simulate.add_argument("--photos", type=int, default=32)
+    simulate.add_argument("--size", default="6000x4000", help="image size WxH in px (default 6000x4000, 24 MP)")
+    simulate.add_argument("--focal", type=float, help="focal length in px (default 5/6 of the width)")
+    simulate.add_argument("--sag", type=float, default=25.0, help="sag of the built shell, mm, zero at supports")
+    simulate.add_argument("--noise", type=float, default=2.0, help="sensor noise sigma, grey levels")
+    simulate.add_argument("--blur", type=float, default=0.7, help="blur sigma, px")
+    simulate.add_argument("--tag-size", type=float, default=65.0, help="tag black-square edge, mm")
+    simulate.add_argument("--every", type=int, default=1, help="tag every N-th node (supports always)")
+    simulate.add_argument("--seed", type=int, default=1)
+    simulate.set_defaults(func=_simulate)
+
+    measure = commands.add_parser("measure", help="measure every tagged node against the design")
+    measure.add_argument("photos", help="folder of survey photos")
+    measure.add_argument("--model", required=True, help="fabline.network/1 model file")
+    measure.add_argument("--camera", required=True, help="camera.json")
+    measure.add_argument("--tags", help="tagmap.json (default: ids in model node order, 65 mm tags, 20 mm offset)")
+    measure.add_argument("-o", "--output", required=True, help="folder for survey.json and the pictures")
+    measure.add_argument("--tolerance", type=float, default=20.0, help="pass/fail distance, mm (default 20)")
+    measure.add_argument("--reference", default="all",
+                         help="nodes the registration fits: all (default), supports, or comma-separated node ids")
+    measure.add_argument("--min-views", type=int, default=2, help="photos a tag must be seen in (default 2)")
+    measure.set_defaults(func=_measure)
+
+
+def _tags(args: argparse.Namespace) -> int:
+    from fabline.model import load_network
+    from fabline.survey import make_tag_map, write_tag_sheets
+
+    network = load_network(args.model)
+    written = write_tag_sheets(make_tag_map(network, args.tag_size, args.mount_offset, args.every), args.output)
+    print(f"{len(written) - 2} sheet(s), tags.pdf and tagmap.json written to {args.output}")
+    return 0
+
+
+def _detect(args: argparse.Namespace) -> int:
+    from fabline.survey import detect_tags, load_camera, read_gray, tag_pose
+
+    if (args.camera is None) != (args.tag_size is None):
+        raise FablineError("poses need both --camera and --tag-size")
+    if args.tag_size is not None and args.tag_size <= 0:
+        raise FablineError(f"--tag-size must be positive, got {args.tag_size}")
+    camera = load_camera(args.camera) if args.camera else None
+    report, failures = [], 0
+    for path in args.photos:
+        entry: dict = {"file": path}
+        try:
+            gray = read_gray(path)
+            if camera is not None:
+                camera.check_image(gray.shape, path)
+        except FablineError as exc:
+            entry["error"] = str(exc)
+            failures += 1
+            report.append(entry)
+            continue
+        entry["tags"] = []
+        for det in detect_tags(gray):
+            tag = {"id": det.tag_id, "corners_px": [[round(x, 3), round(y, 3)] for x, y in det.corners]}
+            if camera is not None:
+                rvec, tvec, error = tag_pose(det.corners, camera, args.tag_size)
+                tag.update(rotation=[round(v, 6) for v in rvec], translation_m=[round(v, 6) for v in tvec],
+                           reprojection_px=round(error, 4))
+            entry["tags"].append(tag)
+        report.append(entry)
+    if args.json:
+        print(json.dumps(report, indent=1))
+    else:
+        for entry in report:
+            if "error" in entry:
+                print(f"{entry['file']}: error: {entry['error']}")
+                continue
+            print(f"{entry['file']}: {len(entry['tags'])} tag(s) {', '.join(str(t['id']) for t in entry['tags'])}")
+    if failures == len(report):
+        raise FablineError(report[0]["error"] if len(report) == 1 else "no photo could be read")
+    return 0
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    from fabline.survey import BoardSpec, calibrate, list_photos, save_camera, write_board
+
+    try:
+        columns, rows = (int(v) for v in args.board.lower().split("x"))
+    except ValueError:
+        raise FablineError(f"--board {args.board!r}: expected squares as NxM, e.g. 7x5") from None
+    spec = BoardSpec(columns, rows, args.square, args.marker)
+    if args.write_board:
+        write_board(spec, args.write_board)
+        print(f"board written to {args.write_board}: print at {columns * args.square:g} x {rows * args.square:g} mm")
+        return 0
+    if not args.photos or not args.output:
+        raise FablineError("calibrate needs a folder of board photos and -o camera.json (or --write-board)")
+    camera, skipped = calibrate(list_photos(args.photos), spec)
+    for reason in skipped:
+        print(f"skipped {reason}")
+    save_camera(camera, args.output)
+    print(f"camera {camera.width} x {camera.height} px, fx {camera.matrix[0, 0]:.1f} fy {camera.matrix[1, 1]:.1f}, "
+          f"reprojection error {camera.reprojection_error_px:.3f} px -> {args.output}")
+    return 0
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from fabline.model import load_network
+    from fabline.survey import SyntheticSpec, simulate_survey
+
+    try:
+        width, height = (int(v) for v in args.size.lower().split("x"))
+    except ValueError:
+        raise FablineError(f"--size {args.size!r}: expected WxH in pixels, e.g. 6000x4000") from None
+    if width < 64 or height < 64 or args.photos < 2:
+        raise FablineError("--size must be at least 64x64 and --photos at least 2")
+    spec = SyntheticSpec(photos=args.photos, width=width, height=height, focal_px=args.focal or width * 5 / 6,
+                         sag_mm=args.sag, noise_sigma=args.noise, blur_sigma=args.blur, tag_size_mm=args.tag_size,
+                         every=args.every, seed=args.seed)
+    truth = simulate_survey(load_network(args.model), args.output, spec)
+    visible = sum(len(p["visible"]) for p in truth["photos"])
+    print(f"{len(truth['photos'])} photos, {visible} tag views written to {args.output}")
+    return 0
+
+
+def _measure(args: argparse.Namespace) -> int:
+    from fabline.model import load_network
+    from fabline.survey import MeasureOptions, list_photos, load_camera, load_tag_map, make_tag_map, measure_survey
+
+    network = load_network(args.model)
+    tag_map = load_tag_map(args.tags) if args.tags else make_tag_map(network)
+    reference = args.reference if args.reference in ("all", "supports") else [n.strip() for n in args.reference.split(",") if n.strip()]
+    options = MeasureOptions(tolerance_mm=args.tolerance, reference=reference, min_views=args.min_views)
+    record = measure_survey(list_photos(args.photos), network, load_camera(args.camera), tag_map, args.output, options)
+    for problem in record["problems"]:
+        print(f"warning: {problem['problem']}")
+    s = record["summary"]
+    print(f"{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
+          f"RMS deviation {s['rms_deviation_mm']} mm, max {s['max_deviation_mm']} mm, {s['failed']} over "
+          f"{record['tolerance_mm']:g} mm, {s['not_seen']} not measured -> {Path(args.output) / 'survey.json'}")
+    return 0

@@ -1,0 +1,130 @@
+"""CLI for the unroll stage: `fabline unroll` (network to flat parts) and `fabline limits` (a profile's limits)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from fabline.errors import FablineError
+from fabline.model import load_network
+from fabline.unroll import SINGULARITY_MODES, UnrollOptions, get_material, limits, parse_profile, save_parts, unroll_network
+from fabline.unroll.preview import write_previews
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add `unroll` and `limits`."""
+    unroll = subparsers.add_parser(
+        "unroll", help="unroll every lamella to flat strips with slots, marks, labels and seams",
+        description="Write parts.json (fabline.parts/1): one flat part per lamella segment, washers, clamps and "
+                    "singularity joints, and a structural report. Warnings go to stderr.")
+    unroll.add_argument("model", help="a fabline.network/1 JSON file")
+    unroll.add_argument("-o", "--output", required=True, help="parts JSON to write")
+    _material_arguments(unroll)
+    unroll.add_argument("--pair-spacing", type=float, default=25.0, metavar="MM",
+                        help="distance of a pair's two strips (default 25); 0 makes single lamellas")
+    unroll.add_argument("--slot-clearance", type=float, default=1.0, metavar="MM", help="slot depth beyond h/2 (default 1)")
+    unroll.add_argument("--slot-width", type=float, metavar="MM", help="slot width (default twice the thickness)")
+    unroll.add_argument("--overlap", type=float, default=150.0, metavar="MM", help="seam overlap length (default 150)")
+    unroll.add_argument("--screw-hole", type=float, default=5.5, metavar="MM", help="seam screw hole diameter (default 5.5)")
+    unroll.add_argument("--sheet-length", type=float, default=4000.0, metavar="MM", help="sheet length (default 4000)")
+    unroll.add_argument("--sheet-margin", type=float, default=10.0, metavar="MM", help="sheet margin (default 10)")
+    unroll.add_argument("--end-length", type=float, metavar="MM", help="strip beyond its last slot (default h/2)")
+    unroll.add_argument("--compensate-twist", action="store_true",
+                        help="lengthen node distances by the twisted centre fibre's helix contraction")
+    unroll.add_argument("--singularity", choices=SINGULARITY_MODES, default="joint",
+                        help="valence-6 nodes: a separate hexagonal joint (default) or slots for three pairs")
+    unroll.add_argument("--no-hardware", action="store_true", help="leave out washers, clamps and joints")
+    unroll.add_argument("--text-height", type=float, default=6.0, metavar="MM", help="engraved text height (default 6)")
+    unroll.add_argument("--min-crossing-angle", type=float, default=30.0, metavar="DEG",
+                        help="smallest crossing angle the slotted joint reaches (default 30)")
+    unroll.add_argument("--strict", action="store_true", help="treat over-stress warnings as errors")
+    unroll.add_argument("--svg", metavar="DIR", help="also write one SVG preview per strip into DIR")
+    unroll.add_argument("--json", action="store_true", help="print the report as JSON instead of a table")
+    unroll.set_defaults(func=run_unroll)
+
+    check = subparsers.add_parser("limits", help="minimum bending radius, maximum twist and stresses of a profile",
+                                  description="A designer's quick check of a strip profile before any model exists "
+                                              "(domain.md section 6).")
+    _material_arguments(check)
+    check.add_argument("--radius", type=float, metavar="MM", help="also the bending stress at this radius")
+    check.add_argument("--twist", type=float, metavar="RAD_PER_M", help="also the stresses at this twist")
+    check.add_argument("--json", action="store_true", help="print JSON")
+    check.set_defaults(func=run_limits)
+
+
+def _material_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--profile", default="100x1.5", help="strip height x thickness in mm (default 100x1.5)")
+    parser.add_argument("--material", default="steel-s235", help="material name (built-in: steel-s235, stainless)")
+    parser.add_argument("--materials", metavar="FILE", help="TOML file with more materials (E, G, f_y, density)")
+
+
+def run_unroll(args: argparse.Namespace) -> int:
+    """Unroll, write the parts (and previews), print the lamella table; warnings to stderr."""
+    network = load_network(args.model)
+    options = UnrollOptions(
+        profile=parse_profile(args.profile), material=get_material(args.material, args.materials),
+        pair_spacing=args.pair_spacing, slot_clearance=args.slot_clearance, slot_width=args.slot_width,
+        overlap=args.overlap, screw_hole=args.screw_hole, sheet_length=args.sheet_length,
+        sheet_margin=args.sheet_margin, end_length=args.end_length, compensate_twist=args.compensate_twist,
+        singularity=args.singularity, hardware=not args.no_hardware, text_height=args.text_height,
+        min_crossing_angle=args.min_crossing_angle, strict=args.strict)
+    try:
+        partset = unroll_network(network, options)
+    except FablineError as exc:
+        raise FablineError(f"{args.model}: {exc}") from None
+    partset.source = args.model
+    save_parts(partset, args.output)
+    if args.svg:
+        write_previews(partset, args.svg)
+    report = partset.report
+    for line in report["warnings"]:
+        print(f"fabline unroll: warning: {line}", file=sys.stderr)
+    if args.json:
+        print(json.dumps({"output": args.output, **report}, indent=1))
+        return 0
+    _print_table(report["lamellas"])
+    s = report["summary"]
+    kinds = ", ".join(f"{count} {kind}" for kind, count in s["parts_by_kind"].items())
+    print(f"\n{args.output}: {s['parts']} parts ({kinds}) from {s['lamellas']} lamellas, {s['strips']} strips, "
+          f"{s['strip_length_m']:.2f} m of strip; max utilisation {100 * s['max_utilisation']:.0f} % "
+          f"({s['governing_check']}, lamella {s['governing_lamella']}); {s['warnings']} warnings")
+    return 0
+
+
+def _print_table(rows: list[dict]) -> None:
+    print(f"{'lamella':<10}{'length m':>10}{'min r m':>9}{'twist /m':>10}{'sigma_b':>9}{'tau':>8}{'sigma_H':>9}"
+          f"{'util %':>8}{'helix top/bot mm':>18}")
+    for r in rows:
+        radius = f"{r['min_radius_mm'] / 1000:.2f}" if r["min_radius_mm"] else "inf"
+        print(f"{r['lamella']:<10}{r['length_mm'] / 1000:>10.3f}{radius:>9}{r['max_twist_rad_per_m']:>10.3f}"
+              f"{r['max_bending_stress']:>9.1f}{r['max_shear_stress']:>8.1f}{r['max_helix_stress']:>9.1f}"
+              f"{100 * r['utilisation']:>8.0f}{r['helix_top_edge_extension_mm']:>9.2f}/{r['helix_bottom_edge_extension_mm']:.2f}")
+
+
+def run_limits(args: argparse.Namespace) -> int:
+    """Print the profile's minimum radius and maximum twist, and stresses at a given radius or twist."""
+    for name, value in (("--radius", args.radius), ("--twist", args.twist)):
+        if value is not None and not value > 0:
+            raise FablineError(f"{name}: must be positive, got {value:g}")
+    result = limits(get_material(args.material, args.materials), parse_profile(args.profile), args.radius, args.twist)
+    if args.json:
+        print(json.dumps(result, indent=1))
+        return 0
+    print(f"profile {result['profile']} mm, {result['material']}: E {result['E']:g}, G {result['G']:g}, "
+          f"f_y {result['f_y']:g}, tau_y {result['tau_y']:.1f} N/mm2")
+    print(f"minimum bending radius (weak axis)  {result['min_bending_radius_mm']:.1f} mm")
+    print(f"maximum twist                       {result['max_twist_rad_per_m']:.3f} rad/m "
+          f"({result['max_twist_deg_per_m']:.1f} deg/m)")
+    if "at_radius" in result:
+        r = result["at_radius"]
+        print(f"at radius {r['radius_mm']:g} mm: bending stress {r['bending_stress']:.1f} N/mm2, "
+              f"utilisation {100 * r['utilisation']:.0f} %")
+    if "at_twist" in result:
+        t = result["at_twist"]
+        print(f"at twist {t['twist_rad_per_m']:g} rad/m: shear {t['shear_stress']:.1f} N/mm2 "
+              f"({100 * t['shear_utilisation']:.0f} %), helix stress {t['helix_stress_min']:.2f} / "
+              f"{t['helix_stress_max']:.2f} N/mm2 ({100 * t['helix_utilisation']:.0f} %), strain "
+              f"{t['helix_strain_min']:.6f} / {t['helix_strain_max']:.6f}, centre contracts "
+              f"{t['centre_contraction_mm_per_m']:.3f} mm/m")
+    return 0

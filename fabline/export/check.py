@@ -1,0 +1,182 @@
+"""Check a G-code program against a machine profile by reading it back with pygcode (not fabline's writer).
+
+Reports unsupported words, lines over the controller's limit, moves outside the bed, travel moves with
+the tool on (laser firing or pen down during G0), and recomputes cut, mark and travel lengths and the run
+time with the profile's acceleration.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fabline.errors import FablineError
+from fabline.export.machine import MOTION_PARAMETERS, MachineProfile
+from fabline.export.motion import MotionSummary, MoveLog, summarise
+
+OPERATION_COMMENT = re.compile(r"^\s*;\s*((?:engrave|cut)-[a-z]+)\b")
+MOTION_WORDS = {0: "rapid", 1: "line", 2: "cw", 3: "ccw"}
+BED_TOLERANCE = 1e-6
+
+
+@dataclass
+class CheckReport:
+    """Problems found (each with its line number) and the recomputed figures."""
+
+    path: str
+    problems: list[str] = field(default_factory=list)
+    summary: MotionSummary | None = None
+    lines: int = 0
+
+
+def check_gcode(path: str | os.PathLike, profile: MachineProfile) -> CheckReport:
+    """Parse a G-code file and check it against `profile`; an unreadable file is a FablineError."""
+    try:
+        text = open(path, encoding="ascii", errors="strict").read()
+    except FileNotFoundError:
+        raise FablineError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FablineError(f"{path}: cannot read as ASCII G-code: {exc}") from None
+    return check_program(text, profile, str(path))
+
+
+def check_program(text: str, profile: MachineProfile, source: str = "program") -> CheckReport:
+    """Check program text against `profile` (see the module docstring)."""
+    import pygcode   # imported here: it is slow to import and only this check needs it
+
+    report = CheckReport(source)
+    state = _State(profile)
+    raw_lines = text.splitlines()
+    report.lines = len(raw_lines)
+    for number, raw in enumerate(raw_lines, start=1):
+        where = f"line {number}"
+        if len(raw) > profile.max_line_length:
+            report.problems.append(f"{where}: {len(raw)} characters, over the limit of {profile.max_line_length}")
+        marker = OPERATION_COMMENT.match(raw)
+        if marker:
+            state.operation = marker.group(1)
+        try:
+            block = pygcode.Line(raw).block
+        except Exception as exc:   # pygcode raises several exception types for malformed words
+            report.problems.append(f"{where}: cannot parse: {exc}")
+            continue
+        state.apply(block, where, report.problems)
+    state.finish()
+    report.summary = summarise(state.moves, profile.acceleration, profile.junction_deviation)
+    return report
+
+
+class _State:
+    """The controller's modal state while reading a program: position, motion mode, feed, tool."""
+
+    def __init__(self, profile: MachineProfile):
+        self.profile = profile
+        self.position = np.zeros(3)
+        self.motion = None
+        self.feed = 0.0
+        self.spindle = False
+        self.speed = 0.0
+        self.absolute = True
+        self.operation = ""
+        self.moves = MoveLog()
+        self.stop_pending = True
+        self.dwell = 0.0
+
+    def tool_on(self) -> bool:
+        """Is the tool cutting: laser on with power, pen down (S other than pen-up), or cutter below the top."""
+        if self.profile.mode == "laser":
+            return self.spindle and self.speed > 0
+        if self.profile.mode == "plotter":
+            return self.spindle and self.speed != self.profile.variables.get("pen_up", 0.0)
+        return self.position[2] < 0
+
+    def apply(self, block, where: str, problems: list[str]) -> None:
+        """Update the state from one parsed block and record its move, reporting what the controller would refuse."""
+        motion_params = {}
+        for gcode in block.gcodes:
+            letter, value = gcode.word.letter, gcode.word.value
+            word = f"{letter}{int(value) if value == int(value) else value:g}" if letter in "GM" else None
+            if word is not None and word not in self.profile.words:
+                problems.append(f"{where}: {word} is not supported by {self.profile.name}")
+            if letter == "F":
+                self.feed = float(value)
+            elif letter == "S":
+                self.speed = float(value)
+            elif word in ("M3", "M4"):
+                self.spindle = True
+                self.stop_pending = True
+            elif word == "M5":
+                self.spindle = False
+                self.stop_pending = True
+            elif word == "G90":
+                self.absolute = True
+            elif word == "G91":
+                self.absolute = False
+            elif word == "G4":
+                self.dwell += float(gcode.params["P"].value) if "P" in gcode.params else 0.0
+                self.stop_pending = True
+            elif letter == "G" and int(value) in MOTION_WORDS and value == int(value):
+                self.motion = int(value)
+                motion_params = {k: float(v.value) for k, v in gcode.params.items()}
+        for word in block.modal_params:
+            if word.letter not in MOTION_PARAMETERS:
+                problems.append(f"{where}: {word.letter}{word.value:g} is not supported by {self.profile.name}")
+            elif word.letter in "XYZIJ":
+                motion_params[word.letter] = float(word.value)
+            elif word.letter == "F":
+                self.feed = float(word.value)
+            elif word.letter == "S":
+                self.speed = float(word.value)
+        if motion_params and self.motion is not None and any(k in motion_params for k in "XYZ"):
+            self._move(motion_params, where, problems)
+
+    def _move(self, params: dict, where: str, problems: list[str]) -> None:
+        target = self.position.copy()
+        for axis, index in (("X", 0), ("Y", 1), ("Z", 2)):
+            if axis in params:
+                target[index] = params[axis] if self.absolute else target[index] + params[axis]
+        start = self.position.copy()
+        centre = None
+        if self.motion in (2, 3):
+            if "I" not in params and "J" not in params:
+                problems.append(f"{where}: arc without I/J offsets (R arcs are not checked)")
+                self.position = target
+                return
+            centre = (start[0] + params.get("I", 0.0), start[1] + params.get("J", 0.0))
+        self.position = target
+        cutting = self.tool_on()
+        if self.motion == 0 and cutting and np.hypot(*(target[:2] - start[:2])) > 0:
+            problems.append(f"{where}: travel move (G0) with the tool on")
+        self._check_bed(start[:2], target[:2], centre, self.motion == 2, where, problems)
+        self.moves.add(tuple(start[:2]), tuple(target[:2]), self.profile.rapid_rate if self.motion == 0 else self.feed,
+                       self.motion == 0, cutting and self.motion != 0, self.operation.startswith("engrave"), centre,
+                       self.motion == 2, self.stop_pending, self.dwell)
+        self.stop_pending, self.dwell = False, 0.0
+
+    def _check_bed(self, start, end, centre, clockwise: bool, where: str, problems: list[str]) -> None:
+        """Report a move whose extent (an arc's too, through its quadrant points) leaves the bed."""
+        xs, ys = [start[0], end[0]], [start[1], end[1]]
+        if centre is not None:
+            radius = float(np.hypot(start[0] - centre[0], start[1] - centre[1]))
+            a0 = np.arctan2(start[1] - centre[1], start[0] - centre[0])
+            a1 = np.arctan2(end[1] - centre[1], end[0] - centre[0])
+            sweep = ((a0 - a1) if clockwise else (a1 - a0)) % (2 * np.pi) or 2 * np.pi
+            for k in range(4):     # the arc's extreme points where it passes 0, 90, 180, 270 degrees
+                angle = k * np.pi / 2
+                swept = ((a0 - angle) if clockwise else (angle - a0)) % (2 * np.pi)
+                if swept <= sweep:
+                    xs.append(centre[0] + radius * np.cos(angle))
+                    ys.append(centre[1] + radius * np.sin(angle))
+        if (min(xs) < -BED_TOLERANCE or min(ys) < -BED_TOLERANCE or max(xs) > self.profile.bed_width + BED_TOLERANCE
+                or max(ys) > self.profile.bed_height + BED_TOLERANCE):
+            problems.append(f"{where}: move reaches x {min(xs):.3f}..{max(xs):.3f}, y {min(ys):.3f}..{max(ys):.3f} mm, "
+                            f"outside the bed (0..{self.profile.bed_width:g} x 0..{self.profile.bed_height:g} mm)")
+
+    def finish(self) -> None:
+        """Keep a trailing dwell as time."""
+        if self.dwell:
+            p = tuple(self.position[:2])
+            self.moves.add(p, p, self.profile.rapid_rate, True, False, stop_before=True, dwell=self.dwell)

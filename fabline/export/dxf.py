@@ -1,0 +1,72 @@
+"""DXF drawings of nested sheets for CAM and laser software: R2010, millimetres, one layer per operation.
+
+Contours are closed LWPOLYLINEs whose arcs stay arcs (bulges); marks and text are open LWPOLYLINEs;
+the sheet outline has its own layer. The geometry is the nested part geometry itself, not kerf-offset:
+CAM software applies its own kerf.
+"""
+
+from __future__ import annotations
+
+import os
+
+import ezdxf
+import numpy as np
+from ezdxf import units
+
+from fabline.export.contours import is_closed, with_bulges
+from fabline.export.toolpath import inner_contours
+from fabline.fileio import atomic_output
+from fabline.nest.layout import Sheet, place
+from fabline.unroll.parts import Part
+
+LAYERS = {                      # name: AutoCAD colour index
+    "CUT-OUTER": 1,             # red
+    "CUT-INNER": 5,             # blue
+    "ENGRAVE-MARK": 3,          # green
+    "ENGRAVE-TEXT": 6,          # magenta
+    "SHEET": 8,                 # grey
+}
+SHEET_SPACING = 200.0           # mm between sheets in the all-sheets drawing
+
+
+def new_drawing() -> ezdxf.document.Drawing:
+    """An empty R2010 drawing in millimetres with the operation layers and their colours."""
+    doc = ezdxf.new("R2010", setup=False)
+    doc.units = units.MM
+    doc.header["$MEASUREMENT"] = 1
+    for name, colour in LAYERS.items():
+        doc.layers.add(name, color=colour)
+    return doc
+
+
+def add_sheet(doc: ezdxf.document.Drawing, sheet: Sheet, parts: dict[str, Part], dx: float = 0.0) -> None:
+    """Draw one sheet's outline and every placed part, shifted by `dx` mm along x."""
+    msp = doc.modelspace()
+    msp.add_lwpolyline([(dx, 0), (dx + sheet.width, 0), (dx + sheet.width, sheet.height), (dx, sheet.height)],
+                       close=True, dxfattribs={"layer": "SHEET"})
+    for placement in sheet.placements:
+        part = parts[placement.part]
+        shapes = ([(part.outline, "CUT-OUTER")] + [(c, "CUT-INNER") for c in inner_contours(part)]
+                  + [(m, "ENGRAVE-MARK") for m in part.marks] + [(t, "ENGRAVE-TEXT") for t in part.text])
+        for contour, layer in shapes:
+            placed = with_bulges(place(with_bulges(contour), placement))
+            placed[:, 0] += dx
+            closed = is_closed(placed)
+            rows = placed[:-1] if closed else placed
+            msp.add_lwpolyline(np.round(rows, 6).tolist(), format="xyb", close=closed, dxfattribs={"layer": layer})
+
+
+def write_drawing(doc: ezdxf.document.Drawing, path: str | os.PathLike) -> None:
+    """Save a drawing atomically."""
+    with atomic_output(path) as handle:
+        doc.write(handle)
+
+
+def sheets_drawing(sheets: list[Sheet], parts: dict[str, Part]) -> ezdxf.document.Drawing:
+    """One drawing with all sheets side by side along x, SHEET_SPACING apart."""
+    doc = new_drawing()
+    dx = 0.0
+    for sheet in sheets:
+        add_sheet(doc, sheet, parts, dx)
+        dx += sheet.width + SHEET_SPACING
+    return doc

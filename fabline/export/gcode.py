@@ -1,0 +1,221 @@
+"""G-code text for one sheet: a header, the profile's start and end blocks, and every toolpath with its passes.
+
+One command per line, coordinates in fixed precision, arcs as G2/G3 with I/J relative to the start
+(Grbl's default), only the words the profile lists, no line longer than the controller accepts, and
+nothing that varies between runs, so the same input gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import re
+from functools import lru_cache
+
+import numpy as np
+
+from fabline.errors import FablineError
+from fabline.export.contours import arc_centres, reverse
+from fabline.export.machine import MachineProfile, strip_comment
+from fabline.export.motion import MoveLog
+from fabline.export.toolpath import Toolpath
+from fabline.unroll.parts import flatten_contour
+
+ARC_FLATTEN_TOLERANCE = 0.005   # mm, for arcs written as lines (profile without arcs, or arcs too flat to write)
+ARC_RADIUS_TOLERANCE = 0.002    # mm, largest start/end radius mismatch accepted after rounding (Grbl allows 0.005)
+MIN_SAGITTA = 0.001             # mm, arcs flatter than this are written as a straight move
+DWELL = re.compile(r"^\s*G0*4\s+P\s*([-+]?\d*\.?\d+)", re.IGNORECASE)
+MOTION = re.compile(r"^\s*G0*([01])(?![\d.])", re.IGNORECASE)
+UNPRINTABLE = re.compile(r"[^\x20-\x7e]")   # not allowed in a comment line
+BRACKETS = str.maketrans("()", "[]")          # parentheses would open an RS-274 comment inside the `;` one
+AXIS = re.compile(r"([XY])\s*([-+]?\d*\.?\d+)", re.IGNORECASE)
+
+
+class GcodeWriter:
+    """Accumulates the lines of one program and the MoveLog that describes what the machine will do."""
+
+    def __init__(self, profile: MachineProfile):
+        self.profile = profile
+        self.decimals = profile.decimals
+        self.xy_format = f"X{{:.{profile.decimals}f}} Y{{:.{profile.decimals}f}}"
+        self.lines: list[str] = []
+        self.moves = MoveLog()
+        self.position = (0.0, 0.0)
+        self.feed: float | None = None
+        self.mark = False
+        self.tool_on = False
+        self.stop_pending = True
+        self.dwell_pending = 0.0
+        needed = {"G0", "G1"} | ({"G2", "G3"} if profile.arcs else set())
+        missing = sorted(needed - profile.words)
+        if missing:
+            raise FablineError(f"{profile.source}: words: the program needs {missing[0]}, which the profile does not list")
+
+    def fmt(self, value: float) -> str:
+        """A coordinate in the profile's fixed precision, never "-0.000"."""
+        return self.profile.number(value)
+
+    def rounded(self, point) -> tuple[float, float]:
+        """A point as it will read back from the file."""
+        return (round(float(point[0]), self.decimals) + 0.0, round(float(point[1]), self.decimals) + 0.0)
+
+    def comment(self, text: str) -> None:
+        """A `;` comment line, ASCII only, cut to the line limit."""
+        clean = UNPRINTABLE.sub("_", text).translate(BRACKETS)
+        self.lines.append(f"; {clean}"[: self.profile.max_line_length])
+
+    def template(self, lines: list[str]) -> None:
+        """Profile command lines (checked when the profile was loaded); they stop the planner, and any dwell or
+        straight move in them is tracked."""
+        for line in lines:
+            self.lines.append(line)
+            dwell, rapid, axes, sets_feed = _template_effect(line)
+            self.dwell_pending += dwell
+            if axes:
+                target = (axes.get("X", self.position[0]), axes.get("Y", self.position[1]))
+                self._record(target, None, False, rapid=rapid, feed=self.feed)
+            if sets_feed:
+                self.feed = None      # the template changed the modal feed; state it again on the next move
+        self.stop_pending = True
+
+    def rapid(self, point) -> None:
+        """Tool-off travel to `point` (skipped when already there)."""
+        target = self.rounded(point)
+        if target == self.position:
+            return
+        self.lines.append(f"G0 X{self.fmt(target[0])} Y{self.fmt(target[1])}")
+        self._record(target, None, False, rapid=True)
+
+    def line_to(self, point, feed: float) -> None:
+        """A straight feed move."""
+        target = self.rounded(point)
+        if target == self.position:
+            return
+        self.lines.append(f"G1 X{self.fmt(target[0])} Y{self.fmt(target[1])}{self._feed_word(feed)}")
+        self._record(target, None, False, rapid=False, feed=feed)
+
+    def contour(self, contour: np.ndarray, feed: float) -> None:
+        """Feed moves along a contour from its first vertex (where the tool already is): G1 lines and G2/G3 arcs."""
+        if not np.any(contour[:, 2]):
+            self._polyline(contour[1:, :2], feed)
+            return
+        centres, radii, sweeps = arc_centres(contour)
+        points = contour[:, :2].tolist()
+        sagitta = radii * (1 - np.cos(sweeps / 2))
+        for i, sweep in enumerate(sweeps.tolist()):
+            if sweep == 0:
+                self.line_to(points[i + 1], feed)
+            elif not (self.profile.arcs and sagitta[i] >= MIN_SAGITTA and self._arc(points[i + 1], centres[i], sweep < 0, feed)):
+                for point in flatten_contour(contour[i:i + 2], ARC_FLATTEN_TOLERANCE)[1:]:
+                    self.line_to(point, feed)
+
+    def _polyline(self, points: np.ndarray, feed: float) -> None:
+        """Straight feed moves through `points`, formatted in one go (the common case: contours without arcs)."""
+        rounded = np.round(points, self.decimals) + 0.0
+        previous = np.vstack([self.position, rounded[:-1]])
+        rounded = rounded[np.any(rounded != previous, axis=1)]
+        if len(rounded) == 0:
+            return
+        xy = [(self.xy_format.format(x, y), (x, y)) for x, y in rounded.tolist()]
+        self.lines.append(f"G1 {xy[0][0]}{self._feed_word(feed)}")
+        self._record(xy[0][1], None, False, rapid=False, feed=feed)
+        self.lines.extend(f"G1 {text}" for text, _ in xy[1:])
+        self.moves.add_run([point for _, point in xy], feed, self.tool_on, self.mark)
+        self.position = xy[-1][1]
+
+    def _arc(self, end, centre, clockwise: bool, feed: float) -> bool:
+        """Write one arc if it survives rounding within ARC_RADIUS_TOLERANCE; False to have it written as lines."""
+        start, target = self.position, self.rounded(end)
+        offset = self.rounded((centre[0] - start[0], centre[1] - start[1]))
+        rounded_centre = (start[0] + offset[0], start[1] + offset[1])
+        r_start = np.hypot(*offset)
+        r_end = np.hypot(target[0] - rounded_centre[0], target[1] - rounded_centre[1])
+        if abs(r_start - r_end) > ARC_RADIUS_TOLERANCE or target == start:
+            return False
+        self.lines.append(f"{'G2' if clockwise else 'G3'} X{self.fmt(target[0])} Y{self.fmt(target[1])} "
+                          f"I{self.fmt(offset[0])} J{self.fmt(offset[1])}{self._feed_word(feed)}")
+        self._record(target, rounded_centre, clockwise, rapid=False, feed=feed)
+        return True
+
+    def _feed_word(self, feed: float) -> str:
+        if self.feed == feed:
+            return ""
+        self.feed = feed
+        return f" F{self.fmt(feed)}"
+
+    def _record(self, target, centre, clockwise: bool, rapid: bool, feed: float | None = None) -> None:
+        self.moves.add(self.position, target, self.profile.rapid_rate if rapid else float(feed or 0.0), rapid,
+                       self.tool_on and not rapid, self.mark, centre, clockwise, self.stop_pending, self.dwell_pending)
+        self.position = target
+        self.stop_pending, self.dwell_pending = False, 0.0
+
+    def finish(self) -> str:
+        """The program text with a trailing newline, after checking the line limit; a trailing dwell is kept as time."""
+        if self.dwell_pending:
+            self.moves.add(self.position, self.position, self.profile.rapid_rate, True, False, stop_before=True,
+                           dwell=self.dwell_pending)
+            self.dwell_pending = 0.0
+        longest = max(self.lines, key=len, default="")
+        if len(longest) > self.profile.max_line_length:
+            raise FablineError(f"{self.profile.source}: max_line_length: a G-code line would be {len(longest)} characters "
+                               f"(limit {self.profile.max_line_length}): {longest[:40]}...")
+        return "\n".join(self.lines) + "\n"
+
+
+@lru_cache(maxsize=256)
+def _template_effect(line: str) -> tuple[float, bool, dict, bool]:
+    """What a template line does to the machine: dwell seconds, rapid or not, X/Y target (if a G0/G1 move), sets F."""
+    dwell = DWELL.match(line)
+    motion = MOTION.match(line)
+    axes = {k.upper(): float(v) for k, v in AXIS.findall(line)} if motion else {}
+    return (float(dwell.group(1)) if dwell else 0.0, bool(motion and motion.group(1) == "0"), axes,
+            "F" in strip_comment(line).upper())
+
+
+def header_block(texts: list[str], profile: MachineProfile) -> str:
+    """Leading `;` comment lines for a program."""
+    writer = GcodeWriter(profile)
+    for text in texts:
+        writer.comment(text)
+    return writer.finish()
+
+
+def sheet_program(paths: list[Toolpath], profile: MachineProfile) -> tuple[str, MoveLog]:
+    """The G-code of one sheet (without header) and its MoveLog.
+
+    An open path that starts where the previous one of the same operation ended (strokes of a letter) is run
+    on without switching the tool off and on again.
+    """
+    writer = GcodeWriter(profile)
+    writer.template(profile.render(profile.program_start))
+    for index, path in enumerate(paths):
+        operation = profile.operations[path.operation]
+        if not _continues(paths, index, writer, operation.passes):
+            writer.mark = path.operation.startswith("engrave")
+            writer.comment(f"{path.operation} {path.part}")
+            writer.rapid(path.entry)
+        contour = path.contour
+        for k in range(operation.passes):
+            if (k == 0 and not writer.tool_on) or (k > 0 and profile.mode == "mill"):
+                depth = -operation.depth * (k + 1) / operation.passes
+                writer.tool_on = False
+                writer.template(profile.render(profile.tool_on, power=operation.power, depth=depth))
+                writer.tool_on = True
+            if k == 0 and path.lead_in is not None:
+                writer.line_to(contour[0, :2], operation.feed)
+            writer.contour(contour, operation.feed)
+            if not path.closed:
+                contour = reverse(contour)
+        if not _continues(paths, index + 1, writer, operation.passes):
+            writer.tool_on = False
+            writer.template(profile.render(profile.tool_off))
+    writer.mark = False
+    writer.template(profile.render(profile.program_end))
+    return writer.finish(), writer.moves
+
+
+def _continues(paths: list[Toolpath], index: int, writer: GcodeWriter, passes: int) -> bool:
+    """Does paths[index] carry straight on from where the tool is, still on, in the same single-pass operation?"""
+    if not writer.tool_on or index == 0 or index >= len(paths) or passes != 1:
+        return False
+    path, previous = paths[index], paths[index - 1]
+    return (not path.closed and not previous.closed and path.operation == previous.operation
+            and path.lead_in is None and writer.rounded(path.entry) == writer.position)

@@ -1,0 +1,140 @@
+"""Export a whole nesting: per sheet a DXF and a G-code program, an all-sheets DXF, and a summary.
+
+Everything is computed and checked first and written only at the end, each file atomically, so a bad
+input leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import textwrap
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fabline.errors import FablineError
+from fabline.export import dxf
+from fabline.export.gcode import header_block, sheet_program
+from fabline.export.machine import MachineProfile
+from fabline.export.motion import MotionSummary, summarise
+from fabline.export.toolpath import Toolpath, ToolpathOptions, sheet_toolpaths
+from fabline.fileio import atomic_output
+from fabline.nest.layout import Nesting, load_nesting, parts_path
+from fabline.progress import progress
+from fabline.unroll.parts import Part, flatten_contour, load_parts
+
+
+@dataclass
+class SheetExport:
+    """What was made for one sheet."""
+
+    sheet: str
+    parts: int
+    summary: MotionSummary
+    gcode: str = ""
+    files: list[str] = field(default_factory=list)
+
+
+@dataclass
+class ExportResult:
+    """The per-sheet results and the files written."""
+
+    sheets: list[SheetExport]
+    files: list[str]
+    machine: str
+    kerf: float
+
+    def totals(self) -> MotionSummary:
+        """All sheets together."""
+        return MotionSummary(*(sum(getattr(s.summary, f) for s in self.sheets)
+                               for f in ("cut_length", "mark_length", "travel", "time", "moves")))
+
+
+def load_job(nesting_path: str | os.PathLike) -> tuple[Nesting, dict[str, Part]]:
+    """A nesting and the parts it refers to, by id."""
+    nesting = load_nesting(nesting_path)
+    partset = load_parts(parts_path(nesting_path, nesting))
+    return nesting, {p.id: p for p in partset.parts}
+
+
+def export_job(nesting: Nesting, parts: dict[str, Part], profile: MachineProfile, options: ToolpathOptions,
+               dxf_dir: str | os.PathLike | None = None, gcode_dir: str | os.PathLike | None = None,
+               name: str = "job", source: str = "nesting") -> ExportResult:
+    """Make (and, given folders, write) the DXF and G-code of every sheet; `source` names the nesting in errors."""
+    for sheet in nesting.sheets:
+        if sheet.width > profile.bed_width or sheet.height > profile.bed_height:
+            raise FablineError(f"{source}: sheet {sheet.id}: {sheet.width:g} x {sheet.height:g} mm is larger than the "
+                               f"bed of machine {profile.name} ({profile.bed_width:g} x {profile.bed_height:g} mm, "
+                               f"{profile.source}: bed)")
+    outputs: dict[Path, object] = {}
+    results = []
+    for number, sheet in enumerate(progress(nesting.sheets, "export", len(nesting.sheets)), start=1):
+        paths = sheet_toolpaths(sheet, parts, options, source)
+        _check_bed(paths, profile, f"{source}: sheet {sheet.id}")
+        body, moves = sheet_program(paths, profile)
+        summary = summarise(moves, profile.acceleration, profile.junction_deviation)
+        header = _header(name, sheet, number, len(nesting.sheets), profile, options, summary)
+        program = header_block(header, profile) + body
+        stem = f"{name}_{_safe(sheet.id)}"
+        done = SheetExport(sheet.id, len(sheet.placements), summary, program)
+        if gcode_dir is not None:
+            outputs[Path(gcode_dir) / f"{stem}.gcode"] = program
+        if dxf_dir is not None:
+            doc = dxf.new_drawing()
+            dxf.add_sheet(doc, sheet, parts)
+            outputs[Path(dxf_dir) / f"{stem}.dxf"] = doc
+        done.files = [str(p) for p in outputs if p.stem == stem]
+        results.append(done)
+    if dxf_dir is not None:
+        outputs[Path(dxf_dir) / f"{name}_all-sheets.dxf"] = dxf.sheets_drawing(nesting.sheets, parts)
+    for path, content in outputs.items():
+        if isinstance(content, str):
+            with atomic_output(path) as handle:
+                handle.write(content)
+        else:
+            dxf.write_drawing(content, path)
+    return ExportResult(results, [str(p) for p in outputs], profile.name, options.kerf)
+
+
+def export_nesting(nesting_path: str | os.PathLike, profile: MachineProfile, options: ToolpathOptions,
+                   dxf_dir: str | os.PathLike | None = None, gcode_dir: str | os.PathLike | None = None) -> ExportResult:
+    """Export a nesting file (and the parts file it names), files named after the nesting."""
+    nesting, parts = load_job(nesting_path)
+    return export_job(nesting, parts, profile, options, dxf_dir, gcode_dir, Path(nesting_path).stem, str(nesting_path))
+
+
+def _check_bed(paths: list[Toolpath], profile: MachineProfile, where: str) -> None:
+    """Every toolpath (arcs included) must stay on the machine's bed."""
+    for path in paths:
+        points = flatten_contour(path.contour, 0.01) if np.any(path.contour[:, 2]) else path.contour[:, :2]
+        if path.lead_in is not None:
+            points = np.vstack([points, path.lead_in])
+        low, high = points.min(axis=0), points.max(axis=0)
+        if low[0] < 0 or low[1] < 0 or high[0] > profile.bed_width or high[1] > profile.bed_height:
+            raise FablineError(f"{where}: part {path.part}: {path.operation} toolpath spans x {low[0]:.3f}..{high[0]:.3f}, "
+                               f"y {low[1]:.3f}..{high[1]:.3f} mm, outside the bed of machine {profile.name} "
+                               f"(0..{profile.bed_width:g} x 0..{profile.bed_height:g} mm)")
+
+
+def _header(name, sheet, number, count, profile, options, summary) -> list[str]:
+    minutes, seconds = divmod(round(summary.time), 60)
+    lines = [
+        f"fabline export: job {name}, sheet {sheet.id} ({number} of {count}), {sheet.width:g} x {sheet.height:g} mm"
+        + (f", stock {sheet.stock}" if sheet.stock else ""),
+        f"machine {profile.name} ({profile.controller}), mode {profile.mode}, kerf {options.kerf:.3f} mm",
+    ]
+    if profile.requires:
+        lines.append(f"requires {profile.requires}")
+    lines.append(f"cut {summary.cut_length:.1f} mm, mark {summary.mark_length:.1f} mm, "
+                 f"travel {summary.travel:.1f} mm, estimated {minutes // 60}:{minutes % 60:02d}:{seconds:02d}")
+    ids = " ".join(p.part for p in sheet.placements)
+    lines.extend(textwrap.wrap(f"parts ({len(sheet.placements)}): {ids}", profile.max_line_length - 2,
+                               subsequent_indent="  ", break_long_words=True))
+    return lines
+
+
+def _safe(text: str) -> str:
+    """A sheet id as a file-name part."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", text) or "sheet"

@@ -1,0 +1,260 @@
+"""Machine profiles as data: TOML files that say what a controller accepts and how to run each operation.
+
+Built-in profiles live in `fabline/export/machines/`; a user adds one by passing the path of a TOML file,
+or by putting `<name>.toml` in a folder listed in the FABLINE_MACHINE_PATH environment variable. A profile
+may start from another with `extends = "<name>"` and override only what differs.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import string
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+from fabline.errors import FablineError
+
+try:
+    import tomllib
+except ImportError:  # Python 3.10
+    import tomli as tomllib
+
+BUILTIN_DIR = Path(__file__).with_name("machines")
+OPERATIONS = ("engrave-mark", "engrave-text", "cut-inner", "cut-outer")
+MODES = ("laser", "plotter", "mill")
+WORD_PATTERN = re.compile(r"([A-Z])\s*([-+]?\d*\.?\d+)")
+MOTION_PARAMETERS = frozenset("XYZIJKFSPR")
+
+
+@dataclass(frozen=True)
+class Operation:
+    """How one operation runs: feed (mm/min), tool power or pen position (S), passes, total depth (mill)."""
+
+    name: str
+    feed: float
+    power: float
+    passes: int
+    depth: float = 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class MachineProfile:
+    """A machine and its controller: bed, motion limits, supported words, command templates, operations."""
+
+    name: str
+    source: str
+    description: str
+    controller: str
+    mode: str
+    kerf: float
+    decimals: int
+    max_line_length: int
+    arcs: bool
+    words: frozenset[str]
+    program_start: tuple[str, ...]
+    program_end: tuple[str, ...]
+    tool_on: tuple[str, ...]
+    tool_off: tuple[str, ...]
+    requires: str
+    bed_width: float
+    bed_height: float
+    rapid_rate: float
+    acceleration: float
+    junction_deviation: float
+    s_min: float
+    s_max: float
+    operations: dict[str, Operation]
+    variables: dict[str, float]
+
+    def render(self, templates: tuple[str, ...], **values: float) -> tuple[str, ...]:
+        """Command templates with `{power}`, `{depth}` and the profile's [vars] filled in, numbers fixed-precision."""
+        return _render(self, templates, tuple(sorted(values.items())))
+
+    def number(self, value: float) -> str:
+        """A number in the profile's fixed precision, without a negative zero."""
+        return f"{round(value, self.decimals) + 0.0:.{self.decimals}f}"
+
+
+@lru_cache(maxsize=1024)
+def _render(profile: MachineProfile, templates: tuple[str, ...], values: tuple) -> tuple[str, ...]:
+    """MachineProfile.render, remembered: a sheet renders the same few tool on/off blocks thousands of times."""
+    merged = {**profile.variables, **dict(values)}
+    return tuple(t.format(**{k: profile.number(v) for k, v in merged.items()}) for t in templates)
+
+
+def resolve_machine(name_or_path: str) -> Path:
+    """Where a profile lives: a path to a TOML file, or a name searched in FABLINE_MACHINE_PATH then built-ins."""
+    candidate = Path(name_or_path)
+    if candidate.suffix == ".toml" or os.sep in name_or_path:
+        if not candidate.is_file():
+            raise FablineError(f"{name_or_path}: machine profile file not found")
+        return candidate
+    folders = [Path(p) for p in os.environ.get("FABLINE_MACHINE_PATH", "").split(os.pathsep) if p] + [BUILTIN_DIR]
+    for folder in folders:
+        if (folder / f"{name_or_path}.toml").is_file():
+            return folder / f"{name_or_path}.toml"
+    raise FablineError(f"unknown machine {name_or_path!r} (available: {', '.join(available_machines())}; "
+                       "or give the path of a .toml profile)")
+
+
+def available_machines() -> list[str]:
+    """Names of the profiles found in FABLINE_MACHINE_PATH and the built-in folder."""
+    folders = [Path(p) for p in os.environ.get("FABLINE_MACHINE_PATH", "").split(os.pathsep) if p] + [BUILTIN_DIR]
+    return sorted({f.stem for folder in folders if folder.is_dir() for f in folder.glob("*.toml")})
+
+
+def load_machine(name_or_path: str) -> MachineProfile:
+    """Load and check a machine profile; a missing or out-of-range setting names the file and the field."""
+    path = resolve_machine(name_or_path)
+    return _profile_from_dict(_merged_table(path, seen=()), str(path))
+
+
+def _merged_table(path: Path, seen: tuple[str, ...]) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as handle:
+            table = tomllib.load(handle)
+    except tomllib.TOMLDecodeError as exc:
+        raise FablineError(f"{path}: malformed TOML: {exc}") from None
+    except OSError as exc:
+        raise FablineError(f"{path}: cannot read: {exc}") from None
+    parent = table.pop("extends", None)
+    if parent is None:
+        return table
+    if not isinstance(parent, str) or parent in seen:
+        raise FablineError(f"{path}: extends: must name another profile, without cycles")
+    base = _merged_table(resolve_machine(parent), seen + (parent,))
+    return _deep_merge(base, table)
+
+
+def _deep_merge(base: dict, override: dict) -> dict:
+    merged = dict(base)
+    for key, value in override.items():
+        merged[key] = _deep_merge(merged[key], value) if isinstance(value, dict) and isinstance(merged.get(key), dict) else value
+    return merged
+
+
+class _Fields:
+    """Typed, range-checked access to a profile table; every error names the file and the dotted field."""
+
+    def __init__(self, table: dict, source: str):
+        self.table, self.source = table, source
+
+    def get(self, dotted: str) -> Any:
+        node: Any = self.table
+        for key in dotted.split("."):
+            if not isinstance(node, dict) or key not in node:
+                raise FablineError(f"{self.source}: {dotted}: missing setting")
+            node = node[key]
+        return node
+
+    def number(self, dotted: str, low: float, high: float, low_inclusive: bool = True) -> float:
+        value = self.get(dotted)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise FablineError(f"{self.source}: {dotted}: must be a number, got {value!r}")
+        if not (value >= low if low_inclusive else value > low) or value > high:
+            bracket = "[" if low_inclusive else "("
+            raise FablineError(f"{self.source}: {dotted}: {value} is out of range {bracket}{low}, {high}]")
+        return float(value)
+
+    def integer(self, dotted: str, low: int, high: int) -> int:
+        value = self.get(dotted)
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise FablineError(f"{self.source}: {dotted}: must be a whole number in [{low}, {high}], got {value!r}")
+        return value
+
+    def text(self, dotted: str, default: str | None = None) -> str:
+        value = self.get(dotted) if default is None else self.table.get(dotted, default)
+        if not isinstance(value, str):
+            raise FablineError(f"{self.source}: {dotted}: must be text, got {value!r}")
+        return value
+
+    def lines(self, dotted: str) -> tuple[str, ...]:
+        value = self.get(dotted)
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            raise FablineError(f"{self.source}: {dotted}: must be a list of G-code lines")
+        return tuple(value)
+
+
+def _profile_from_dict(table: dict, source: str) -> MachineProfile:
+    fields = _Fields(table, source)
+    mode = fields.text("mode")
+    if mode not in MODES:
+        raise FablineError(f"{source}: mode: {mode!r} is not one of {', '.join(MODES)}")
+    words = fields.lines("words")
+    for word in words:
+        if not re.fullmatch(r"[GM]\d+(\.\d+)?", word):
+            raise FablineError(f"{source}: words: {word!r} is not a G- or M-word such as G1 or M4")
+    s_min = fields.number("power.s_min", 0, 1e6)
+    s_max = fields.number("power.s_max", s_min, 1e6, low_inclusive=False)
+    operations = {}
+    for op in OPERATIONS:
+        key = f"operations.{op}"
+        operations[op] = Operation(
+            name=op,
+            feed=fields.number(f"{key}.feed", 0, 1e6, low_inclusive=False),
+            power=fields.number(f"{key}.power", s_min, s_max),
+            passes=fields.integer(f"{key}.passes", 1, 100),
+            depth=fields.number(f"{key}.depth", 0, 1000, low_inclusive=False) if mode == "mill" else 0.0,
+        )
+    variables = {}
+    for key, value in (table.get("vars") or {}).items():
+        variables[key] = fields.number(f"vars.{key}", -1e6, 1e6)
+    profile = MachineProfile(
+        name=fields.text("name"), source=source, description=fields.text("description", ""),
+        controller=fields.text("controller", ""), mode=mode,
+        kerf=fields.number("kerf", 0, 20), decimals=fields.integer("decimals", 3, 4),
+        max_line_length=fields.integer("max_line_length", 40, 256), arcs=bool(table.get("arcs", True)),
+        words=frozenset(_canonical(w) for w in words), program_start=fields.lines("program_start"),
+        program_end=fields.lines("program_end"), tool_on=fields.lines("tool_on"), tool_off=fields.lines("tool_off"),
+        requires=fields.text("requires", ""),
+        bed_width=fields.number("bed.width", 0, 1e5, low_inclusive=False),
+        bed_height=fields.number("bed.height", 0, 1e5, low_inclusive=False),
+        rapid_rate=fields.number("motion.rapid_rate", 0, 1e6, low_inclusive=False),
+        acceleration=fields.number("motion.acceleration", 0, 1e5, low_inclusive=False),
+        junction_deviation=fields.number("motion.junction_deviation", 0, 10),
+        s_min=s_min, s_max=s_max, operations=operations, variables=variables,
+    )
+    for field_name in ("program_start", "program_end", "tool_on", "tool_off"):
+        _check_templates(profile, field_name)
+    return profile
+
+
+def _check_templates(profile: MachineProfile, field_name: str) -> None:
+    """Every command template must fill in and use only words the profile declares."""
+    templates = getattr(profile, field_name)
+    keys = set(profile.variables) | {"power", "depth"}
+    for template in templates:
+        for _, name, _, _ in string.Formatter().parse(template):
+            if name is not None and name not in keys:
+                raise FablineError(f"{profile.source}: {field_name}: unknown placeholder {{{name}}} "
+                                   f"(use power, depth or a [vars] entry)")
+        for word in unsupported_words(profile.render((template,), power=0, depth=0)[0], profile.words):
+            raise FablineError(f"{profile.source}: {field_name}: {word} is not in the profile's words")
+
+
+def _canonical(word: str) -> str:
+    """G01 -> G1, M04 -> M4, G91.1 stays."""
+    letter, number = word[0], word[1:]
+    value = float(number)
+    return f"{letter}{int(value)}" if value == int(value) else f"{letter}{value:g}"
+
+
+def strip_comment(line: str) -> str:
+    """The code part of a G-code line without `;` and `( )` comments."""
+    return re.sub(r"\([^)]*\)", "", line.split(";", 1)[0]).strip()
+
+
+def unsupported_words(line: str, words: frozenset[str]) -> list[str]:
+    """The G/M-words of a line that the controller does not accept, and parameter letters it does not know."""
+    bad = []
+    for letter, number in WORD_PATTERN.findall(strip_comment(line).upper()):
+        if letter in "GM":
+            word = _canonical(letter + number)
+            if word not in words:
+                bad.append(word)
+        elif letter not in MOTION_PARAMETERS:
+            bad.append(letter + number)
+    return bad

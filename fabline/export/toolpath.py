@@ -1,0 +1,355 @@
+"""Toolpaths for one sheet: kerf-compensated contours in cutting order, with lead-ins, tabs and common cuts.
+
+Order: marks, then text, then inner contours (slots, holes), then outer contours, so no part comes
+loose before its features are cut. Within each operation the travel is minimised by a nearest-neighbour
+tour improved by 2-opt, and every closed contour starts at the vertex nearest its neighbours in the tour.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+from scipy.spatial import cKDTree
+
+from fabline.errors import FablineError
+from fabline.export.contours import (arc_centres, is_closed, offset, remove_intervals, reverse, rotate_start,
+                                     segment_lengths, to_polygon, with_bulges)
+from fabline.export.machine import OPERATIONS
+from fabline.nest.layout import CommonCut, Placement, Sheet, place
+from fabline.unroll.parts import Part
+
+NN_CANDIDATES = 16         # nearest points looked at per greedy step before widening the search
+TWO_OPT_NEIGHBOURS = 8     # candidate new neighbours per path in a 2-opt pass
+TWO_OPT_PASSES = 30
+
+
+@dataclass
+class Toolpath:
+    """One continuous tool-on path in sheet coordinates: vertices [x, y, bulge], closed or open."""
+
+    operation: str
+    part: str
+    contour: np.ndarray
+    closed: bool
+    lead_in: np.ndarray | None = None    # (2,) point where cutting starts before the contour, or None
+
+    @property
+    def entry(self) -> np.ndarray:
+        """Where the tool goes on."""
+        return self.lead_in if self.lead_in is not None else self.contour[0, :2]
+
+    @property
+    def exit(self) -> np.ndarray:
+        """Where the tool goes off."""
+        return self.contour[-1, :2]
+
+
+@dataclass
+class ToolpathOptions:
+    """Choices that shape the toolpaths: kerf (mm), lead-in length (mm), tabs per outer contour and their width."""
+
+    kerf: float = 0.0
+    lead_in: float = 0.0
+    tabs: int = 0
+    tab_width: float = 1.0
+    optimise: bool = True
+    _offset_cache: dict = field(default_factory=dict, repr=False)
+
+
+def sheet_toolpaths(sheet: Sheet, parts: dict[str, Part], options: ToolpathOptions, source: str = "nesting") -> list[Toolpath]:
+    """All toolpaths of a sheet, grouped by operation in cutting order, each group ordered for short travel."""
+    groups: dict[str, list[Toolpath]] = {op: [] for op in OPERATIONS}
+    placed_ids = set()
+    for index, placement in enumerate(sheet.placements):
+        part = parts.get(placement.part)
+        if part is None:
+            raise FablineError(f"{source}: sheet {sheet.id}: placements[{index}] refers to part "
+                               f"{placement.part!r}, which is not in the parts file")
+        placed_ids.add(part.id)
+        for operation, path in _part_paths(part, placement, options):
+            groups[operation].append(path)
+    cuts = list(sheet.common_cuts)
+    for cut in cuts:
+        missing = [p for p in cut.parts if p not in placed_ids]
+        if missing:
+            raise FablineError(f"{source}: sheet {sheet.id}: common cut refers to part {missing[0]!r}, "
+                               "which is not placed on this sheet")
+    if cuts:
+        groups["cut-outer"] = _apply_common_cuts(groups["cut-outer"], cuts, options.kerf)
+    if options.tabs > 0:
+        groups["cut-outer"] = [piece for path in groups["cut-outer"] for piece in _with_tabs(path, options)]
+    ordered: list[Toolpath] = []
+    position = np.zeros(2)
+    for operation in OPERATIONS:
+        paths = groups[operation]
+        if options.optimise:
+            paths = order_paths(paths, position)
+        ordered.extend(paths)
+        if paths:
+            position = paths[-1].exit
+    if options.lead_in > 0:
+        for path in ordered:
+            if path.closed and path.operation.startswith("cut"):
+                path.lead_in = _lead_in(path, options.lead_in)
+    return ordered
+
+
+def _part_paths(part: Part, placement: Placement, options: ToolpathOptions):
+    """(operation, toolpath) for every contour of a placed part; cut contours offset by half the kerf."""
+    half = options.kerf / 2.0
+    for operation, polylines in (("engrave-mark", part.marks), ("engrave-text", part.text)):
+        for line in polylines:
+            contour = with_bulges(place(with_bulges(line), placement))
+            yield operation, Toolpath(operation, part.id, contour, is_closed(contour))
+    inner = inner_contours(part)
+    for contour, operation, distance in ([(c, "cut-inner", -half) for c in inner] + [(part.outline, "cut-outer", half)]):
+        moved = _cached_offset(contour, distance, options._offset_cache)
+        if moved is None:
+            raise FablineError(f"part {part.id}: a contour vanishes when offset by half the kerf ({half} mm)")
+        yield operation, Toolpath(operation, part.id, place(moved, placement), True)
+
+
+def inner_contours(part: Part) -> list[np.ndarray]:
+    """The contours cut inside a part: its holes and its closed slots (edge slots are part of the outline)."""
+    return list(part.holes) + [slot.outline for slot in part.slots if slot.edge is None
+                               and not any(_same_contour(slot.outline, hole) for hole in part.holes)]
+
+
+def _same_contour(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and bool(np.allclose(a, b, atol=1e-6))
+
+
+def _cached_offset(contour: np.ndarray, distance: float, cache: dict) -> np.ndarray | None:
+    """Offset a contour, reusing the result for congruent-by-translation contours (washers, screw holes)."""
+    contour = with_bulges(contour)
+    origin = contour[0, :2].copy()
+    local = contour.copy()
+    local[:, :2] -= origin
+    key = (np.round(local, 9).tobytes(), len(local), distance)
+    if key not in cache:
+        cache[key] = offset(local, distance)
+    result = cache[key]
+    if result is None:
+        return None
+    moved = result.copy()
+    moved[:, :2] += origin
+    return moved
+
+
+def _apply_common_cuts(paths: list[Toolpath], cuts: list[CommonCut], kerf: float) -> list[Toolpath]:
+    """Outer contours without the stretches along a common cut, plus each common cut once as its own path."""
+    tolerance = kerf / 2.0 + 0.01
+    out = []
+    for path in paths:
+        removed = []
+        for cut in cuts:
+            if path.part in cut.parts:
+                removed.extend(_overlaps(path.contour, np.array(cut.start), np.array(cut.end), tolerance))
+        if removed:
+            out.extend(Toolpath(path.operation, path.part, piece, False) for piece in remove_intervals(path.contour, removed))
+        else:
+            out.append(path)
+    for cut in cuts:
+        line = np.array([[*cut.start, 0.0], [*cut.end, 0.0]])
+        out.append(Toolpath("cut-outer", "+".join(cut.parts), line, False))
+    return out
+
+
+def _overlaps(contour: np.ndarray, a: np.ndarray, b: np.ndarray, tolerance: float) -> list[tuple[float, float]]:
+    """Arc-length intervals of the contour's straight segments that run along segment a-b within `tolerance`."""
+    axis = b - a
+    span = np.hypot(*axis)
+    if span == 0:
+        return []
+    axis = axis / span
+    normal = np.array([-axis[1], axis[0]])
+    lengths = segment_lengths(contour)
+    cumulative = np.concatenate([[0.0], np.cumsum(lengths)])
+    intervals = []
+    for i in np.flatnonzero(contour[:-1, 2] == 0):
+        p0, p1 = contour[i, :2], contour[i + 1, :2]
+        if abs(np.dot(p0 - a, normal)) > tolerance or abs(np.dot(p1 - a, normal)) > tolerance or lengths[i] == 0:
+            continue
+        t0, t1 = np.dot(p0 - a, axis), np.dot(p1 - a, axis)
+        lo, hi = max(min(t0, t1), 0.0), min(max(t0, t1), span)
+        if hi - lo <= 1e-6:
+            continue
+        # back to the segment's own arc length, whichever way it runs along the cut
+        s_lo, s_hi = sorted(((lo - t0) / (t1 - t0) * lengths[i], (hi - t0) / (t1 - t0) * lengths[i]))
+        intervals.append((cumulative[i] + s_lo, cumulative[i] + s_hi))
+    return intervals
+
+
+def _with_tabs(path: Toolpath, options: ToolpathOptions) -> list[Toolpath]:
+    """A closed outer contour split into open pieces that leave `tabs` uncut bridges of `tab_width` mm."""
+    if not path.closed:
+        return [path]
+    perimeter = float(np.sum(segment_lengths(path.contour)))
+    if perimeter <= options.tabs * options.tab_width * 2:
+        return [path]
+    centres = (np.arange(options.tabs) + 0.5) * perimeter / options.tabs
+    removed = [(c - options.tab_width / 2, c + options.tab_width / 2) for c in centres]
+    return [Toolpath(path.operation, path.part, piece, False) for piece in remove_intervals(path.contour, removed)]
+
+
+def _lead_in(path: Toolpath, length: float) -> np.ndarray | None:
+    """A point `length` mm off the start of a closed cut, on the scrap side (outside a part, inside a hole)."""
+    contour = path.contour
+    start = contour[0, :2]
+    _, _, first = arc_centres(contour[[0, 1]])
+    out_dir = _rotate(contour[1, :2] - start, -first[0] / 2)                   # tangent leaving the start
+    _, _, last = arc_centres(contour[[-2, -1]])
+    in_dir = _rotate(start - contour[-2, :2], last[0] / 2)                      # tangent arriving at the start
+    tangent = out_dir / max(np.hypot(*out_dir), 1e-12) + in_dir / max(np.hypot(*in_dir), 1e-12)
+    if np.hypot(*tangent) < 1e-9:
+        return None
+    tangent = tangent / np.hypot(*tangent)
+    polygon = to_polygon(contour)
+    outward = np.array([tangent[1], -tangent[0]]) if polygon.exterior.is_ccw else np.array([-tangent[1], tangent[0]])
+    inside_wanted = path.operation == "cut-inner"
+    for scale in (1.0, 0.5, 0.25):
+        candidate = start + (-outward if inside_wanted else outward) * length * scale
+        if shapely.contains_xy(polygon, *candidate) == inside_wanted:
+            return candidate
+    return None
+
+
+def _rotate(vector: np.ndarray, angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([c * vector[0] - s * vector[1], s * vector[0] + c * vector[1]])
+
+
+def order_paths(paths: list[Toolpath], start: np.ndarray) -> list[Toolpath]:
+    """Paths reordered (open ones possibly reversed, closed ones restarted) for short travel from `start`."""
+    if len(paths) < 2:
+        if paths and paths[0].closed:
+            paths = [_restart(paths[0], start, None)]
+        return paths
+    tour = _nearest_neighbour(paths, start)
+    tour = _two_opt(tour, start)
+    for _ in range(2):
+        for k, path in enumerate(tour):
+            if path.closed:
+                previous = tour[k - 1].exit if k > 0 else start
+                following = tour[k + 1].entry if k + 1 < len(tour) else None
+                tour[k] = _restart(path, previous, following)
+    return tour
+
+
+def _restart(path: Toolpath, previous: np.ndarray, following: np.ndarray | None) -> Toolpath:
+    """The closed path started at the vertex that minimises travel in from `previous` and on to `following`."""
+    vertices = path.contour[:-1, :2]
+    cost = np.hypot(*(vertices - previous).T)
+    if following is not None:
+        cost = cost + np.hypot(*(vertices - following).T)
+    return Toolpath(path.operation, path.part, rotate_start(path.contour, int(np.argmin(cost))), True, path.lead_in)
+
+
+def _nearest_neighbour(paths: list[Toolpath], start: np.ndarray) -> list[Toolpath]:
+    """Greedy tour: always go to the nearest free entry point (any vertex of a closed path, either end of an open one).
+
+    The candidate points sit in a KD-tree; once most of them are used up the tree is rebuilt on the free ones.
+    """
+    points, owner, role = [], [], []
+    for i, path in enumerate(paths):
+        if path.closed:
+            points.append(path.contour[:-1, :2])
+            owner.append(np.full(len(path.contour) - 1, i))
+            role.append(np.arange(len(path.contour) - 1))
+        else:
+            points.append(path.contour[[0, -1], :2])
+            owner.append(np.array([i, i]))
+            role.append(np.array([0, -1]))
+    points_arr, owner_arr, role_arr = np.vstack(points), np.concatenate(owner), np.concatenate(role)
+    free = np.ones(len(paths), dtype=bool)
+    active = np.arange(len(points_arr))
+    tree = cKDTree(points_arr)
+    position, tour = np.asarray(start, dtype=float), []
+    for _ in range(len(paths)):
+        k = NN_CANDIDATES
+        while True:
+            _, found = tree.query(position, k=min(k, len(active)))
+            candidates = active[np.atleast_1d(found)]
+            usable = free[owner_arr[candidates]]
+            if usable.any():
+                best = int(candidates[np.argmax(usable)])
+                break
+            still_free = active[free[owner_arr[active]]]
+            if 2 * len(still_free) < len(active):
+                active, k = still_free, NN_CANDIDATES
+                tree = cKDTree(points_arr[active])
+            else:
+                k *= 4
+        index = int(owner_arr[best])
+        free[index] = False
+        path = paths[index]
+        if path.closed:
+            path = Toolpath(path.operation, path.part, rotate_start(path.contour, int(role_arr[best])), True)
+        elif role_arr[best] == -1:
+            path = Toolpath(path.operation, path.part, reverse(path.contour), False)
+        tour.append(path)
+        position = path.exit
+    return tour
+
+
+def _two_opt(tour: list[Toolpath], start: np.ndarray) -> list[Toolpath]:
+    """2-opt on the tour's travel moves with neighbour lists: reversing a run of paths also reverses its open paths.
+
+    Each pass looks at the reversals whose new travel moves join near neighbours (KD-tree), applies the best
+    non-overlapping improving ones at once, and repeats until no reversal shortens the travel.
+    """
+    n = len(tour)
+    entry = np.array([p.entry for p in tour])
+    exit_ = np.array([p.exit for p in tour])
+    flipped = np.zeros(n, dtype=bool)
+    order = np.arange(n)
+    k = min(TWO_OPT_NEIGHBOURS, n)
+    for _ in range(TWO_OPT_PASSES):
+        before = np.vstack([start, exit_[:-1]])                 # where the tool comes from into position i
+        _, near_exit = cKDTree(exit_).query(before, k=k)        # reversal [i..j] with a short new move before[i] -> exit[j]
+        _, near_entry = cKDTree(entry).query(entry[1:], k=k)    # reversal [i..j] with a short move entry[i] -> entry[j+1]
+        i = np.concatenate([np.repeat(np.arange(n), k), near_entry.ravel()])
+        j = np.concatenate([near_exit.reshape(n, k).ravel(), np.repeat(np.arange(n - 1), k)])
+        keep = j >= i
+        i, j = i[keep], j[keep]
+        has_after = j + 1 < n
+        after = entry[np.minimum(j + 1, n - 1)]
+        old = _distance(before[i], entry[i]) + np.where(has_after, _distance(exit_[j], after), 0.0)
+        new = _distance(before[i], exit_[j]) + np.where(has_after, _distance(entry[i], after), 0.0)
+        gain = old - new
+        improving = np.flatnonzero(gain > 1e-6)
+        if len(improving) == 0:
+            break
+        busy = np.zeros(n, dtype=bool)
+        for c in improving[np.argsort(-gain[improving], kind="stable")]:
+            lo, hi = int(i[c]), int(j[c])
+            if busy[max(lo - 1, 0):hi + 2].any():
+                continue
+            busy[lo:hi + 1] = True
+            run = slice(lo, hi + 1)
+            entry[run], exit_[run] = exit_[run][::-1].copy(), entry[run][::-1].copy()
+            order[run] = order[run][::-1].copy()
+            flipped[run] = ~flipped[run][::-1]
+    result = []
+    for index, flip in zip(order.tolist(), flipped.tolist()):
+        path = tour[index]
+        if flip and not path.closed:
+            path = Toolpath(path.operation, path.part, reverse(path.contour), False)
+        result.append(path)
+    return result
+
+
+def _distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.hypot(a[:, 0] - b[:, 0], a[:, 1] - b[:, 1])
+
+
+def travel_length(paths: list[Toolpath], start: np.ndarray | None = None) -> float:
+    """Tool-off distance to run the paths in order from `start` (origin by default) and back."""
+    position = np.zeros(2) if start is None else np.asarray(start, dtype=float)
+    total = 0.0
+    for path in paths:
+        total += float(np.hypot(*(path.entry - position)))
+        position = path.exit
+    return total + float(np.hypot(*position))

@@ -1,0 +1,254 @@
+"""Job files (`jobs/*.toml`): what to build, from what, on which machine, into which folder; checked key by key.
+
+Every mistake is one line naming the file and the key path (`pavilion.toml: machine.port: expected a
+string, got integer`). Paths in a job file are relative to the file's folder; every output lands inside
+`output.folder`, and a name that would put one outside it is refused.
+"""
+
+from __future__ import annotations
+
+import inspect
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+try:
+    import tomllib
+except ImportError:  # Python 3.10
+    import tomli as tomllib
+
+from fabline.errors import FablineError
+
+STAGES = ("unroll", "nest", "export", "stream", "report")
+"""Pipeline stages after the model, in the order they run; a job lists the ones it wants."""
+
+DEFAULT_STAGES = ("unroll", "nest", "export", "stream", "report")
+DEFAULT_PORT = "sim://grbl"
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+_TYPE_NAMES = {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
+               dict: "a table"}
+
+
+@dataclass(frozen=True)
+class Key:
+    """One allowed key of a table: its type, whether it must be given, and its default."""
+
+    kind: type
+    required: bool = False
+    default: Any = None
+
+
+SCHEMA: dict[str, Any] = {
+    "name": Key(str, required=True),
+    "description": Key(str, default=""),
+    "stages": Key(list, default=list(DEFAULT_STAGES)),
+    "model": {"design": Key(str), "file": Key(str), "options": Key(dict, default={})},
+    "lamella": {"material": Key(str, default="stainless"), "profile": Key(str, default="100x1.5"),
+                "materials_file": Key(str)},
+    "stock": {"sheet": Key(str, default="4000x2000"), "count": Key(int), "file": Key(str)},
+    "nest": {"kerf": Key(float, default=0.2), "gap": Key(float, default=3.0), "margin": Key(float, default=10.0),
+             "rotations": Key(int, default=4), "time_limit": Key(float, default=10.0)},
+    "machine": {"profile": Key(str, default="grbl-laser"), "port": Key(str, default=DEFAULT_PORT),
+                "time_scale": Key(float, default=1.0)},
+    "output": {"folder": Key(str, required=True), "report": Key(str, default="report.html")},
+    "survey": {"result": Key(str)},
+}
+
+
+@dataclass
+class JobSpec:
+    """A checked job file: the raw tables with defaults filled in and paths resolved against the file's folder."""
+
+    path: Path
+    name: str
+    description: str
+    stages: tuple[str, ...]
+    model: dict[str, Any]
+    lamella: dict[str, Any]
+    stock: dict[str, Any]
+    nest: dict[str, Any]
+    machine: dict[str, Any]
+    output_folder: Path
+    report_name: str
+    survey: dict[str, Any] = field(default_factory=dict)
+
+    def output(self, relative: str | os.PathLike) -> Path:
+        """An output path inside the job's output folder; a path that would leave it is a FablineError."""
+        return inside(self.output_folder, relative, f"{self.path.name}: output")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The job as plain data for the report and the runner's database."""
+        return {"path": str(self.path), "name": self.name, "description": self.description, "stages": list(self.stages),
+                "model": self.model, "lamella": self.lamella, "stock": self.stock, "nest": self.nest,
+                "machine": self.machine, "output": {"folder": str(self.output_folder), "report": self.report_name},
+                "survey": self.survey}
+
+
+def inside(folder: Path, relative: str | os.PathLike, where: str) -> Path:
+    """`folder / relative`, refused (FablineError naming `where`) if it resolves outside `folder`."""
+    base = Path(os.path.realpath(folder))
+    target = Path(os.path.realpath(base / relative))
+    if target != base and base not in target.parents:
+        raise FablineError(f"{where}: {str(relative)!r} would be written outside the output folder {base}")
+    return target
+
+
+def load_job_file(path: str | os.PathLike) -> JobSpec:
+    """Read and check a job file; every problem is a one-line FablineError naming the file and key path."""
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise FablineError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FablineError(f"{path}: cannot read: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise FablineError(f"{path}: malformed TOML: {exc}") from None
+    return job_from_dict(raw, path)
+
+
+def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
+    """Check a parsed job table against SCHEMA and the stages' own vocabularies; `path` anchors relative paths."""
+    where = path.name
+    data = _check_table(raw, SCHEMA, where, "")
+    base = path.resolve().parent
+    if not _NAME.fullmatch(data["name"]):
+        raise FablineError(f"{where}: name: {data['name']!r} must be letters, digits, '.', '_' or '-' "
+                           "(it names output files)")
+    stages = _check_stages(data["stages"], where)
+    model = _check_model(data["model"], base, where)
+    for section, key in (("lamella", "materials_file"), ("stock", "file"), ("survey", "result")):
+        if data[section][key] is not None:
+            data[section][key] = str(_existing(base, data[section][key], f"{where}: {section}.{key}"))
+    if data["machine"]["profile"].endswith(".toml"):
+        data["machine"]["profile"] = str(_existing(base, data["machine"]["profile"], f"{where}: machine.profile"))
+    _check_values(data, where)
+    folder = base / data["output"]["folder"]
+    if folder.exists() and not folder.is_dir():
+        raise FablineError(f"{where}: output.folder: {folder} exists and is not a folder")
+    spec = JobSpec(path=path.resolve(), name=data["name"], description=data["description"], stages=stages, model=model,
+                   lamella=data["lamella"], stock=data["stock"], nest=data["nest"], machine=data["machine"],
+                   output_folder=folder.resolve(), report_name=data["output"]["report"], survey=data["survey"])
+    report = spec.output(spec.report_name)
+    if report.suffix != ".html":
+        raise FablineError(f"{where}: output.report: {spec.report_name!r} must end in .html")
+    return spec
+
+
+def _check_table(raw: Any, schema: dict[str, Any], where: str, prefix: str) -> dict[str, Any]:
+    """Unknown keys, wrong types and missing required keys of one table, recursively; defaults filled in."""
+    if not isinstance(raw, dict):
+        raise FablineError(f"{where}: {prefix.rstrip('.')}: expected a table, got {_type_name(raw)}")
+    for key in raw:
+        if key not in schema:
+            raise FablineError(f"{where}: {prefix}{key}: unknown key (allowed: {', '.join(schema)})")
+    checked: dict[str, Any] = {}
+    for key, rule in schema.items():
+        key_path = f"{prefix}{key}"
+        if isinstance(rule, dict):
+            checked[key] = _check_table(raw.get(key, {}), rule, where, f"{key_path}.")
+            continue
+        if key not in raw:
+            if rule.required:
+                raise FablineError(f"{where}: {key_path}: missing (required)")
+            checked[key] = rule.default.copy() if isinstance(rule.default, (list, dict)) else rule.default
+            continue
+        checked[key] = _typed(raw[key], rule.kind, where, key_path)
+    return checked
+
+
+def _typed(value: Any, kind: type, where: str, key_path: str) -> Any:
+    """`value` if it is of `kind` (an integer is accepted as a number), else a FablineError naming the key."""
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(value, kind) and not (kind is not bool and isinstance(value, bool)):
+        return value
+    raise FablineError(f"{where}: {key_path}: expected {_TYPE_NAMES[kind]}, got {_type_name(value)} {value!r}")
+
+
+def _type_name(value: Any) -> str:
+    for kind in (bool, int, float, str, list, dict):
+        if isinstance(value, kind):
+            return {"bool": "boolean", "int": "integer", "float": "number", "str": "string",
+                    "list": "list", "dict": "table"}[kind.__name__]
+    return type(value).__name__
+
+
+def _check_stages(stages: list, where: str) -> tuple[str, ...]:
+    for k, stage in enumerate(stages):
+        if stage not in STAGES:
+            raise FablineError(f"{where}: stages[{k}]: unknown stage {stage!r} (use some of {', '.join(STAGES)})")
+    if len(set(stages)) != len(stages):
+        raise FablineError(f"{where}: stages: a stage is listed twice")
+    return tuple(s for s in STAGES if s in stages)
+
+
+def _check_model(model: dict[str, Any], base: Path, where: str) -> dict[str, Any]:
+    """Exactly one of model.design (a built-in design, options checked against its signature) or model.file."""
+    from fabline.model.designs import DESIGNS
+
+    if (model["design"] is None) == (model["file"] is None):
+        raise FablineError(f"{where}: model: give exactly one of model.design ({', '.join(DESIGNS)}) or model.file")
+    if model["file"] is not None:
+        if model["options"]:
+            raise FablineError(f"{where}: model.options: only for a built-in design, not with model.file")
+        return {"file": str(_existing(base, model["file"], f"{where}: model.file")), "options": {}}
+    if model["design"] not in DESIGNS:
+        raise FablineError(f"{where}: model.design: unknown design {model['design']!r} (use one of {', '.join(DESIGNS)})")
+    parameters = inspect.signature(DESIGNS[model["design"]]).parameters
+    options = {}
+    for key, value in model["options"].items():
+        key_path = f"model.options.{key}"
+        if key not in parameters:
+            raise FablineError(f"{where}: {key_path}: unknown option of design {model['design']} "
+                               f"(allowed: {', '.join(parameters)})")
+        default = parameters[key].default
+        if isinstance(default, tuple):
+            value = tuple(_typed(v, type(d), where, f"{key_path}[{k}]") for k, (v, d) in
+                          enumerate(zip(_typed(value, list, where, key_path), default)))
+            if len(value) != len(default):
+                raise FablineError(f"{where}: {key_path}: expected {len(default)} values")
+        else:
+            value = _typed(value, type(default), where, key_path)
+        options[key] = value
+    return {"design": model["design"], "options": options}
+
+
+def _existing(base: Path, relative: str, where: str) -> Path:
+    path = base / relative
+    if not path.is_file():
+        raise FablineError(f"{where}: file not found: {path}")
+    return path.resolve()
+
+
+def _check_values(data: dict[str, Any], where: str) -> None:
+    """Ranges and vocabularies: sheet size, profile, material, machine profile, positive numbers."""
+    from fabline.export.machine import available_machines
+    from fabline.nest.stock import parse_sheet_size
+    from fabline.unroll.materials import load_materials, parse_profile
+
+    def wrapped(key_path: str, check, *args):
+        try:
+            return check(*args)
+        except FablineError as exc:
+            raise FablineError(f"{where}: {key_path}: {exc}") from None
+
+    wrapped("stock.sheet", parse_sheet_size, data["stock"]["sheet"])
+    wrapped("lamella.profile", parse_profile, data["lamella"]["profile"])
+    materials = wrapped("lamella.materials_file", load_materials, data["lamella"]["materials_file"])
+    if data["lamella"]["material"] not in materials:
+        raise FablineError(f"{where}: lamella.material: unknown material {data['lamella']['material']!r} "
+                           f"(use one of {', '.join(sorted(materials))})")
+    machine = data["machine"]["profile"]
+    if machine not in available_machines() and not machine.endswith(".toml"):
+        raise FablineError(f"{where}: machine.profile: unknown machine {machine!r} "
+                           f"(use one of {', '.join(available_machines())} or a .toml file)")
+    for key_path, value in (("stock.count", data["stock"]["count"]), ("nest.time_limit", data["nest"]["time_limit"]),
+                            ("machine.time_scale", data["machine"]["time_scale"])):
+        if value is not None and not value > 0:
+            raise FablineError(f"{where}: {key_path}: must be positive, got {value}")
+    for key in ("kerf", "gap", "margin"):
+        if data["nest"][key] < 0:
+            raise FablineError(f"{where}: nest.{key}: must not be negative, got {data['nest'][key]}")

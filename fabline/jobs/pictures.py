@@ -1,0 +1,150 @@
+"""Pictures for the report and the web page, as inline SVG: the model in 3D, nested sheets, cutting progress.
+
+The model is drawn as an axonometric projection of its lamellas (depth-sorted, the two families in two
+colours); a sheet as its placed part outlines with the part ids written on them; cutting progress as the
+G-code's own motion, the executed lines in red over the labelled sheet.
+"""
+
+from __future__ import annotations
+
+import html
+import math
+import os
+import re
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the runner's web page imports this module; keep its start-up light
+    from fabline.model import Network
+    from fabline.nest.layout import Sheet
+    from fabline.unroll.parts import Part
+
+FAMILY_COLOURS = {"A": "#1f6fb4", "B": "#d9622b"}
+_VIEWBOX = re.compile(r'viewBox="([^"]+)"')
+
+
+def _fmt(value: float) -> str:
+    return f"{value:.1f}".rstrip("0").rstrip(".")
+
+
+def _points(xy: np.ndarray) -> str:
+    return " ".join(f"{_fmt(x)},{_fmt(y)}" for x, y in xy)
+
+
+def model_svg(network: "Network", width: int = 720, azimuth: float = -35.0, elevation: float = 30.0) -> str:
+    """The network's lamellas seen from above at an angle (azimuth/elevation in degrees), as an SVG string."""
+    az, el = math.radians(azimuth), math.radians(elevation)
+    right = np.array([math.cos(az), math.sin(az), 0.0])
+    towards = np.array([-math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
+    up = np.cross(towards, right)
+    curves = [lam.points for lam in network.lamellas]
+    every = np.vstack(curves)
+    screen = [np.column_stack([c @ right, -(c @ up)]) for c in curves]
+    depth = [float(np.mean(c @ towards)) for c in curves]
+    lo = np.min(np.vstack(screen), axis=0)
+    hi = np.max(np.vstack(screen), axis=0)
+    scale = (width - 40) / max(hi[0] - lo[0], 1e-9)
+    height = int((hi[1] - lo[1]) * scale) + 40
+    lines = []
+    for k in np.argsort(depth):
+        xy = (screen[k] - lo) * scale + 20
+        colour = FAMILY_COLOURS.get(network.lamellas[k].family, "#555")
+        lines.append(f'<polyline points="{_points(xy)}" fill="none" stroke="{colour}" stroke-width="1.6" '
+                     f'stroke-linejoin="round"><title>{html.escape(network.lamellas[k].id)}</title></polyline>')
+    extent = np.ptp(every, axis=0)
+    caption = (f"{html.escape(network.name)}: {len(network.lamellas)} lamellas, {len(network.nodes)} nodes, "
+               f"{_fmt(extent[0])} x {_fmt(extent[1])} x {_fmt(extent[2])} {network.units}")
+    return (f'<svg xmlns="http://www.w3.org/2000/svg" class="model" viewBox="0 0 {width} {height + 24}" '
+            f'width="{width}" height="{height + 24}"><rect width="100%" height="100%" fill="#fbfbf8"/>'
+            + "".join(lines)
+            + f'<text x="20" y="{height + 14}" font-size="13" fill="#333">{caption}</text></svg>')
+
+
+def sheet_svg(sheet: "Sheet", parts: dict[str, "Part"], width: int = 900) -> str:
+    """One nested sheet, y up as on the machine: outlines, holes and marks of every placed part, ids on top."""
+    from fabline.nest.layout import place
+    from fabline.unroll.parts import flatten_contour
+
+    scale = width / sheet.width
+    height = sheet.height * scale
+
+    def to_screen(xy: np.ndarray) -> np.ndarray:
+        return np.column_stack([xy[:, 0] * scale, height - xy[:, 1] * scale])
+
+    shapes, labels = [], []
+    for placement in sheet.placements:
+        part = parts[placement.part]
+        outline = place(flatten_contour(part.outline, 0.5)[:, :2], placement)
+        d = "M" + " L".join(f"{_fmt(x)},{_fmt(y)}" for x, y in to_screen(outline)) + " Z"
+        for hole in part.holes:
+            d += " M" + " L".join(f"{_fmt(x)},{_fmt(y)}" for x, y in
+                                  to_screen(place(flatten_contour(hole, 0.5)[:, :2], placement))) + " Z"
+        shapes.append(f'<path d="{d}" fill="#dfe8f1" fill-rule="evenodd" stroke="#234" stroke-width="0.6">'
+                      f'<title>{html.escape(part.id)}</title></path>')
+        for mark in part.marks:
+            shapes.append(f'<polyline points="{_points(to_screen(place(np.asarray(mark)[:, :2], placement)))}" '
+                          'fill="none" stroke="#8a5" stroke-width="0.5"/>')
+        cx, cy = to_screen(outline[:-1].mean(axis=0, keepdims=True))[0]
+        extent = np.ptp(outline, axis=0) * scale
+        size = max(6.0, min(14.0, 0.6 * min(extent.max() / max(len(part.id), 1), extent.min() if extent.min() > 8 else 14)))
+        rotate = f' transform="rotate(-90 {_fmt(cx)} {_fmt(cy)})"' if extent[1] > 2 * extent[0] else ""
+        labels.append(f'<text x="{_fmt(cx)}" y="{_fmt(cy)}" font-size="{_fmt(size)}" text-anchor="middle" '
+                      f'dominant-baseline="middle" fill="#102a43"{rotate}>{html.escape(part.id)}</text>')
+    return (f'<svg xmlns="http://www.w3.org/2000/svg" class="sheet" viewBox="0 0 {_fmt(width)} {_fmt(height)}" '
+            f'width="{_fmt(width)}" height="{_fmt(height)}" data-sheet="{html.escape(sheet.id)}" '
+            f'data-mm-per-unit="{1 / scale:.6g}">'
+            f'<rect width="100%" height="100%" fill="#f7f7f2" stroke="#999"/>' + "".join(shapes) + "".join(labels)
+            + "</svg>")
+
+
+@lru_cache(maxsize=32)
+def _program_paths(path: str, mtime: float) -> tuple[tuple[np.ndarray, bool], ...]:
+    """Per program line, the polyline it moves along (machine mm) and whether it is a rapid; cached per file."""
+    from fabline.link.gcode import ModalState
+    from fabline.link.program import load_program
+
+    blocks = load_program(path).plan(ModalState(), (0.0, 0.0, 0.0))
+    moves = []
+    for block in blocks:
+        segment = block.segment
+        if segment is None:
+            moves.append((np.empty((0, 2)), True))
+            continue
+        steps = 1 if segment.center is None else max(4, min(64, int(segment.length / 5)))
+        xy = np.array([segment.point_at(i / steps)[:2] for i in range(steps + 1)])
+        moves.append((xy, segment.rapid))
+    return tuple(moves)
+
+
+def progress_svg(program: str | os.PathLike, done_lines: int, background: str = "") -> str:
+    """The program's cutting moves over the sheet picture `background` (an SVG file, may be empty): the first
+    `done_lines` lines' moves red and thick (cut), the rest grey (to do)."""
+    moves = _program_paths(str(program), os.path.getmtime(program))
+    sheet = Path(background).read_text(encoding="utf-8") if background and Path(background).is_file() else ""
+    match = _VIEWBOX.search(sheet)
+    cuts = [xy for xy, rapid in moves if not rapid and len(xy)]
+    if match and "data-mm-per-unit" in sheet:
+        x0, y0, width, height = (float(v) for v in match.group(1).split())
+        mm_per_unit = float(re.search(r'data-mm-per-unit="([^"]+)"', sheet).group(1))
+        origin, scale = np.array([0.0, height * mm_per_unit]), 1 / mm_per_unit
+    else:
+        every = np.vstack(cuts) if cuts else np.zeros((1, 2))
+        lo, hi = every.min(axis=0) - 10, every.max(axis=0) + 10
+        scale = 900 / max(hi[0] - lo[0], 1e-9)
+        width, height = 900.0, (hi[1] - lo[1]) * scale
+        origin = np.array([lo[0], hi[1]])
+    done, todo = [], []
+    for n, (xy, rapid) in enumerate(moves):
+        if rapid or not len(xy):
+            continue
+        screen = np.column_stack([(xy[:, 0] - origin[0]) * scale, (origin[1] - xy[:, 1]) * scale])
+        (done if n < done_lines else todo).append(_points(screen))
+    layer = "".join(f'<polyline points="{p}" fill="none" stroke="#bbb" stroke-width="0.8"/>' for p in todo)
+    layer += "".join(f'<polyline points="{p}" fill="none" stroke="#d62828" stroke-width="1.8"/>' for p in done)
+    inner = re.sub(r"^<svg[^>]*>|</svg>\s*$", "", sheet.strip()) if sheet else '<rect width="100%" height="100%" fill="#f7f7f2"/>'
+    return (f'<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {_fmt(width)} {_fmt(height)}" '
+            f'data-done="{done_lines}" data-lines="{len(moves)}">{inner}<g class="progress">{layer}</g></svg>')

@@ -1,0 +1,217 @@
+"""The main job: model -> unroll -> nest -> export -> stream -> report, every output inside the job's folder.
+
+`prepare_job` runs the stages up to export (what the runner does before any sheet is cut) and writes a
+report; `run_job` also streams every sheet to the job's machine (the built-in simulator by default) and
+rewrites the report with the streaming log. Each stage's files are written atomically by that stage.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from fabline.errors import FablineError
+from fabline.fileio import atomic_output, read_json, write_json
+from fabline.jobs.jobfile import JobSpec, load_job_file
+from fabline.model import Network, load_network, save_network
+
+Say = Callable[[str], None]
+
+
+@dataclass
+class JobResult:
+    """Everything a job made: the stage results, the files, the timings and the per-sheet streaming log."""
+
+    spec: JobSpec
+    network: Network
+    partset: Any = None
+    structure: list[dict] = field(default_factory=list)
+    nesting: Any = None
+    export: Any = None
+    sheet_files: list[dict] = field(default_factory=list)
+    stream: list[dict] = field(default_factory=list)
+    survey: dict | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+    report_path: Path | None = None
+
+    def sheet_programs(self) -> list[tuple[str, str, str]]:
+        """(sheet id, G-code path, labelled sheet SVG path) per sheet, in cutting order, for the runner."""
+        return [(s["sheet"], s["gcode"], s["svg"]) for s in self.sheet_files]
+
+
+def build_network(spec: JobSpec) -> Network:
+    """The job's network: the built-in design with its options, or the model file."""
+    from fabline.model.designs import DESIGNS
+
+    if "file" in spec.model:
+        return load_network(spec.model["file"])
+    try:
+        return DESIGNS[spec.model["design"]](**spec.model["options"])
+    except FablineError as exc:
+        raise FablineError(f"{spec.path.name}: model: {exc}") from None
+
+
+def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) -> JobResult:
+    """Run the job's stages up to export and write the report; returns the result with the sheet programs."""
+    spec = job if isinstance(job, JobSpec) else load_job_file(job)
+    spec.output_folder.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+    result = JobResult(spec, network=_timed(timings, "model", lambda: build_network(spec)), timings=timings)
+    save_network(result.network, spec.output("network.json"))
+    say(f"model: {result.network.name}, {len(result.network.lamellas)} lamellas, {len(result.network.nodes)} nodes")
+    if "unroll" in spec.stages:
+        _timed(result.timings, "unroll", lambda: _unroll(result))
+        say(f"unroll: {len(result.partset.parts)} parts -> {spec.output('parts.json')}")
+    if "nest" in spec.stages:
+        _require(result.partset, "nest", "unroll", spec)
+        _timed(result.timings, "nest", lambda: _nest(result))
+        say(f"nest: {len(result.nesting.sheets)} sheet(s) -> {spec.output('nesting.json')}")
+    if "export" in spec.stages:
+        _require(result.nesting, "export", "nest", spec)
+        _timed(result.timings, "export", lambda: _export(result))
+        say(f"export: {len(result.sheet_files)} G-code program(s) -> {spec.output('gcode')}")
+    if spec.survey.get("result"):
+        result.survey = read_json(spec.survey["result"])
+    if "report" in spec.stages:
+        write_report(result)
+    return result
+
+
+def run_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None,
+            confirm_sheet: Callable[[int, int, str], None] | None = None) -> JobResult:
+    """The whole job: prepare, then stream every sheet (asking `confirm_sheet(k, n, sheet)` before each one
+    when given), then the report with the streaming log."""
+    spec = job if isinstance(job, JobSpec) else load_job_file(job)
+    result = prepare_job(spec, say)
+    if "stream" in spec.stages:
+        _require(result.sheet_files, "stream", "export", spec)
+        _timed(result.timings, "stream", lambda: _stream_all(result, say, confirm_sheet))
+        if "report" in spec.stages:
+            write_report(result)
+    return result
+
+
+def write_report(result: JobResult) -> Path:
+    """Write the HTML report and its JSON twin into the output folder; returns the HTML's path."""
+    from fabline.jobs.report import render_report, report_data
+
+    spec = result.spec
+    data = report_data(result)
+    result.report_path = spec.output(spec.report_name)
+    write_json(spec.output(Path(spec.report_name).with_suffix(".json")), data)
+    with atomic_output(result.report_path) as handle:
+        handle.write(render_report(result, data))
+    return result.report_path
+
+
+def _timed(timings: dict[str, float], name: str, work: Callable[[], Any]) -> Any:
+    started = time.perf_counter()
+    value = work()
+    timings[name] = round(time.perf_counter() - started, 3)
+    return value
+
+
+def _require(value: Any, stage: str, needs: str, spec: JobSpec) -> None:
+    if not value:
+        raise FablineError(f"{spec.path.name}: stages: '{stage}' needs '{needs}' in the same job")
+
+
+def _unroll(result: JobResult) -> None:
+    from fabline.unroll import save_parts, unroll_network
+    from fabline.unroll.materials import get_material, parse_profile
+    from fabline.unroll.options import UnrollOptions
+    from fabline.nest.stock import parse_sheet_size
+
+    spec = result.spec
+    material = get_material(spec.lamella["material"], spec.lamella["materials_file"])
+    sheet_length = max(parse_sheet_size(spec.stock["sheet"]))
+    options = UnrollOptions(profile=parse_profile(spec.lamella["profile"]), material=material,
+                            sheet_length=sheet_length, sheet_margin=spec.nest["margin"])
+    result.partset = unroll_network(result.network, options)
+    save_parts(result.partset, spec.output("parts.json"))
+    result.structure = structure_rows(result.network, options)
+
+
+def structure_rows(network: Network, options: Any) -> list[dict]:
+    """The structural check of every lamella (domain.md section 6), one summary row each."""
+    from fabline.geometry import analyse
+    from fabline.unroll.structure import check_lamella
+
+    geometry = analyse(network)
+    rows = []
+    for geo in geometry.lamellas.values():
+        check = check_lamella(geo, options.material, options.profile)
+        row = check.summary(options.material, options.profile)
+        row.pop("intervals")
+        row["warnings"] = check.warnings
+        rows.append(row)
+    return rows
+
+
+def _nest(result: JobResult) -> None:
+    from fabline.nest import save_nesting
+    from fabline.nest.nester import NestOptions, nest
+    from fabline.nest.stock import StockItem, load_stock, parse_sheet_size
+
+    spec = result.spec
+    if spec.stock["file"]:
+        stock = load_stock(spec.stock["file"])
+    else:
+        width, height = parse_sheet_size(spec.stock["sheet"])
+        stock = [StockItem(spec.stock["sheet"], width, height, spec.stock["count"])]
+    options = NestOptions(kerf=spec.nest["kerf"], gap=spec.nest["gap"], margin=spec.nest["margin"],
+                          rotation_steps=spec.nest["rotations"], time_limit=spec.nest["time_limit"])
+    result.nesting = nest(result.partset, stock, options, parts_file="parts.json").nesting
+    save_nesting(result.nesting, spec.output("nesting.json"))
+
+
+def _export(result: JobResult) -> None:
+    from fabline.export import ToolpathOptions, export_job, load_machine
+    from fabline.jobs.pictures import sheet_svg
+
+    spec = result.spec
+    profile = load_machine(spec.machine["profile"])
+    parts = {p.id: p for p in result.partset.parts}
+    result.export = export_job(result.nesting, parts, profile, ToolpathOptions(kerf=profile.kerf),
+                               dxf_dir=spec.output("dxf"), gcode_dir=spec.output("gcode"), name=spec.name,
+                               source=str(spec.output("nesting.json")))
+    result.sheet_files = []
+    for sheet, made in zip(result.nesting.sheets, result.export.sheets):
+        gcode = next(f for f in made.files if f.endswith(".gcode") or f.endswith(".nc"))
+        svg_path = spec.output(Path("sheets") / f"{Path(gcode).stem}.svg")
+        with atomic_output(svg_path) as handle:
+            handle.write(sheet_svg(sheet, parts))
+        result.sheet_files.append({"sheet": sheet.id, "gcode": gcode, "svg": str(svg_path), "parts": made.parts,
+                                   "cut_length_mm": made.summary.cut_length, "time_s": made.summary.time})
+
+
+def machine_port(spec: JobSpec) -> str:
+    """The job's port; a simulator URL gets the job's time scale unless it names its own."""
+    port = spec.machine["port"]
+    if port.startswith("sim://") and "time_scale=" not in port:
+        port += ("&" if "?" in port else "?") + f"time_scale={spec.machine['time_scale']:g}"
+    return port
+
+
+def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, str], None] | None) -> None:
+    from fabline.jobs.streaming import SheetStream
+
+    port = machine_port(result.spec)
+    result.stream = []
+    count = len(result.sheet_files)
+    for k, sheet in enumerate(result.sheet_files):
+        if confirm_sheet is not None:
+            confirm_sheet(k, count, sheet["sheet"])
+        started = time.perf_counter()
+        stream = SheetStream(port, sheet["gcode"], lambda done, position: None)
+        outcome = stream.run()
+        entry = {"sheet": sheet["sheet"], "program": sheet["gcode"], "outcome": outcome,
+                 "seconds": round(time.perf_counter() - started, 3), **stream.summary()}
+        result.stream.append(entry)
+        say(f"stream: sheet {k + 1} of {count} ({sheet['sheet']}): {entry['lines']} lines {outcome} "
+            f"in {entry['seconds']:.1f} s")
+        if outcome != "finished":
+            raise FablineError(f"stream: sheet {sheet['sheet']} stopped: {outcome}")

@@ -1,0 +1,434 @@
+"""The runner's job queue in SQLite (WAL mode): jobs, their sheets, machines and operator requests, crash-safe.
+
+States of a job:
+  queued -> preparing -> ready -> cutting -> ready -> ... -> cutting -> done
+  ready means "the next sheet is prepared and waits for a machine and for the operator to confirm it is
+  loaded"; cutting is "sheet k of n" on one machine. Any live state may go to paused (and back to the state
+  it left) or to cancelled; preparing or cutting may go to failed. done, failed and cancelled are final.
+Every change is one short IMMEDIATE transaction, so several runner threads (or processes) never claim the
+same job or sheet twice, and a runner killed at any moment leaves the database consistent.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sqlite3
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator
+
+from fabline.errors import FablineError
+
+STATES = ("queued", "preparing", "ready", "cutting", "paused", "failed", "cancelled", "done")
+FINAL_STATES = frozenset({"failed", "cancelled", "done"})
+TRANSITIONS: dict[str, frozenset[str]] = {
+    "queued": frozenset({"preparing", "paused", "cancelled"}),
+    "preparing": frozenset({"queued", "ready", "failed", "paused", "cancelled"}),
+    "ready": frozenset({"cutting", "paused", "cancelled", "failed"}),
+    "cutting": frozenset({"ready", "done", "failed", "paused", "cancelled"}),
+    "paused": frozenset({"queued", "ready", "cutting", "cancelled", "failed"}),
+    "failed": frozenset(), "cancelled": frozenset(), "done": frozenset(),
+}
+REQUESTS = ("pause", "resume", "cancel")
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS jobs (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    name TEXT NOT NULL,
+    job_file TEXT,
+    state TEXT NOT NULL,
+    paused_from TEXT,
+    machine TEXT,
+    sheet INTEGER NOT NULL DEFAULT 0,
+    sheets INTEGER NOT NULL DEFAULT 0,
+    confirmed INTEGER NOT NULL DEFAULT -1,
+    request TEXT,
+    error TEXT,
+    report TEXT,
+    created REAL NOT NULL,
+    updated REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS sheets (
+    job_id INTEGER NOT NULL REFERENCES jobs(id),
+    k INTEGER NOT NULL,
+    name TEXT NOT NULL,
+    program TEXT NOT NULL,
+    svg TEXT NOT NULL DEFAULT '',
+    lines INTEGER NOT NULL DEFAULT 0,
+    done_lines INTEGER NOT NULL DEFAULT 0,
+    machine TEXT,
+    started REAL,
+    finished REAL,
+    PRIMARY KEY (job_id, k)
+);
+CREATE TABLE IF NOT EXISTS machines (
+    name TEXT PRIMARY KEY,
+    port TEXT NOT NULL,
+    state TEXT NOT NULL DEFAULT 'idle',
+    job_id INTEGER,
+    position TEXT NOT NULL DEFAULT '[0, 0, 0]',
+    updated REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS events (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    time REAL NOT NULL,
+    job_id INTEGER,
+    machine TEXT,
+    message TEXT NOT NULL
+);
+"""
+
+
+@dataclass(frozen=True)
+class SheetRow:
+    """One sheet of a job: its program file, an SVG picture of it, and how far it has been cut."""
+
+    job_id: int
+    k: int
+    name: str
+    program: str
+    svg: str
+    lines: int
+    done_lines: int
+    machine: str | None
+    started: float | None
+    finished: float | None
+
+
+@dataclass(frozen=True)
+class JobRow:
+    """One job as stored: state, the machine it runs on, the sheet being cut and the one confirmed loaded."""
+
+    id: int
+    name: str
+    job_file: str | None
+    state: str
+    paused_from: str | None
+    machine: str | None
+    sheet: int
+    sheets: int
+    confirmed: int
+    request: str | None
+    error: str | None
+    report: str | None
+    created: float
+    updated: float
+
+    def describe(self) -> str:
+        """The state as an operator reads it: 'cutting sheet 2 of 3', 'ready: load sheet 1 of 3'."""
+        if self.state == "cutting":
+            return f"cutting sheet {self.sheet + 1} of {self.sheets}"
+        if self.state == "ready":
+            waiting = "confirmed, waiting for a machine" if self.confirmed >= self.sheet else "load and confirm"
+            return f"ready: sheet {self.sheet + 1} of {self.sheets} ({waiting})"
+        if self.state == "failed" and self.error:
+            return f"failed: {self.error}"
+        return self.state
+
+
+class JobQueue:
+    """The SQLite queue; one connection per thread (open one JobQueue per thread or process)."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._db = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, check_same_thread=False)
+        self._db.row_factory = sqlite3.Row
+        try:
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=FULL")
+            self._db.executescript(_SCHEMA)
+        except sqlite3.DatabaseError as exc:
+            raise FablineError(f"{self.path}: not a runner database: {exc}") from None
+
+    def close(self) -> None:
+        """Close the connection."""
+        self._db.close()
+
+    @contextmanager
+    def transaction(self) -> Iterator[sqlite3.Connection]:
+        """One IMMEDIATE transaction: the write lock is taken up front, so read-then-update is atomic."""
+        self._db.execute("BEGIN IMMEDIATE")
+        try:
+            yield self._db
+        except BaseException:
+            self._db.execute("ROLLBACK")
+            raise
+        self._db.execute("COMMIT")
+
+    # --- jobs -------------------------------------------------------------------------------------------
+
+    def submit(self, name: str, job_file: str | None = None, programs: list[tuple[str, str, str]] | None = None) -> int:
+        """Queue a job file (state queued, prepared by the runner) or ready programs [(sheet name, path, svg)]."""
+        now = time.time()
+        with self.transaction() as db:
+            state = "queued" if programs is None else "ready"
+            cursor = db.execute("INSERT INTO jobs (name, job_file, state, created, updated) VALUES (?, ?, ?, ?, ?)",
+                                (name, job_file, state, now, now))
+            job_id = int(cursor.lastrowid)
+            if programs is not None:
+                self._add_sheets(db, job_id, programs)
+            self._event(db, job_id, None, f"job {job_id} {name} submitted ({state})")
+        return job_id
+
+    def _add_sheets(self, db: sqlite3.Connection, job_id: int, programs: list[tuple[str, str, str]]) -> None:
+        if not programs:
+            raise FablineError(f"job {job_id}: no sheets to cut")
+        for k, (name, program, svg) in enumerate(programs):
+            db.execute("INSERT INTO sheets (job_id, k, name, program, svg, lines) VALUES (?, ?, ?, ?, ?, ?)",
+                       (job_id, k, name, str(program), svg, _count_lines(program)))
+        db.execute("UPDATE jobs SET sheets = ? WHERE id = ?", (len(programs), job_id))
+
+    def job(self, job_id: int) -> JobRow:
+        """One job; an unknown id is a FablineError."""
+        row = self._db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone()
+        if row is None:
+            raise FablineError(f"job {job_id}: no such job")
+        return JobRow(**dict(row))
+
+    def jobs(self) -> list[JobRow]:
+        """Every job, oldest first."""
+        return [JobRow(**dict(r)) for r in self._db.execute("SELECT * FROM jobs ORDER BY id")]
+
+    def job_files(self) -> set[str]:
+        """The job files already in the queue (any state)."""
+        return {r[0] for r in self._db.execute("SELECT job_file FROM jobs WHERE job_file IS NOT NULL")}
+
+    def sheets(self, job_id: int) -> list[SheetRow]:
+        """The sheets of a job in cutting order."""
+        return [SheetRow(**{k: r[k] for k in SheetRow.__dataclass_fields__})
+                for r in self._db.execute("SELECT * FROM sheets WHERE job_id = ? ORDER BY k", (job_id,))]
+
+    def _move(self, db: sqlite3.Connection, job: JobRow, state: str, **fields: Any) -> None:
+        """Change a job's state (checked against TRANSITIONS) and any other columns, in the open transaction."""
+        if state != job.state and state not in TRANSITIONS[job.state]:
+            raise FablineError(f"job {job.id}: cannot go from {job.state} to {state}")
+        fields = {"state": state, "updated": time.time(), **fields}
+        db.execute(f"UPDATE jobs SET {', '.join(f'{k} = ?' for k in fields)} WHERE id = ?", (*fields.values(), job.id))
+
+    def _locked_job(self, db: sqlite3.Connection, job_id: int) -> JobRow:
+        row = db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone()
+        if row is None:
+            raise FablineError(f"job {job_id}: no such job")
+        return JobRow(**dict(row))
+
+    # --- preparation ------------------------------------------------------------------------------------
+
+    def claim_preparation(self) -> JobRow | None:
+        """Take the oldest queued job into preparing, or None."""
+        with self.transaction() as db:
+            row = db.execute("SELECT * FROM jobs WHERE state = 'queued' ORDER BY id LIMIT 1").fetchone()
+            if row is None:
+                return None
+            job = JobRow(**dict(row))
+            self._move(db, job, "preparing")
+        return self.job(job.id)
+
+    def prepared(self, job_id: int, programs: list[tuple[str, str, str]], report: str | None) -> None:
+        """A job's sheet programs are made: preparing -> ready (unless it was paused or cancelled meanwhile)."""
+        with self.transaction() as db:
+            job = self._locked_job(db, job_id)
+            if job.state in FINAL_STATES:
+                return
+            self._add_sheets(db, job_id, programs)
+            if job.state == "paused":
+                db.execute("UPDATE jobs SET paused_from = 'ready', report = ? WHERE id = ?", (report, job_id))
+            else:
+                self._move(db, job, "ready", report=report)
+            self._event(db, job_id, None, f"job {job_id} prepared: {len(programs)} sheet(s)")
+
+    def fail(self, job_id: int, error: str) -> None:
+        """A job cannot go on: failed, with the one-line reason."""
+        with self.transaction() as db:
+            job = self._locked_job(db, job_id)
+            if job.state in FINAL_STATES:
+                return
+            self._move(db, job, "failed", error=error, request=None)
+            self._event(db, job_id, job.machine, f"job {job_id} failed: {error}")
+
+    # --- machines ---------------------------------------------------------------------------------------
+
+    def register_machine(self, name: str, port: str) -> None:
+        """Add or update a machine; its job (if any) stays assigned, so a restarted runner resumes it."""
+        with self.transaction() as db:
+            db.execute("INSERT INTO machines (name, port, updated) VALUES (?, ?, ?) "
+                       "ON CONFLICT(name) DO UPDATE SET port = excluded.port, updated = excluded.updated",
+                       (name, port, time.time()))
+
+    def machines(self) -> list[dict[str, Any]]:
+        """Every machine: name, port, state, job, position."""
+        rows = self._db.execute("SELECT * FROM machines ORDER BY name").fetchall()
+        return [{**dict(r), "position": json.loads(r["position"])} for r in rows]
+
+    def set_machine(self, name: str, state: str | None = None, position: list[float] | None = None) -> None:
+        """Record a machine's state and/or position."""
+        fields: dict[str, Any] = {"updated": time.time()}
+        if state is not None:
+            fields["state"] = state
+        if position is not None:
+            fields["position"] = json.dumps([round(float(v), 3) for v in position])
+        with self.transaction() as db:
+            db.execute(f"UPDATE machines SET {', '.join(f'{k} = ?' for k in fields)} WHERE name = ?",
+                       (*fields.values(), name))
+
+    def claim_for_machine(self, machine: str) -> JobRow | None:
+        """The job this machine works on: the one already assigned to it (after a restart), else the oldest
+        ready job nobody has; None when there is nothing to do."""
+        with self.transaction() as db:
+            row = db.execute("SELECT * FROM jobs WHERE machine = ? AND state IN ('ready', 'cutting', 'paused') "
+                             "ORDER BY id LIMIT 1", (machine,)).fetchone()
+            if row is None:
+                row = db.execute("SELECT * FROM jobs WHERE machine IS NULL AND state = 'ready' "
+                                 "ORDER BY id LIMIT 1").fetchone()
+                if row is None:
+                    db.execute("UPDATE machines SET job_id = NULL WHERE name = ?", (machine,))
+                    return None
+                db.execute("UPDATE jobs SET machine = ?, updated = ? WHERE id = ?", (machine, time.time(), row["id"]))
+                self._event(db, row["id"], machine, f"job {row['id']} assigned to {machine}")
+            db.execute("UPDATE machines SET job_id = ? WHERE name = ?", (row["id"], machine))
+        return self.job(row["id"])
+
+    def start_sheet(self, job_id: int, machine: str) -> SheetRow | None:
+        """ready -> cutting for the job's current sheet if the operator confirmed it; None if not (yet)."""
+        with self.transaction() as db:
+            job = self._locked_job(db, job_id)
+            if job.state == "cutting" and job.machine == machine:
+                pass  # a restarted runner resumes the sheet it was cutting
+            elif job.state == "ready" and job.machine == machine and job.confirmed >= job.sheet:
+                self._move(db, job, "cutting")
+                db.execute("UPDATE sheets SET machine = ?, started = ? WHERE job_id = ? AND k = ?",
+                           (machine, time.time(), job_id, job.sheet))
+                self._event(db, job_id, machine, f"job {job_id}: cutting sheet {job.sheet + 1} of {job.sheets}")
+            else:
+                return None
+        return self.sheets(job_id)[job.sheet]
+
+    def sheet_progress(self, job_id: int, k: int, done_lines: int) -> None:
+        """How many lines of sheet k the controller has executed."""
+        with self.transaction() as db:
+            db.execute("UPDATE sheets SET done_lines = ? WHERE job_id = ? AND k = ?", (done_lines, job_id, k))
+
+    def finish_sheet(self, job_id: int, k: int) -> JobRow:
+        """Sheet k is cut: on to the next sheet (ready, awaiting confirmation) or done."""
+        with self.transaction() as db:
+            job = self._locked_job(db, job_id)
+            if job.state != "cutting" or job.sheet != k:
+                raise FablineError(f"job {job_id}: sheet {k + 1} finished but the job is {job.describe()}")
+            db.execute("UPDATE sheets SET done_lines = lines, finished = ? WHERE job_id = ? AND k = ?",
+                       (time.time(), job_id, k))
+            last = k + 1 >= job.sheets
+            self._move(db, job, "done" if last else "ready", sheet=k if last else k + 1)
+            self._event(db, job_id, job.machine, f"job {job_id}: sheet {k + 1} of {job.sheets} cut"
+                        + ("; job done" if last else f"; load sheet {k + 2}"))
+            if last:
+                db.execute("UPDATE machines SET job_id = NULL WHERE name = ?", (job.machine,))
+        return self.job(job_id)
+
+    # --- operator -------------------------------------------------------------------------------------
+
+    def confirm_sheet(self, job_id: int, k: int | None = None) -> JobRow:
+        """The operator says sheet k (default: the job's next sheet) is on the bed; it may start."""
+        with self.transaction() as db:
+            job = self._locked_job(db, job_id)
+            k = job.sheet if k is None else k
+            if job.state not in ("ready", "paused") or k != job.sheet:
+                raise FablineError(f"job {job_id}: sheet {k + 1} cannot be confirmed now ({job.describe()})")
+            db.execute("UPDATE jobs SET confirmed = ?, updated = ? WHERE id = ?", (k, time.time(), job_id))
+            self._event(db, job_id, job.machine, f"job {job_id}: operator confirmed sheet {k + 1} is loaded")
+        return self.job(job_id)
+
+    def request(self, job_id: int, action: str) -> JobRow:
+        """Pause, resume or cancel a job. A job not being cut changes at once; a cutting job gets the request
+        and its machine's worker carries it out (feed hold, cycle start, abort) and records the outcome."""
+        if action not in REQUESTS:
+            raise FablineError(f"unknown action {action!r} (use one of {', '.join(REQUESTS)})")
+        with self.transaction() as db:
+            job = self._locked_job(db, job_id)
+            if job.state in FINAL_STATES:
+                raise FablineError(f"job {job_id}: already {job.state}")
+            cutting = job.state == "cutting" or (job.state == "paused" and job.paused_from == "cutting")
+            if action == "pause" and job.state != "paused":
+                if cutting:
+                    db.execute("UPDATE jobs SET request = 'pause' WHERE id = ?", (job_id,))
+                else:
+                    self._move(db, job, "paused", paused_from=job.state)
+            elif action == "resume":
+                if job.state != "paused" and job.request != "pause":
+                    raise FablineError(f"job {job_id}: not paused ({job.describe()})")
+                if cutting:
+                    db.execute("UPDATE jobs SET request = 'resume' WHERE id = ?", (job_id,))
+                else:
+                    self._move(db, job, job.paused_from or "queued", paused_from=None)
+            elif action == "cancel":
+                if cutting:
+                    db.execute("UPDATE jobs SET request = 'cancel' WHERE id = ?", (job_id,))
+                else:
+                    self._move(db, job, "cancelled")
+                    if job.machine:
+                        db.execute("UPDATE machines SET job_id = NULL WHERE name = ?", (job.machine,))
+            self._event(db, job_id, job.machine, f"job {job_id}: operator asked to {action}")
+        return self.job(job_id)
+
+    def take_request(self, job_id: int) -> str | None:
+        """The pending operator request of a cutting job, cleared as it is taken."""
+        with self.transaction() as db:
+            row = db.execute("SELECT request FROM jobs WHERE id = ?", (job_id,)).fetchone()
+            if row is None or row["request"] is None:
+                return None
+            db.execute("UPDATE jobs SET request = NULL WHERE id = ?", (job_id,))
+        return row["request"]
+
+    def set_cutting_state(self, job_id: int, state: str) -> None:
+        """The worker carried out a request on a cutting job: paused, cutting again, or cancelled."""
+        with self.transaction() as db:
+            job = self._locked_job(db, job_id)
+            self._move(db, job, state, paused_from="cutting" if state == "paused" else None)
+            if state == "cancelled":
+                db.execute("UPDATE machines SET job_id = NULL WHERE name = ?", (job.machine,))
+            self._event(db, job_id, job.machine, f"job {job_id}: {state}")
+
+    # --- recovery and log -------------------------------------------------------------------------------
+
+    def recover(self) -> int:
+        """After a crash: jobs left in preparing go back to queued (preparation is repeatable); returns how many."""
+        with self.transaction() as db:
+            count = db.execute("UPDATE jobs SET state = 'queued', updated = ? WHERE state = 'preparing'",
+                               (time.time(),)).rowcount
+            if count:
+                self._event(db, None, None, f"runner restarted: {count} job(s) back to queued for preparation")
+        return count
+
+    def _event(self, db: sqlite3.Connection, job_id: int | None, machine: str | None, message: str) -> None:
+        db.execute("INSERT INTO events (time, job_id, machine, message) VALUES (?, ?, ?, ?)",
+                   (time.time(), job_id, machine, message))
+
+    def log(self, message: str, job_id: int | None = None, machine: str | None = None) -> None:
+        """Add a line to the runner's event log."""
+        with self.transaction() as db:
+            self._event(db, job_id, machine, message)
+
+    def events(self, after: int = 0, limit: int = 200) -> list[dict[str, Any]]:
+        """Event log entries with id > after, oldest first (at most `limit`, the newest ones)."""
+        rows = self._db.execute("SELECT * FROM (SELECT * FROM events WHERE id > ? ORDER BY id DESC LIMIT ?) "
+                                "ORDER BY id", (after, limit)).fetchall()
+        return [dict(r) for r in rows]
+
+    def snapshot(self) -> dict[str, Any]:
+        """Queue, machines and sheet progress as plain data for the web page and `fabline runner status`."""
+        jobs = []
+        for job in self.jobs():
+            sheets = self.sheets(job.id)
+            jobs.append({**job.__dict__, "status": job.describe(),
+                         "sheet_list": [{"k": s.k, "name": s.name, "lines": s.lines, "done_lines": s.done_lines,
+                                         "machine": s.machine} for s in sheets]})
+        return {"jobs": jobs, "machines": self.machines(), "events": self.events(limit=20)}
+
+
+def _count_lines(program: str | os.PathLike) -> int:
+    """Command lines of a G-code program as the streamer sends them; a bad program is a FablineError."""
+    from fabline.link.program import load_program
+
+    return len(load_program(program).lines)

@@ -1,0 +1,138 @@
+"""The job report: one self-contained HTML page (pictures first) and its JSON twin with the same figures.
+
+Order on the page: the model in 3D (inline SVG projection), every sheet as an SVG with its parts
+labelled, then the strips table with the structural check, the streaming log summary, the survey result
+when there is one, and the stage timings. No external files, scripts or fonts: the page works offline.
+"""
+
+from __future__ import annotations
+
+import html
+import time
+from pathlib import Path
+from typing import Any
+
+from fabline.jobs.pictures import model_svg
+
+REPORT_SCHEMA = "fabline.report/1"
+_STYLE = """
+body{font:14px/1.4 system-ui,sans-serif;margin:24px;color:#1b1b1b;max-width:1400px}
+h1{margin:0 0 4px}h2{margin:28px 0 8px;border-bottom:1px solid #ccc}
+.pictures{display:flex;flex-wrap:wrap;gap:16px;align-items:flex-start}
+figure{margin:0;border:1px solid #ddd;padding:6px;background:#fff}figure svg{max-width:100%;height:auto}
+figcaption{font-size:12px;color:#444}
+table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ddd;padding:2px 6px;text-align:right}
+th{background:#f0f0ea}td:first-child,th:first-child{text-align:left}
+.fail{background:#fbd5d5}.ok{background:#e3f3e0}.note{color:#555}
+"""
+
+
+def report_data(result: Any) -> dict[str, Any]:
+    """The report's figures as plain JSON data (the HTML shows the same)."""
+    spec = result.spec
+    network = result.network
+    files_by_sheet = {f["sheet"]: f for f in result.sheet_files}
+    sheets = []
+    for sheet in result.nesting.sheets if result.nesting else []:
+        files = files_by_sheet.get(sheet.id, {})
+        sheets.append({"id": sheet.id, "width_mm": sheet.width, "height_mm": sheet.height,
+                       "parts": [p.part for p in sheet.placements],
+                       **{k: files[k] for k in ("gcode", "svg", "cut_length_mm", "time_s") if k in files}})
+    structure = result.structure
+    failing = [row["lamella"] for row in structure if row["utilisation"] > 1.0]
+    return {
+        "schema": REPORT_SCHEMA,
+        "job": spec.to_dict(),
+        "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "model": {"name": network.name, "units": network.units, "lamellas": len(network.lamellas),
+                  "nodes": len(network.nodes), "meta": network.meta},
+        "parts": ({"count": len(result.partset.parts),
+                   "by_kind": _count(p.kind for p in result.partset.parts)} if result.partset else None),
+        "structure": {"lamellas": structure, "max_utilisation": max((r["utilisation"] for r in structure), default=None),
+                      "failing": failing, "passes": not failing},
+        "nesting": ({"sheets": sheets, "summary": result.nesting.summary} if result.nesting else None),
+        "stream": {"sheets": result.stream,
+                   "lines": sum(s["lines"] for s in result.stream),
+                   "executed": sum(s["executed"] for s in result.stream),
+                   "finished": bool(result.stream) and all(s["outcome"] == "finished" for s in result.stream)},
+        "survey": result.survey,
+        "timings_s": result.timings,
+    }
+
+
+def _count(values) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for value in values:
+        counts[value] = counts.get(value, 0) + 1
+    return counts
+
+
+def render_report(result: Any, data: dict[str, Any]) -> str:
+    """The self-contained HTML page for a job result and its report data."""
+    spec = result.spec
+    e = html.escape
+    parts = [f"<!doctype html><html lang=en><head><meta charset=utf-8><title>fabline report: {e(spec.name)}</title>"
+             f"<style>{_STYLE}</style></head><body>",
+             f"<h1>{e(spec.name)}</h1><p class=note>{e(spec.description)} Report made {e(data['created'])} "
+             f"from {e(str(spec.path))}.</p>",
+             "<h2>Model and sheets</h2><div class=pictures>",
+             f"<figure id=model>{model_svg(result.network)}<figcaption>The model, lamella families A (blue) and "
+             "B (orange); hover a curve for its id.</figcaption></figure>"]
+    for entry in data["nesting"]["sheets"] if data["nesting"] else []:
+        svg = Path(entry["svg"]).read_text(encoding="utf-8") if entry.get("svg") else ""
+        parts.append(f"<figure class=sheet-figure data-sheet=\"{e(entry['id'])}\">{svg}<figcaption>Sheet {e(entry['id'])}: "
+                     f"{entry['width_mm']:g} x {entry['height_mm']:g} mm, {len(entry['parts'])} parts"
+                     + (f", cut {entry['cut_length_mm'] / 1000:.1f} m, about {entry['time_s'] / 60:.0f} min"
+                        if "cut_length_mm" in entry else "") + "</figcaption></figure>")
+    parts.append("</div>")
+    parts.append(_structure_table(data["structure"]))
+    parts.append(_stream_table(data["stream"]))
+    parts.append(_survey_section(data["survey"]))
+    timings = ", ".join(f"{k} {v:.1f} s" for k, v in data["timings_s"].items())
+    parts.append(f"<h2>Run</h2><p>Stages: {e(', '.join(spec.stages))}. Time per stage: {e(timings)}.</p>")
+    if data["parts"]:
+        kinds = ", ".join(f"{n} {k}" for k, n in data["parts"]["by_kind"].items())
+        parts.append(f"<p>{data['parts']['count']} parts: {e(kinds)}.</p>")
+    parts.append("</body></html>\n")
+    return "".join(parts)
+
+
+def _structure_table(structure: dict[str, Any]) -> str:
+    rows = structure["lamellas"]
+    if not rows:
+        return "<h2>Strips and structural check</h2><p>No unroll stage in this job.</p>"
+    verdict = ("every lamella passes" if structure["passes"]
+               else f"{len(structure['failing'])} lamella(s) exceed yield: {', '.join(structure['failing'])}")
+    head = ("<tr><th>lamella</th><th>length m</th><th>min radius mm</th><th>max twist rad/m</th>"
+            "<th>bending %</th><th>shear %</th><th>helix %</th><th>combined %</th><th>governing</th></tr>")
+    body = []
+    for row in rows:
+        css = "fail" if row["utilisation"] > 1.0 else "ok"
+        radius = f"{row['min_radius_mm']:.0f}" if row["min_radius_mm"] else "straight"
+        body.append(f"<tr class={css}><td>{html.escape(row['lamella'])}</td><td>{row['length_mm'] / 1000:.3f}</td>"
+                    f"<td>{radius}</td><td>{row['max_twist_rad_per_m']:.3f}</td>"
+                    + "".join(f"<td>{100 * row[f'utilisation_{k}']:.0f}</td>" for k in ("bending", "shear", "helix", "combined"))
+                    + f"<td>{row['governing']}</td></tr>")
+    first = rows[0]
+    return (f"<h2>Strips and structural check</h2><p>{html.escape(verdict)}; largest utilisation "
+            f"{100 * structure['max_utilisation']:.0f} % (allowed radius {first['min_allowed_radius_mm']:.0f} mm, "
+            f"twist {first['max_allowed_twist_rad_per_m']:.3f} rad/m).</p><table id=strips>{head}{''.join(body)}</table>")
+
+
+def _stream_table(stream: dict[str, Any]) -> str:
+    if not stream["sheets"]:
+        return "<h2>Streaming</h2><p>Not streamed in this run.</p>"
+    head = "<tr><th>sheet</th><th>lines</th><th>executed</th><th>outcome</th><th>seconds</th><th>port</th></tr>"
+    body = "".join(f"<tr class={'ok' if s['outcome'] == 'finished' else 'fail'}><td>{html.escape(s['sheet'])}</td>"
+                   f"<td>{s['lines']}</td><td>{s['executed']}</td><td>{html.escape(s['outcome'])}</td>"
+                   f"<td>{s['seconds']:.1f}</td><td>{html.escape(s['port'])}</td></tr>" for s in stream["sheets"])
+    return (f"<h2>Streaming</h2><p>{stream['executed']} of {stream['lines']} lines executed"
+            f"{' - every sheet finished' if stream['finished'] else ''}.</p><table id=stream>{head}{body}</table>")
+
+
+def _survey_section(survey: dict[str, Any] | None) -> str:
+    if not survey:
+        return ""
+    summary = survey.get("summary", {})
+    items = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>" for k, v in summary.items())
+    return f"<h2>Survey</h2><table id=survey>{items}</table>"

@@ -1,0 +1,214 @@
+"""The shop-floor runner: prepares queued jobs and cuts their sheets on several machines, one sheet at a time each.
+
+One preparer thread turns queued job files into sheet programs (the pipeline up to export); one worker
+thread per machine takes a ready job, waits for the operator to confirm the sheet is loaded, and streams
+its program through the link stage with a journal beside the program. Everything lives in the SQLite
+queue and the journals, so a runner killed at any moment (kill -9 included) picks up where it stopped:
+a sheet being cut resumes from its journal without repeating or skipping a line.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from fabline.errors import FablineError
+from fabline.jobs.queue import JobQueue, JobRow, SheetRow
+from fabline.jobs.streaming import SheetStream
+
+
+@dataclass(frozen=True)
+class MachineConfig:
+    """A machine the runner drives: its name (shown to the operator) and its port (serial device or sim:// URL)."""
+
+    name: str
+    port: str
+
+
+def parse_machine(text: str) -> MachineConfig:
+    """'NAME=PORT' (e.g. 'laser1=/dev/ttyUSB0' or 'sim1=sim://sim1?time_scale=100')."""
+    name, sep, port = text.partition("=")
+    if not sep or not name or not port:
+        raise FablineError(f"--machine {text!r}: expected NAME=PORT, e.g. laser1=/dev/ttyUSB0")
+    return MachineConfig(name.strip(), port.strip())
+
+
+class Runner:
+    """The runner's threads over the queue at `db_path`; `start()` them, `stop()` to end (the state stays)."""
+
+    def __init__(self, db_path: str | Path, machines: list[MachineConfig], auto_confirm: bool = False,
+                 poll: float = 0.2, prepare: bool = True):
+        if len({m.name for m in machines}) != len(machines):
+            raise FablineError("runner: two machines with the same name")
+        self.db_path = Path(db_path)
+        self.machines = machines
+        self.auto_confirm = auto_confirm
+        self.poll = poll
+        self.prepare = prepare
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        queue = JobQueue(self.db_path)
+        queue.recover()
+        for machine in machines:
+            queue.register_machine(machine.name, machine.port)
+        queue.close()
+
+    def start(self) -> None:
+        """Start the preparer and one worker per machine (daemon threads)."""
+        targets = [(self._machine_loop, (m,), f"machine-{m.name}") for m in self.machines]
+        if self.prepare:
+            targets.append((self._prepare_loop, (), "preparer"))
+        self._threads += [threading.Thread(target=target, args=args, name=name, daemon=True)
+                          for target, args, name in targets]
+        for thread in self._threads:
+            thread.start()
+
+    def watch_folder(self, folder: str | Path, every: float) -> None:
+        """Queue each job file (*.toml) that appears in `folder`, once per file; a bad one is queued as failed
+        with its one-line error, so the operator sees why it will not run."""
+        thread = threading.Thread(target=self._watch_loop, args=(Path(folder), every), name="watch", daemon=True)
+        self._threads.append(thread)
+
+    def _watch_loop(self, folder: Path, every: float) -> None:
+        from fabline.jobs.jobfile import load_job_file
+
+        queue = JobQueue(self.db_path)
+        while True:
+            known = queue.job_files()
+            for path in sorted(folder.glob("*.toml")):
+                if str(path.resolve()) in known:
+                    continue
+                try:
+                    spec = load_job_file(path)
+                    queue.submit(spec.name, job_file=str(spec.path))
+                except FablineError as exc:
+                    queue.fail(queue.submit(path.stem, job_file=str(path.resolve())), str(exc))
+            if self._stop.wait(every):
+                break
+        queue.close()
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Ask every thread to stop after its current step and wait for them."""
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(timeout)
+
+    def run_until_idle(self, timeout: float) -> None:
+        """Block until no job is left unfinished (every one done, failed or cancelled) or `timeout` passes."""
+        queue = JobQueue(self.db_path)
+        deadline = time.monotonic() + timeout
+        try:
+            while time.monotonic() < deadline:
+                if all(job.state in ("done", "failed", "cancelled") for job in queue.jobs()):
+                    return
+                time.sleep(self.poll)
+            raise FablineError(f"runner: jobs still unfinished after {timeout:g} s")
+        finally:
+            queue.close()
+
+    # --- preparation ------------------------------------------------------------------------------------
+
+    def _prepare_loop(self) -> None:
+        from fabline.jobs.pipeline import prepare_job
+
+        queue = JobQueue(self.db_path)
+        while not self._stop.is_set():
+            job = queue.claim_preparation()
+            if job is None:
+                self._stop.wait(self.poll)
+                continue
+            try:
+                prepared = prepare_job(job.job_file)
+                queue.prepared(job.id, prepared.sheet_programs(), str(prepared.report_path))
+            except FablineError as exc:
+                queue.fail(job.id, str(exc))
+            except Exception as exc:  # a bug in a stage must not take the runner down; the job records it
+                queue.fail(job.id, f"internal error while preparing: {type(exc).__name__}: {exc}")
+        queue.close()
+
+    # --- machines ---------------------------------------------------------------------------------------
+
+    def _machine_loop(self, machine: MachineConfig) -> None:
+        queue = JobQueue(self.db_path)
+        while not self._stop.is_set():
+            job = queue.claim_for_machine(machine.name)
+            if job is None:
+                queue.set_machine(machine.name, state="idle")
+                self._stop.wait(self.poll)
+                continue
+            sheet = self._next_sheet(queue, job, machine)
+            if sheet is None:
+                self._stop.wait(self.poll)
+                continue
+            try:
+                self._cut(queue, job, sheet, machine)
+            except FablineError as exc:
+                queue.fail(job.id, f"sheet {sheet.k + 1} on {machine.name}: {exc}")
+                queue.set_machine(machine.name, state="idle")
+        queue.close()
+
+    def _next_sheet(self, queue: JobQueue, job: JobRow, machine: MachineConfig) -> SheetRow | None:
+        """The sheet to cut now, or None while it waits for the operator (confirmation or resume)."""
+        if job.state == "paused":
+            queue.set_machine(machine.name, state="paused")
+            return None
+        if job.state == "ready" and job.confirmed < job.sheet:
+            if not self.auto_confirm:
+                queue.set_machine(machine.name, state=f"waiting: load sheet {job.sheet + 1} of {job.sheets}")
+                return None
+            queue.confirm_sheet(job.id, job.sheet)
+        return queue.start_sheet(job.id, machine.name)
+
+    def _cut(self, queue: JobQueue, job: JobRow, sheet: SheetRow, machine: MachineConfig) -> None:
+        """Stream one sheet to the end (resuming from its journal), carrying out operator requests meanwhile."""
+        queue.set_machine(machine.name, state=f"cutting job {job.id} sheet {sheet.k + 1} of {job.sheets}")
+        last_write = [0.0]
+
+        def on_progress(done_lines: int, position: tuple[float, ...] | None) -> None:
+            now = time.monotonic()
+            if now - last_write[0] >= self.poll or done_lines >= sheet.lines:
+                last_write[0] = now
+                queue.sheet_progress(job.id, sheet.k, done_lines)
+                if position is not None:
+                    queue.set_machine(machine.name, position=list(position))
+
+        stream = SheetStream(machine.port, sheet.program, on_progress)
+        watcher = threading.Thread(target=self._watch_requests, args=(job.id, stream, machine), daemon=True)
+        watcher.start()
+        try:
+            outcome = stream.run()
+        finally:
+            stream.closed.set()
+            watcher.join()
+        if outcome == "finished":
+            after = queue.finish_sheet(job.id, sheet.k)
+            queue.set_machine(machine.name, state="idle" if after.state == "done" else
+                              f"waiting: load sheet {after.sheet + 1} of {after.sheets}")
+        elif stream.cancelled:
+            queue.set_cutting_state(job.id, "cancelled")
+            queue.set_machine(machine.name, state="idle")
+        else:
+            queue.set_machine(machine.name, state="stopped (resumes on restart)")
+
+    def _watch_requests(self, job_id: int, stream: SheetStream, machine: MachineConfig) -> None:
+        """While a sheet streams: carry out pause, resume and cancel requests; a stopping runner stops the stream
+        (feed hold and reset; the journal resumes the rest on the next start)."""
+        queue = JobQueue(self.db_path)
+        while not stream.closed.wait(self.poll):
+            if self._stop.is_set():
+                stream.stop()
+                break
+            request = queue.take_request(job_id)
+            if request == "pause":
+                stream.pause()
+                queue.set_cutting_state(job_id, "paused")
+                queue.set_machine(machine.name, state="paused (feed hold)")
+            elif request == "resume":
+                stream.resume()
+                queue.set_cutting_state(job_id, "cutting")
+                queue.set_machine(machine.name, state="cutting")
+            elif request == "cancel":
+                stream.cancel()
+        queue.close()

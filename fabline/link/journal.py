@@ -1,0 +1,136 @@
+"""The stream journal: an append-only, fsynced record of every line sent to and answered by the controller.
+
+Format (`fabline.link-journal/1`): one JSON object per line, each with an `event`:
+  start    {program, sha256, lines, mode}    a new job (or a resumed one) begins
+  sent     {n, line}                         program line n (0-based; `line` = file line) was written to the port
+  ok       {n, line}                         the controller accepted line n (parsed into its planner)
+  error    {n, line, code}                   the controller rejected line n with error:code
+  alarm    {code}                            the controller raised ALARM:code
+  done     {count}                           the first `count` lines are known to be executed
+  resume   {count}                           a resume restarts after the first `count` lines
+  stopped  {reason}                          the stream stopped early (error, alarm, abort, lost connection)
+  finished {}                                every line executed; the job is complete
+Acknowledgements are fsynced before the buffer space they free is used again, so after any crash
+the journal is at most one receive buffer (128 bytes of lines) behind the controller.
+A half-written last record (the host died while writing it) is ignored.
+Default location: beside the program, `<program>.journal`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from fabline.errors import FablineError
+
+JOURNAL_FORMAT = "fabline.link-journal/1"
+
+
+def default_journal_path(program_path: str | os.PathLike) -> Path:
+    """Where a program's journal lives unless told otherwise: `<program>.journal`."""
+    return Path(f"{program_path}.journal")
+
+
+@dataclass
+class JournalState:
+    """What a journal says about a job, replayed from its records."""
+
+    sha256: str | None = None
+    total: int = 0
+    acked: int = 0
+    sent: int = 0
+    done: int = 0
+    resumed_at: int | None = None
+    finished: bool = False
+    error: tuple[int, int] | None = None
+    alarm: int | None = None
+    stopped: str | None = None
+
+
+class Journal:
+    """Append-only job journal; `commit()` makes everything recorded so far durable (fsync)."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self._handle = None
+
+    def open(self) -> "Journal":
+        """Open for appending (creating the file and its folder if needed)."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self._handle = open(self.path, "a", encoding="ascii", newline="\n")
+        except OSError as exc:
+            raise FablineError(f"{self.path}: cannot open journal: {exc.strerror}") from None
+        return self
+
+    def record(self, event: str, **fields) -> None:
+        """Append one record (buffered until `commit`)."""
+        self._handle.write(json.dumps({"event": event, **fields}, separators=(",", ":")) + "\n")
+
+    def commit(self) -> None:
+        """Flush and fsync: every record so far survives a crash."""
+        self._handle.flush()
+        os.fsync(self._handle.fileno())
+
+    def close(self) -> None:
+        """Commit and close."""
+        if self._handle is not None:
+            self.commit()
+            self._handle.close()
+            self._handle = None
+
+    def __enter__(self) -> "Journal":
+        return self.open()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def read_journal(path: str | os.PathLike) -> JournalState:
+    """Replay a journal into a JournalState; a malformed record other than a torn last one is an error."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="ascii")
+    except FileNotFoundError:
+        raise FablineError(f"{path}: no journal to resume from (was the job ever started with this journal?)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FablineError(f"{path}: cannot read journal: {exc}") from None
+    state = JournalState()
+    rows = text.split("\n")
+    for number, row in enumerate(rows, 1):
+        if not row:
+            continue
+        try:
+            record = json.loads(row)
+            event = record["event"]
+        except (json.JSONDecodeError, KeyError, TypeError):
+            if number == len(rows):
+                break
+            raise FablineError(f"{path}:{number}: malformed journal record") from None
+        if event == "start":
+            if state.sha256 not in (None, record["sha256"]):
+                raise FablineError(f"{path}:{number}: journal mixes two different programs")
+            state.sha256, state.total = record["sha256"], record["lines"]
+            state.finished, state.stopped, state.error, state.alarm = False, None, None, None
+        elif event == "sent":
+            state.sent = max(state.sent, record["n"] + 1)
+        elif event == "ok":
+            state.acked = max(state.acked, record["n"] + 1)
+        elif event == "error":
+            state.error = (record["n"], record["code"])
+        elif event == "alarm":
+            state.alarm = record["code"]
+        elif event == "done":
+            state.done = max(state.done, record["count"])
+        elif event == "resume":
+            state.resumed_at = record["count"]
+            state.done = state.acked = state.sent = record["count"]
+        elif event == "stopped":
+            state.stopped = record["reason"]
+        elif event == "finished":
+            state.finished = True
+    if state.sha256 is None:
+        raise FablineError(f"{path}: journal has no start record")
+    return state

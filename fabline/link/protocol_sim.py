@@ -1,0 +1,173 @@
+"""pyserial URL handler for `sim://NAME?option=value&...`: a port wired to an in-process GRBL simulator.
+
+Simulators live in a per-process registry by NAME, so a reconnect after a dropped connection reaches
+the same controller, as a real one outlives its USB cable. Options (used when NAME is first opened):
+time_scale, log (executed-line log path), drop_at, corrupt_at (comma-separated byte offsets),
+error_line, error_code, alarm_line, alarm_code, stall_at, stall_seconds.
+"""
+
+from __future__ import annotations
+
+import threading
+import urllib.parse
+
+from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout
+
+from fabline.link.simulator import ConnectionDropped, Faults, GrblSimulator
+
+_SIMULATORS: dict[str, GrblSimulator] = {}
+_REGISTRY_LOCK = threading.Lock()
+
+
+def register_simulator(name: str, simulator: GrblSimulator) -> None:
+    """Make `sim://name` reach `simulator` (replacing and closing any earlier one of that name)."""
+    with _REGISTRY_LOCK:
+        old = _SIMULATORS.pop(name, None)
+        _SIMULATORS[name] = simulator
+    if old is not None and old is not simulator:
+        old.close()
+
+
+def get_simulator(name: str) -> GrblSimulator | None:
+    """The simulator `sim://name` reaches, if one exists."""
+    with _REGISTRY_LOCK:
+        return _SIMULATORS.get(name)
+
+
+def close_simulator(name: str) -> None:
+    """Stop and forget the simulator `sim://name`."""
+    with _REGISTRY_LOCK:
+        simulator = _SIMULATORS.pop(name, None)
+    if simulator is not None:
+        simulator.close()
+
+
+def simulator_from_options(query: str) -> GrblSimulator:
+    """A new simulator configured by a `key=value&...` string (the options of a sim:// URL); ValueError if bad."""
+    options = {key: values[-1] for key, values in urllib.parse.parse_qs(query).items()}
+
+    def number(key: str, kind, default=None):
+        return kind(options.pop(key)) if key in options else default
+
+    def offsets(key: str) -> list[int]:
+        return [int(v) for v in options.pop(key, "").split(",") if v]
+
+    faults = Faults(drop_at=offsets("drop_at"), corrupt_at=offsets("corrupt_at"),
+                    error_line=number("error_line", int), error_code=number("error_code", int, 20),
+                    alarm_line=number("alarm_line", int), alarm_code=number("alarm_code", int, 1),
+                    stall_at=number("stall_at", int), stall_seconds=number("stall_seconds", float, 0.0))
+    time_scale = number("time_scale", float, 1.0)
+    log = options.pop("log", None)
+    if options:
+        raise ValueError(f"unknown simulator option(s) {sorted(options)}")
+    return GrblSimulator(time_scale=time_scale, executed_log=log, faults=faults)
+
+
+def _simulator_from_url(url: str) -> GrblSimulator:
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme != "sim":
+        raise SerialException(f"expected sim://NAME, got {url!r}")
+    name = parts.netloc or "grbl"
+    with _REGISTRY_LOCK:
+        if name not in _SIMULATORS:
+            try:
+                _SIMULATORS[name] = simulator_from_options(parts.query)
+            except ValueError as exc:
+                raise SerialException(f"bad sim:// option in {url!r}: {exc}") from None
+        return _SIMULATORS[name]
+
+
+class Serial(SerialBase):
+    """A pyserial port whose far end is a GrblSimulator in this process."""
+
+    def open(self) -> None:
+        """Connect to (or create) the named simulator."""
+        if self._port is None:
+            raise SerialException("port must be configured before it can be used")
+        if self.is_open:
+            raise SerialException("port is already open")
+        self._simulator = _simulator_from_url(self.portstr)
+        self._connection = self._simulator.attach()
+        self.is_open = True
+
+    def close(self) -> None:
+        """Disconnect; the simulator keeps running."""
+        if self.is_open:
+            self._simulator.detach(self._connection)
+            self.is_open = False
+
+    def _check(self) -> None:
+        if not self.is_open:
+            raise PortNotOpenError()
+        if self._simulator.connection != self._connection or not self._simulator._connected:
+            raise SerialException("device disconnected (connection to the simulator was dropped)")
+
+    def _reconfigure_port(self, *args, **kwargs) -> None:
+        """Nothing to configure on a simulated line."""
+
+    @property
+    def in_waiting(self) -> int:
+        """Bytes the simulator sent that were not read yet."""
+        self._check()
+        return self._simulator.pending_output()
+
+    def read(self, size: int = 1) -> bytes:
+        """Read up to `size` bytes, honouring the port timeout."""
+        self._check()
+        data = bytearray()
+        timeout = Timeout(self._timeout)
+        while len(data) < size:
+            chunk = self._simulator.read(size - len(data), None if timeout.expired() else min(timeout.time_left(), 0.05) if self._timeout is not None else 0.05)
+            self._check()
+            data += chunk
+            if timeout.expired():
+                break
+        return bytes(data)
+
+    def write(self, data) -> int:
+        """Deliver bytes to the simulator; an injected drop raises SerialException like a vanished device."""
+        self._check()
+        try:
+            self._simulator.receive(bytes(data))
+        except ConnectionDropped as exc:
+            raise SerialException(f"device disconnected: {exc}") from None
+        return len(data)
+
+    def reset_input_buffer(self) -> None:
+        """Discard what the simulator sent so far."""
+        self._check()
+        while self._simulator.read(4096, None):
+            pass
+
+    def reset_output_buffer(self) -> None:
+        """Nothing is buffered on the way out."""
+
+    def flush(self) -> None:
+        """Writes are delivered at once."""
+
+    @property
+    def cts(self) -> bool:
+        return True
+
+    @property
+    def dsr(self) -> bool:
+        return True
+
+    @property
+    def ri(self) -> bool:
+        return False
+
+    @property
+    def cd(self) -> bool:
+        return True
+
+    def _update_rts_state(self) -> None:
+        pass
+
+    def _update_dtr_state(self) -> None:
+        pass
+
+    def _update_break_state(self) -> None:
+        pass
+
+

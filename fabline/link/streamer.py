@@ -1,0 +1,710 @@
+"""Stream a G-code program to a GRBL 1.1 controller over any pyserial URL, journaled so nothing is lost.
+
+`Streamer(port).run(program, on_progress=..., journal=...)` is the one entry point the CLI and the job
+runner use. It detects the controller, streams with character counting (or send-response), polls
+status, stops safely on `error:N`, alarms, an abort or a lost connection, and resumes from the last
+line known to be executed after re-establishing the modal state. How it knows what was executed:
+  * `ok` means parsed into the planner; a status report `Ln:N` means every line before N is done;
+    Idle with nothing in flight means every acknowledged line is done.
+  * after a lost connection it waits for the controller to finish, discards any half-received line
+    (`#` + newline always fails to parse) and reads `$G`: its T word is the tag of the last line parsed,
+    which settles the lines that were sent but whose `ok` never arrived.
+  * after an alarm or a halt (feed hold + reset) the planner is flushed; the interrupted line is the
+    one whose path holds the stopped position, and it is run again from its start.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import serial
+
+from fabline.errors import FablineError
+from fabline.link.codes import explain_alarm, explain_error
+from fabline.link.gcode import Block, ModalState
+from fabline.link.journal import Journal, JournalState, default_journal_path, read_journal
+from fabline.link.program import Program, line_tag, load_program
+from fabline.link.protocol import (CYCLE_START, FEED_HOLD, RX_BUFFER_SIZE, SOFT_RESET, STATUS_QUERY,
+                                   CharacterCounter, LineSplitter, Response, StatusReport, classify)
+
+MODES = ("counting", "send-response")
+POSITION_TOLERANCE = 0.01
+"""mm: status reports carry three decimals; a stopped position is matched to a path within this."""
+_FLUSH_LINE = b"#\n"
+_TAG = re.compile(r"\bT(\d+)\b")
+_OPTIONS = re.compile(r"^OPT:[^,]*,(\d+),(\d+)")
+
+
+@dataclass(frozen=True)
+class Progress:
+    """What a progress callback receives: lines acknowledged of total, machine state and work position, times in s."""
+
+    acked: int
+    total: int
+    percent: float
+    state: str
+    position: tuple[float, ...] | None
+    elapsed: float
+    remaining: float | None
+    file_line: int | None
+
+
+@dataclass(frozen=True)
+class StreamResult:
+    """How a run ended: completed, or stopped by an abort (resumable with `resume=True`)."""
+
+    completed: bool
+    executed: int
+    total: int
+    reason: str | None
+    elapsed: float
+    bytes_sent: int
+
+
+class StreamInterrupted(FablineError):
+    """The stream stopped on an error, an alarm or a lost connection; the journal allows a resume.
+
+    `reason` is one of: error, alarm, connection, reset; `executed` counts the program lines known done.
+    """
+
+    def __init__(self, message: str, reason: str, executed: int):
+        super().__init__(message)
+        self.reason = reason
+        self.executed = executed
+
+
+class _Lost(Exception):
+    """The port failed (device vanished, socket closed)."""
+
+
+class Streamer:
+    """A GRBL 1.1 host on one port (`/dev/ttyUSB0`, `socket://host:port`, `rfc2217://...`, `sim://grbl`, ...)."""
+
+    def __init__(self, port: str, *, baud: int = 115200, mode: str = "counting", status_interval: float = 0.2,
+                 connect_timeout: float = 5.0, settle_timeout: float = 3600.0, reconnect_timeout: float = 0.0,
+                 exchange_log: str | os.PathLike | None = None):
+        if mode not in MODES:
+            raise FablineError(f"unknown streaming mode {mode!r}; use one of {', '.join(MODES)}")
+        self.url = port
+        self.baud = baud
+        self.mode = mode
+        self.status_interval = status_interval
+        self.connect_timeout = connect_timeout
+        self.settle_timeout = settle_timeout
+        self.reconnect_timeout = reconnect_timeout
+        self.exchange_log_path = exchange_log
+        self.rx_buffer = RX_BUFFER_SIZE
+        self.settings: dict[int, float] = {}
+        self.version: str | None = None
+        self.status: StatusReport | None = None
+        self._wco: tuple[float, ...] | None = None
+        self._port = None
+        self._log = None
+        self._counter: CharacterCounter | None = None
+        self._errors: list[tuple[int | None, int | None]] = []
+        self._status_after_last_ok = False
+        self.bytes_sent = 0
+        self._splitter = LineSplitter()
+        self._realtime: list[bytes] = []
+        self._abort = threading.Event()
+        self._control = threading.Lock()
+        self._paused = False
+
+    # ----- control from any thread -----------------------------------------------------------------
+    def pause(self) -> None:
+        """Feed hold: the machine decelerates to a stop; streaming continues into the buffers."""
+        with self._control:
+            self._realtime.append(FEED_HOLD)
+            self._paused = True
+
+    def resume(self) -> None:
+        """Cycle start after a pause."""
+        with self._control:
+            self._realtime.append(CYCLE_START)
+            self._paused = False
+
+    def abort(self) -> None:
+        """Stop the job safely (feed hold, then reset); the journal allows a later resume."""
+        self._abort.set()
+
+    @property
+    def paused(self) -> bool:
+        """Whether a pause is in effect."""
+        return self._paused
+
+    # ----- the job -----------------------------------------------------------------------------------
+    def run(self, program: Program | str | os.PathLike, *, on_progress: Callable[[Progress], None] | None = None,
+            journal: str | os.PathLike | None = None, resume: bool = False, check: bool = False,
+            unlock: bool = False, start_line: int | None = None) -> StreamResult:
+        """Stream `program`; `resume` continues an interrupted job from its journal; `check` runs GRBL check
+        mode ($C) over the whole program first; `unlock` clears an alarm ($X) left by an interrupted job;
+        `start_line` (a file line) overrides where a resume restarts when the journal cannot tell."""
+        if not isinstance(program, Program):
+            path = Path(program)
+            program = load_program(path)
+            journal = journal if journal is not None else default_journal_path(path)
+        if journal is None:
+            raise FablineError("a journal path is needed to stream a program that was not read from a file")
+        self.program, self.journal_path = program, Path(journal)
+        self.blocks = program.plan(ModalState(), (0.0, 0.0, 0.0))
+        previous = self._previous_job(resume, start_line)
+        self.on_progress = on_progress
+        self._abort.clear()
+        self._open()
+        try:
+            if check:
+                self._check_mode()
+            self.journal = Journal(self.journal_path).open()
+            try:
+                return self._job(previous, unlock, start_line)
+            finally:
+                self.journal.close()
+        finally:
+            self._close()
+
+    def _previous_job(self, resume: bool, start_line: int | None) -> JournalState | None:
+        """The journal of the job being resumed, checked against the program; None for a new job."""
+        if not resume:
+            if start_line is not None:
+                raise FablineError("--from-line needs --resume")
+            return None
+        state = read_journal(self.journal_path)
+        if state.sha256 != self.program.sha256:
+            raise FablineError(f"{self.journal_path}: journal belongs to a different program (the G-code file changed)")
+        if state.finished:
+            raise FablineError(f"{self.journal_path}: the job is already finished; nothing to resume")
+        if any(block.modal.distance == "G91" for block in self.blocks):
+            raise FablineError(f"{self.program.name}: programs that use relative distances (G91) cannot be resumed safely")
+        return state
+
+    def _job(self, previous: JournalState | None, unlock: bool, start_line: int | None) -> StreamResult:
+        program = self.program
+        self.started = time.monotonic()
+        self.bytes_sent = 0
+        if previous is None:
+            self._fresh_start(unlock)
+            self.journal.record("start", program=program.name, sha256=program.sha256, lines=len(program.lines),
+                                mode=self.mode)
+            self.acked = self.sent = self.done = 0
+            preamble = []
+        else:
+            self.journal.record("start", program=program.name, sha256=program.sha256, lines=len(program.lines),
+                                mode=self.mode)
+            self.acked, self.sent, self.done = previous.acked, previous.sent, previous.done
+            executed = self._recover(previous, unlock)
+            if start_line is not None:
+                executed = self._index_of_file_line(start_line)
+            preamble = self._preamble(executed)
+            self.acked = self.sent = self.done = executed
+            self.journal.record("resume", count=executed)
+        self.journal.commit()
+        self.first_index = self.done
+        while True:
+            try:
+                return self._stream(preamble)
+            except _Lost as exc:
+                self.journal.record("stopped", reason=f"connection lost: {exc}")
+                self.journal.commit()
+                if not self._reconnect():
+                    raise StreamInterrupted(
+                        f"{self.url}: connection lost ({exc}) after file line {self._file_line(self.acked - 1)}; "
+                        "run again with --resume", "connection", self.done) from None
+                executed = self._recover(JournalState(acked=self.acked, sent=self.sent, done=self.done), unlock=False)
+                preamble = self._preamble(executed)
+                self.acked = self.sent = self.done = executed
+                self.journal.record("resume", count=executed)
+                self.journal.commit()
+
+    def _stream(self, preamble: list[bytes]) -> StreamResult:
+        """Send everything from `self.done` on; return when the machine has executed the last line."""
+        lines = self.program.lines
+        outgoing = [(None, wire) for wire in preamble] + [(line.index, line.wire) for line in lines[self.done:]]
+        counter = CharacterCounter(self.rx_buffer, max_lines=1 if self.mode == "send-response" else None)
+        self._counter, self._errors = counter, []
+        self._status_after_last_ok = False
+        position, next_poll, next_report = 0, 0.0, 0.0
+        while True:
+            if self._abort.is_set():
+                return self._stop_on_abort(counter)
+            self._send_realtime()
+            batch = []
+            while position < len(outgoing) and counter.fits(len(outgoing[position][1])):
+                index, wire = outgoing[position]
+                counter.sent(index, len(wire))
+                if index is not None:
+                    self.journal.record("sent", n=index, line=lines[index].file_line)
+                    self.sent = index + 1
+                batch.append(wire)
+                position += 1
+            if batch:
+                self.journal.commit()
+                self._write(b"".join(batch))
+            now = time.monotonic()
+            if now >= next_poll:
+                self._write(STATUS_QUERY)
+                next_poll = now + self.status_interval
+            for response in self._read(0.005 if batch else 0.02):
+                if response.kind == "alarm":
+                    self._stop_on_alarm(response.code)
+                elif response.kind == "banner":
+                    self.journal.record("stopped", reason="controller reset")
+                    self.journal.commit()
+                    raise StreamInterrupted(f"{self.url}: the controller reset itself during the job (power or "
+                                            "USB problem?); check the machine, then run again with --resume --unlock",
+                                            "reset", self.done)
+            if self._errors:
+                self._stop_on_error(*self._errors[0])
+            if position == len(outgoing) and counter.in_flight == 0 and self.status is not None \
+                    and self.status.state == "Idle" and self._status_after_last_ok:
+                self.done = len(lines)
+                self.journal.record("done", count=self.done)
+                self.journal.record("finished")
+                self.journal.commit()
+                self._report(force=True)
+                return StreamResult(True, self.done, len(lines), None, time.monotonic() - self.started, self.bytes_sent)
+            if time.monotonic() >= next_report:
+                self._report()
+                next_report = time.monotonic() + 0.1
+
+    def _answered(self, response: Response) -> None:
+        """Match an ok or error:N to the oldest line in flight; errors are queued for the stream loop."""
+        index = self._counter.answered()
+        self._status_after_last_ok = False
+        if response.kind == "ok":
+            if index is not None:
+                self.journal.record("ok", n=index, line=self.program.lines[index].file_line)
+                self.acked = index + 1
+            return
+        if index is not None:
+            self.journal.record("error", n=index, line=self.program.lines[index].file_line, code=response.code)
+        self._errors.append((index, response.code))
+
+    def _stop_on_error(self, index: int | None, code: int | None) -> None:
+        """The controller rejected a line: halt it, journal how far it got, and raise."""
+        if index is None:
+            raise StreamInterrupted(f"{self.url}: controller refused a resume command: {explain_error(code)}",
+                                    "error", self.done)
+        line = self.program.lines[index]
+        self.journal.commit()
+        executed = self._halt(rejected=index)
+        self.journal.record("done", count=executed)
+        self.journal.record("stopped", reason=f"error:{code} at file line {line.file_line}")
+        self.journal.commit()
+        raise StreamInterrupted(f"{self.program.name}:{line.file_line}: controller answered "
+                                f"{explain_error(code)}: {line.source.strip()}; stopped with "
+                                f"{executed} lines executed", "error", executed)
+
+    def _track_status(self, status: StatusReport, counter: CharacterCounter) -> None:
+        """Advance the count of executed lines from `Ln:` (or Idle with nothing in flight)."""
+        self._status_after_last_ok = True
+        if self._errors:
+            return  # after a rejected line only the halt decides what ran
+        executed = self.done
+        if status.line_number is not None and status.state in ("Run", "Hold"):
+            index = self._index_of_file_line(status.line_number, strict=False)
+            if index is not None and index >= self.done:
+                executed = index
+        elif status.state == "Idle" and counter.in_flight == 0:
+            executed = self.acked
+        if executed > self.done:
+            self.done = executed
+            self.journal.record("done", count=executed)
+
+    # ----- stopping -------------------------------------------------------------------------------------
+    def _stop_on_alarm(self, code: int | None) -> None:
+        """An alarm flushed the controller: find the interrupted line from the stopped position, then stop."""
+        self.journal.record("alarm", code=code)
+        self.journal.commit()
+        status = self._query_status()
+        executed = self._executed_from_position(status, planner_empty=False)
+        self.done = executed
+        self.journal.record("done", count=executed)
+        self.journal.record("stopped", reason=f"ALARM:{code}")
+        self.journal.commit()
+        raise StreamInterrupted(f"{self.url}: {explain_alarm(code)} during file line {self._file_line(executed)}; "
+                                "check the machine, then run again with --resume --unlock", "alarm", executed)
+
+    def _stop_on_abort(self, counter: CharacterCounter) -> StreamResult:
+        executed = self._halt(rejected=None)
+        self.journal.record("done", count=executed)
+        self.journal.record("stopped", reason="aborted")
+        self.journal.commit()
+        self._report(force=True)
+        return StreamResult(False, executed, len(self.program.lines), "aborted", time.monotonic() - self.started,
+                            self.bytes_sent)
+
+    def _halt(self, rejected: int | None) -> int:
+        """Feed hold until the machine stands still, reset to flush its buffers, unlock; return lines executed."""
+        deadline = time.monotonic() + self.settle_timeout
+        while True:
+            self._write(FEED_HOLD)
+            status = self._query_status()
+            if status.state == "Hold" and status.substate == 0:
+                break
+            if status.state in ("Idle", "Alarm", "Check") and not (self._counter and self._counter.in_flight):
+                break
+            if time.monotonic() > deadline:
+                raise StreamInterrupted(f"{self.url}: the machine did not stop after a feed hold", "error", self.done)
+            time.sleep(0.02)
+        planner_empty = status.state == "Idle"
+        executed = self._executed_from_position(status, planner_empty, rejected)
+        self._soft_reset()
+        return executed
+
+    def _executed_from_position(self, status: StatusReport, planner_empty: bool, rejected: int | None = None) -> int:
+        """Lines executed when the machine stopped at `status`'s position with its planner flushed."""
+        acked = self.acked
+        if planner_empty:
+            return rejected if rejected is not None else acked
+        position = status.work_position(self._wco)
+        for index in range(self.done, acked):
+            segment = self.blocks[index].segment
+            if segment is None or segment.length <= POSITION_TOLERANCE:
+                continue
+            if segment.contains(position, POSITION_TOLERANCE) and math.dist(position, segment.end) > POSITION_TOLERANCE:
+                if rejected is not None and index > rejected:
+                    raise StreamInterrupted(
+                        f"{self.url}: the controller ran file line {self.program.lines[index].file_line}, past the "
+                        f"rejected line {self.program.lines[rejected].file_line}; resume with --from-line", "error", self.done)
+                return index
+        if rejected is not None:
+            return rejected
+        end = self.blocks[acked - 1].segment.end if acked and self.blocks[acked - 1].segment else None
+        if acked == 0 or (end is not None and math.dist(position, end) <= POSITION_TOLERANCE):
+            return acked
+        raise StreamInterrupted(f"{self.url}: cannot tell which line the machine stopped in (position {position}); "
+                                "check the part and resume with --from-line", "alarm", self.done)
+
+    # ----- resuming -------------------------------------------------------------------------------------
+    def _recover(self, previous: JournalState, unlock: bool) -> int:
+        """Bring a controller left by an interrupted job to Idle and return how many lines it executed."""
+        status = self._settle()
+        if status.state == "Alarm":
+            if not unlock:
+                raise FablineError(f"{self.url}: the controller is in alarm; check the machine, then resume with --unlock")
+            if previous.alarm is not None or previous.stopped and previous.stopped.startswith(("ALARM", "error", "aborted")):
+                executed = previous.done
+            else:
+                executed = self._executed_from_position(status, planner_empty=False)
+            self._soft_reset(unlock=True)
+            return executed
+        if status.state != "Idle":
+            raise FablineError(f"{self.url}: the controller is in state {status.state}; it must be Idle to resume")
+        if previous.stopped and previous.stopped.startswith(("error", "aborted", "ALARM")):
+            return previous.done
+        if previous.sent <= previous.acked:
+            return previous.acked
+        self._flush_partial_line()
+        modes = self._command(b"$G\n")
+        tag = next((int(match.group(1)) for text in modes if (match := _TAG.search(text))), None)
+        for index in range(previous.sent - 1, previous.acked - 2, -1):
+            if line_tag(index) == tag:
+                return index + 1
+        first, last = self._file_line(previous.acked), self._file_line(previous.sent - 1)
+        raise FablineError(f"{self.url}: cannot tell whether file lines {first}..{last} were executed (the controller "
+                           "was reset?); check the part and resume with --from-line")
+
+    def _preamble(self, executed: int) -> list[bytes]:
+        """Commands that restore the modal state after `executed` lines and move safely to the restart point."""
+        if executed >= len(self.program.lines):
+            return []
+        modal = self.blocks[executed - 1].modal if executed else ModalState()
+        target = self._position_after(executed)
+        lines = ["G21G90G17G94M5", f"{modal.coord}"]
+        status = self._query_status()
+        here = status.work_position(self._wco) or target
+        if not all(math.isclose(a, b, abs_tol=1e-4) for a, b in zip(here, target)):
+            top = max(here[2], target[2])
+            lines += [f"G0Z{top:.4f}", f"G0X{target[0]:.4f}Y{target[1]:.4f}", f"G0Z{target[2]:.4f}"]
+        lines += [f"{modal.plane}{modal.units}{modal.distance}{modal.feed_mode}{modal.coolant}",
+                  f"F{modal.feed:g}S{modal.speed:g}{modal.spindle}"]
+        if modal.motion == "G0" or (modal.motion == "G1" and modal.feed > 0):
+            lines.append(modal.motion)
+        elif modal.motion in ("G2", "G3") and not re.search(r"G0*[0-3](?!\d)", self.program.lines[executed].command):
+            raise FablineError(f"{self.program.name}:{self.program.lines[executed].file_line}: cannot restart here: the "
+                               f"line relies on modal {modal.motion}; resume with --from-line at a line with its own G word")
+        lines.append(f"T{line_tag(executed - 1)}")
+        return [f"{line}\n".encode("ascii") for line in lines]
+
+    def _position_after(self, executed: int) -> tuple[float, float, float]:
+        for block in reversed(self.blocks[:executed]):
+            if block.segment is not None:
+                return block.segment.end
+        return (0.0, 0.0, 0.0)
+
+    # ----- connection -------------------------------------------------------------------------------------
+    def _open(self) -> None:
+        """Open the port and make sure a GRBL 1.1 controller answers; only then start the exchange log."""
+        self._connect_port()
+        self._detect()
+        if self.exchange_log_path is not None:
+            self._log = open(self.exchange_log_path, "a", encoding="ascii", errors="replace")
+            self._exchange("#", f"connected to {self.url}: Grbl {self.version or '1.1'}, rx buffer {self.rx_buffer}")
+
+    def _connect_port(self) -> None:
+        try:
+            port = serial.serial_for_url(self.url, do_not_open=True, baudrate=self.baud, timeout=0.01,
+                                         write_timeout=10)
+            if "://" not in self.url:
+                port.exclusive = True
+            port.open()
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise FablineError(f"port {self.url}: cannot open: {exc}") from None
+        self._port = port
+        self._splitter.clear()
+        self._exchange("#", f"opened {self.url}")
+
+    def _detect(self) -> None:
+        """Wake the controller and wait for a banner or a status report; read its build options and settings."""
+        deadline = time.monotonic() + self.connect_timeout
+        self.status = None
+        while self.status is None:
+            if time.monotonic() > deadline:
+                raise FablineError(f"port {self.url}: no GRBL answer within {self.connect_timeout:g} s "
+                                   "(not a GRBL controller, wrong port or wrong baud rate?)")
+            self._write(STATUS_QUERY)
+            end = time.monotonic() + 0.25
+            while time.monotonic() < end and self.status is None:
+                for response in self._read(0.05):
+                    if response.kind == "banner":
+                        self.version = response.text
+                    elif response.kind == "status":
+                        self.status = response.status
+        if self.status.state == "Idle":  # a critical alarm ignores everything but a reset
+            self._flush_partial_line()
+            self._read_build_info()
+
+    def _read_build_info(self) -> None:
+        for text in self._command(b"$I\n"):
+            if text.startswith("VER:") and not text[4:].startswith("1.1"):
+                raise FablineError(f"port {self.url}: GRBL {text[4:]} found; fabline streams to GRBL 1.1")
+            options = _OPTIONS.match(text)
+            if options:
+                self.rx_buffer = int(options.group(2))
+        for text in self._command(b"$$\n"):
+            key, _, value = text.partition("=")
+            try:
+                self.settings[int(key[1:])] = float(value)
+            except ValueError:
+                continue
+
+    def _reconnect(self) -> bool:
+        """Try to reopen the port for `reconnect_timeout` seconds (a USB cable plugged back in)."""
+        self._close_port()
+        deadline = time.monotonic() + self.reconnect_timeout
+        while time.monotonic() < deadline:
+            try:
+                self._connect_port()
+                self._detect()
+                self._exchange("#", "reconnected")
+                return True
+            except FablineError:
+                self._close_port()
+                time.sleep(0.2)
+        return False
+
+    def _close_port(self) -> None:
+        if self._port is not None:
+            try:
+                self._port.close()
+            except (serial.SerialException, OSError):
+                pass
+            self._port = None
+
+    def _close(self) -> None:
+        self._close_port()
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+    def _fresh_start(self, unlock: bool) -> None:
+        """A new job needs an idle controller; a soft reset clears any half-received line and the tag."""
+        status = self._query_status()
+        if status.state not in ("Idle", "Alarm"):
+            raise FablineError(f"{self.url}: the controller is busy ({status.state}); wait for it or reset it")
+        if status.state == "Alarm" and not unlock:
+            raise FablineError(f"{self.url}: the controller is in alarm; home it or unlock it (--unlock) first")
+        self._soft_reset(unlock=unlock)
+
+    def _check_mode(self) -> None:
+        """Run the whole program through GRBL check mode ($C); stop at the first error."""
+        self._command(b"$C\n")
+        counter = CharacterCounter(self.rx_buffer)
+        lines, position, failure = self.program.lines, 0, None
+        while counter.in_flight or (position < len(lines) and failure is None):
+            batch = []
+            while failure is None and position < len(lines) and counter.fits(len(lines[position].wire)):
+                counter.sent(position, len(lines[position].wire))
+                batch.append(lines[position].wire)
+                position += 1
+            if batch:
+                self._write(b"".join(batch))
+            for response in self._read(0.01):
+                if response.kind in ("ok", "error"):
+                    index = counter.answered()
+                    if response.kind == "error" and failure is None:
+                        failure = (index, response.code)
+        self._command(b"$C\n", until_banner=True)
+        if failure is not None:
+            line = lines[failure[0]]
+            raise FablineError(f"{self.program.name}:{line.file_line}: check mode: {explain_error(failure[1])}: "
+                               f"{line.source.strip()}")
+
+    # ----- low-level exchange ----------------------------------------------------------------------------
+    def _write(self, data: bytes) -> None:
+        try:
+            self._port.write(data)
+        except (serial.SerialException, OSError) as exc:
+            raise _Lost(str(exc)) from None
+        self.bytes_sent += len(data)
+        if data != STATUS_QUERY:
+            self._exchange(">>>", data.decode("ascii", errors="replace").replace("\x18", "<ctrl-x>").rstrip("\n")
+                           .replace("\n", "\n>>> "))
+
+    def _read(self, timeout: float) -> list[Response]:
+        """Classified lines that arrived within about `timeout` seconds."""
+        try:
+            self._port.timeout = timeout
+            data = self._port.read(max(1, self._port.in_waiting))
+            if self._port.in_waiting:
+                data += self._port.read(self._port.in_waiting)
+        except (serial.SerialException, OSError) as exc:
+            raise _Lost(str(exc)) from None
+        responses = []
+        for text in self._splitter.feed(data):
+            response = classify(text)
+            if response.kind != "status":
+                self._exchange("<<<", text)
+            counter = self._counter
+            if response.kind in ("ok", "error") and counter is not None and counter.in_flight:
+                self._answered(response)
+            elif response.kind == "status":
+                self.status = response.status
+                if response.status.wco is not None:
+                    self._wco = response.status.wco
+                if counter is not None:
+                    self._track_status(response.status, counter)
+            responses.append(response)
+        return responses
+
+    def _send_realtime(self) -> None:
+        with self._control:
+            pending, self._realtime = self._realtime, []
+        for byte in pending:
+            self._write(byte)
+
+    def _flush_partial_line(self) -> None:
+        """Discard a line a lost connection left half-received: with `#` appended no line parses, so the
+        controller answers exactly one error and executes nothing (stray oks of older lines are skipped)."""
+        self._read(0.05)
+        self._command(_FLUSH_LINE, expect_error=True)
+
+    def _command(self, line: bytes, expect_error: bool = False, until_banner: bool = False) -> list[str]:
+        """Send one line with nothing else in flight; return the feedback lines before its ok
+        (or, with `expect_error`, before its error)."""
+        self._write(line)
+        feedback, answered = [], False
+        deadline = time.monotonic() + max(self.connect_timeout, 2.0)
+        while time.monotonic() < deadline:
+            for response in self._read(0.02):
+                if response.kind in ("feedback", "setting", "message"):
+                    feedback.append(response.text)
+                elif response.kind == ("error" if expect_error else "ok"):
+                    answered = True
+                elif response.kind == "error":
+                    raise FablineError(f"{self.url}: {line.decode().strip()!r} answered {explain_error(response.code)}")
+                elif response.kind == "banner" and until_banner and answered:
+                    return feedback
+            if answered and not until_banner:
+                return feedback
+        raise FablineError(f"{self.url}: no answer to {line.decode().strip()!r} within {max(self.connect_timeout, 2.0):g} s")
+
+    def _query_status(self) -> StatusReport:
+        """Ask for one status report and wait for it."""
+        deadline = time.monotonic() + max(self.connect_timeout, 2.0)
+        while time.monotonic() < deadline:
+            self._write(STATUS_QUERY)
+            end = time.monotonic() + 0.25
+            while time.monotonic() < end:
+                for response in self._read(0.02):
+                    if response.kind == "status":
+                        return response.status
+        raise FablineError(f"{self.url}: the controller stopped answering status queries")
+
+    def _settle(self) -> StatusReport:
+        """Wait until the controller has finished what it was given (Idle, Alarm or a stop)."""
+        deadline = time.monotonic() + self.settle_timeout
+        while True:
+            status = self._query_status()
+            if status.state in ("Idle", "Alarm", "Check", "Hold") and not (status.state == "Hold" and status.substate):
+                if status.state == "Hold":
+                    raise FablineError(f"{self.url}: the controller is in feed hold; resume or reset it first")
+                if self._wco is None and status.wpos is None:
+                    continue
+                return status
+            if time.monotonic() > deadline:
+                raise FablineError(f"{self.url}: the controller is still {status.state} after {self.settle_timeout:g} s")
+            time.sleep(self.status_interval)
+
+    def _soft_reset(self, unlock: bool = True) -> None:
+        """Ctrl-X: flush buffers and parser state; unlock the ALARM:3 a reset during a hold causes."""
+        self._write(SOFT_RESET)
+        if self._counter is not None:
+            self._counter.clear()
+            self._counter = None
+        alarm, deadline = None, time.monotonic() + max(self.connect_timeout, 2.0)
+        banner = False
+        while not banner:
+            if time.monotonic() > deadline:
+                raise FablineError(f"{self.url}: no banner after a soft reset")
+            for response in self._read(0.05):
+                if response.kind == "banner":
+                    banner = True
+                elif response.kind == "alarm":
+                    alarm = response.code
+        time.sleep(0.05)
+        self._read(0.02)
+        status = self._query_status()
+        if status.state == "Alarm" and unlock:
+            self._command(b"$X\n")
+            self._exchange("#", f"unlocked after {explain_alarm(alarm) if alarm else 'alarm'}")
+
+    # ----- reporting ----------------------------------------------------------------------------------
+    def _report(self, force: bool = False) -> None:
+        if self.on_progress is None:
+            return
+        total = len(self.program.lines)
+        elapsed = time.monotonic() - self.started
+        gained = self.acked - self.first_index
+        remaining = elapsed * (total - self.acked) / gained if gained > 0 else None
+        status = self.status
+        self.on_progress(Progress(
+            acked=self.acked, total=total, percent=100.0 * self.acked / total, state=status.state if status else "?",
+            position=status.work_position(self._wco) if status else None, elapsed=elapsed,
+            remaining=remaining, file_line=self._file_line(self.acked - 1) if self.acked else None))
+
+    def _exchange(self, direction: str, text: str) -> None:
+        if self._log is not None:
+            self._log.write(f"{time.time():.3f} {direction} {text}\n")
+            self._log.flush()
+
+    def _file_line(self, index: int) -> int | None:
+        lines = self.program.lines
+        return lines[min(max(index, 0), len(lines) - 1)].file_line if lines else None
+
+    def _index_of_file_line(self, file_line: int, strict: bool = True) -> int | None:
+        for line in self.program.lines:
+            if line.file_line >= file_line:
+                if line.file_line == file_line or not strict:
+                    return line.index
+                break
+        if strict:
+            raise FablineError(f"{self.program.name}:{file_line}: no G-code command on that line to restart from")
+        return None

@@ -1,0 +1,123 @@
+"""Build a validated network model from curves alone: nodes at the crossings, normals from the surface."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from fabline.errors import FablineError
+from fabline.model.importers.crossings import NEAR_MISS_FACTOR, find_crossings
+from fabline.model.importers.curves import CurveSource
+from fabline.model.importers.surface import SurfaceNormals
+from fabline.model.network import UNIT_TO_MM, Lamella, Network, Node, validate
+
+
+@dataclass
+class NearMissReport:
+    """Two lamellas that pass close by without crossing within the tolerance."""
+
+    lamella_a: str
+    lamella_b: str
+    distance_mm: float
+    xyz: tuple[float, float, float]
+
+
+@dataclass
+class ImportReport:
+    """What an import found and assumed, for the user to check."""
+
+    source: str
+    format: str
+    units: str
+    tolerance_mm: float
+    lamellas: int
+    nodes: int
+    singularities: int = 0
+    surface: str | None = None
+    max_surface_distance_mm: float | None = None
+    near_misses: list[NearMissReport] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def summary(self, max_near_misses: int = 20) -> list[str]:
+        """Human-readable lines: counts, units, surface fit, near-misses and notes."""
+        lines = [f"{self.source} ({self.format}): {self.lamellas} lamellas, {self.nodes} nodes"
+                 f" ({self.singularities} singularities), units {self.units}"]
+        if self.surface:
+            lines.append(f"normals from {self.surface}; curves lie within "
+                         f"{self.max_surface_distance_mm:.3g} mm of it")
+        if self.format != "json":
+            lines.append(f"crossings within {self.tolerance_mm:g} mm; {len(self.near_misses)} near-miss(es) "
+                         f"up to {NEAR_MISS_FACTOR * self.tolerance_mm:g} mm")
+        for miss in self.near_misses[:max_near_misses]:
+            x, y, z = miss.xyz
+            lines.append(f"  near-miss: {miss.lamella_a} and {miss.lamella_b} pass {miss.distance_mm:.3f} mm "
+                         f"apart at ({x:.6g}, {y:.6g}, {z:.6g})")
+        if len(self.near_misses) > max_near_misses:
+            lines.append(f"  ... and {len(self.near_misses) - max_near_misses} more near-misses")
+        lines.extend(f"note: {note}" for note in self.notes)
+        return lines
+
+
+def build_network(source: CurveSource, units: str, tolerance_mm: float, mesh: trimesh.Trimesh | None,
+                  surface_label: str | None, file_format: str) -> tuple[Network, ImportReport]:
+    """The network of a file's curves: crossings of the two families as nodes, ordered along each lamella."""
+    path = source.path
+    curves = source.curves
+    for family in ("A", "B"):
+        if not any(c.family == family for c in curves):
+            raise FablineError(f"{path}: no curves of family {family} (name their layers or groups "
+                               f"{family}, {family}-017, FAMILY-{family}, ...)")
+    if mesh is None:
+        raise FablineError(f"{path}: missing normals: give --surface (a mesh of the reference surface)")
+    mm = UNIT_TO_MM[units]
+    tolerance = tolerance_mm / mm
+    ids = [c.id for c in curves]
+    found = find_crossings([c.points for c in curves], [c.family for c in curves], ids, tolerance, path)
+    near_misses = [NearMissReport(ids[m.curve_a], ids[m.curve_b], m.distance * mm, tuple(m.xyz.tolist()))
+                   for m in found.near_misses]
+    if len(found.xyz) == 0:
+        closest = (f"; closest approach {near_misses[0].distance_mm:.3g} mm between {near_misses[0].lamella_a} "
+                   f"and {near_misses[0].lamella_b}" if near_misses else "")
+        raise FablineError(f"{path}: the curves never cross: no lamella of family A comes within "
+                           f"{tolerance_mm:g} mm of one of family B{closest}")
+
+    # number nodes along the lamellas in file order, so ids read naturally
+    first_member = np.array([min(m) for m in found.members])
+    order = np.lexsort((first_member[:, 1], first_member[:, 0]))
+    width = len(str(len(order)))
+    node_ids = [""] * len(order)
+    for rank, k in enumerate(order):
+        node_ids[k] = f"N{rank + 1:0{width}d}"
+
+    # one closest-point query for every curve sample and node (building the search tree is the costly part)
+    all_normals, all_distance = SurfaceNormals(mesh).at(np.concatenate([c.points for c in curves] + [found.xyz]))
+    splits = np.cumsum([len(c.points) for c in curves])
+    curve_normals = np.split(all_normals[:splits[-1]], splits[:-1])
+    node_normals, max_distance = all_normals[splits[-1]:], float(all_distance.max()) * mm
+    nodes = {}
+    on_curve: list[list[tuple[float, str]]] = [[] for _ in curves]
+    for k in order:
+        members = found.members[k]
+        kind = "singularity" if len(members) == 3 else "grid"
+        nodes[node_ids[k]] = Node(node_ids[k], found.xyz[k], node_normals[k], kind)
+        for curve_index, arc in members:
+            on_curve[curve_index].append((arc, node_ids[k]))
+    lamellas = []
+    for curve, normal, passes in zip(curves, curve_normals, on_curve):
+        if not passes:
+            raise FablineError(f"{path}: lamella {curve.id} ({curve.where}) crosses no lamella of the other "
+                               f"family within {tolerance_mm:g} mm")
+        lamellas.append(Lamella(curve.id, curve.family, [nid for _, nid in sorted(passes)], curve.points, normal))
+    network = Network(units, nodes, lamellas, Path(path).stem.split(".")[0],
+                      {"source": Path(path).name, "tolerance_mm": tolerance_mm})
+    validate(network, path)
+    report = ImportReport(path, file_format, units, tolerance_mm, len(lamellas), len(nodes),
+                          sum(n.kind == "singularity" for n in nodes.values()), surface_label, max_distance,
+                          near_misses, list(source.notes))
+    if max_distance > tolerance_mm:
+        report.notes.append(f"curves lie up to {max_distance:.3g} mm off the surface {surface_label}; "
+                            "check that it is the right surface")
+    return network, report

@@ -1,0 +1,141 @@
+"""What every CAD reader hands to the network builder: named, family-tagged polylines, units, a surface.
+
+Also holds the rules shared by the readers: how a layer, group or object name names a family and a
+lamella id, how units are settled between the file, the command line and the surface file, and how a
+raw polyline is cleaned and checked before crossings are sought.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+
+from fabline.errors import FablineError
+from fabline.model.network import UNIT_TO_MM
+
+# "A", "B", "A-017", "B_3", "a12", "FAMILY-A", "Family B", "family_a-7": a family letter, optionally
+# after "FAMILY" and a separator, and not followed by another letter ("Arches" names no family).
+FAMILY_NAME = re.compile(r"^\s*(?:family[\s_-]*)?([ab])(?![a-z])(.*)$", re.IGNORECASE)
+
+SAGITTA_MM = 0.01
+"""Largest distance between a curved CAD entity (spline, arc) and the polyline fabline makes of it."""
+
+
+@dataclass
+class RawCurve:
+    """One lamella's centreline as read from a CAD file, before nodes are found."""
+
+    id: str
+    family: str
+    points: np.ndarray
+    where: str
+    """Where the curve came from in its file ("line 12", "entity #2F"), for error messages."""
+
+
+@dataclass
+class CurveSource:
+    """The curves of one CAD file, the units it declares (None if it declares none) and any surface in it."""
+
+    path: str
+    curves: list[RawCurve]
+    declared_units: str | None
+    mesh: trimesh.Trimesh | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def family_and_id(names: list[str]) -> tuple[str | None, str | None]:
+    """The family and lamella id named by a curve's names, most specific name first.
+
+    The family is that of the first name that names one; the id is the first such name that says more
+    than the family alone ("A-017" is an id, "A" and "FAMILY-A" are not). Nested layer paths
+    ("Lamellas::A") are read by their last part.
+    """
+    family = lamella_id = None
+    for name in names:
+        name = name.split("::")[-1].strip()
+        match = FAMILY_NAME.match(name)
+        if not match:
+            continue
+        family = family or match.group(1).upper()
+        if lamella_id is None and match.group(1).upper() == family and match.group(2).strip(" _-"):
+            lamella_id = name
+    return family, lamella_id
+
+
+def assign_ids(curves: list[tuple[str, str | None, np.ndarray, str]], path: str) -> list[RawCurve]:
+    """Turn (family, id or None, points, where) into RawCurves, numbering the unnamed ones per family.
+
+    Generated ids ("A-001", ...) skip ids the file already uses; a name used twice is an error.
+    """
+    used: dict[str, str] = {}
+    for family, lamella_id, _, where in curves:
+        if lamella_id is None:
+            continue
+        if lamella_id in used:
+            raise FablineError(f"{path}: duplicate lamella id {lamella_id} ({used[lamella_id]} and {where})")
+        used[lamella_id] = where
+    counters = {"A": 0, "B": 0}
+    result = []
+    for family, lamella_id, points, where in curves:
+        if lamella_id is None:
+            while True:
+                counters[family] += 1
+                lamella_id = f"{family}-{counters[family]:03d}"
+                if lamella_id not in used:
+                    break
+            used[lamella_id] = where
+        result.append(RawCurve(lamella_id, family, points, where))
+    return result
+
+
+def clean_points(points: np.ndarray, path: str, where: str) -> np.ndarray:
+    """Check a polyline for NaN, infinities and zero length, and drop repeated consecutive points."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
+    if bad.size:
+        raise FablineError(f"{path}: {where}: point {bad[0]} contains NaN or infinite values")
+    if len(points) < 2:
+        raise FablineError(f"{path}: {where}: a curve needs at least two points")
+    keep = np.r_[True, np.any(np.diff(points, axis=0) != 0, axis=1)]
+    points = points[keep]
+    if len(points) < 2:
+        raise FablineError(f"{path}: {where}: curve has zero length")
+    return points
+
+
+def settle_units(source: CurveSource, requested: str | None) -> str:
+    """The model's units: what the file declares, else `--units`, else metres with a note.
+
+    A file that declares units other than the requested ones is a mixed-units error.
+    """
+    if requested is not None and requested not in UNIT_TO_MM:
+        raise FablineError(f"--units {requested!r}: unknown units (use one of {', '.join(UNIT_TO_MM)})")
+    declared = source.declared_units
+    if declared is not None:
+        if requested is not None and requested != declared:
+            raise FablineError(f"mixed units: {source.path} declares {declared} but --units {requested} was given")
+        return declared
+    if requested is not None:
+        return requested
+    source.notes.append(f"{source.path} declares no units; assumed m (give --units to choose)")
+    return "m"
+
+
+def check_surface_units(source: CurveSource, units: str, surface_path: str, surface_units: str | None,
+                        mesh: trimesh.Trimesh) -> None:
+    """Refuse a surface that declares other units than the curves, or whose size is 10x off theirs."""
+    if surface_units is not None and surface_units != units:
+        raise FablineError(f"mixed units: {source.path} is in {units} but {surface_path} is in {surface_units}")
+    points = np.concatenate([c.points for c in source.curves])
+    curve_size = float(np.linalg.norm(np.ptp(points, axis=0)))
+    surface_size = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0))) if len(mesh.vertices) else 0.0
+    if curve_size == 0 or surface_size == 0:
+        return
+    ratio = surface_size / curve_size
+    if ratio >= 10 or ratio <= 0.1:
+        raise FablineError(
+            f"mixed units: {surface_path} is {ratio:.3g} times the size of the curves in {source.path} "
+            f"({surface_size:.4g} vs {curve_size:.4g}); are both in {units}?")

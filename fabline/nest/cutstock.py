@@ -1,0 +1,221 @@
+"""One-dimensional cutting stock for straight strips: lengths packed into rows of a fixed length.
+
+First-fit decreasing gives a floor; column generation on the LP relaxation (scipy's HiGHS for the
+master, a bounded-knapsack dynamic programme for pricing) gives the LP lower bound, and a
+time-limited integer programme over the generated patterns (HiGHS again) usually closes the gap.
+The best of these packings is returned together with the bound.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import Bounds, LinearConstraint, linprog, milp
+
+# Knapsack resolution: lengths are rounded up and the capacity down to this grid (mm), so every
+# pattern the DP finds is feasible in exact lengths too.
+DP_RESOLUTION = 1.0
+
+
+@dataclass
+class RowPacking:
+    """Rows of item indices, the LP lower bound on the number of rows, and which method won."""
+
+    rows: list[list[int]]
+    lower_bound: int
+    lp_value: float
+    method: str
+
+
+def first_fit_decreasing(sizes: np.ndarray, capacity: float) -> list[list[int]]:
+    """Plain first-fit decreasing: each item, longest first, into the first row with room."""
+    order = np.argsort(-np.asarray(sizes, dtype=float), kind="stable")
+    remaining = np.empty(len(sizes))
+    rows: list[list[int]] = []
+    for item in order:
+        room = remaining[:len(rows)] >= sizes[item] - 1e-9
+        if room.any():
+            row = int(np.argmax(room))
+        else:
+            row = len(rows)
+            rows.append([])
+            remaining[row] = capacity
+        rows[row].append(int(item))
+        remaining[row] -= sizes[item]
+    return rows
+
+
+def pack_rows(sizes: np.ndarray, capacity: float, time_limit: float = 10.0) -> RowPacking:
+    """Pack items of `sizes` into as few rows of `capacity` as possible; also return the LP lower bound on rows."""
+    sizes = np.asarray(sizes, dtype=float)
+    if len(sizes) == 0:
+        return RowPacking([], 0, 0.0, "empty")
+    if sizes.max() > capacity + 1e-9:
+        raise ValueError("an item is longer than the row")
+    ffd = first_fit_decreasing(sizes, capacity)
+    area_bound = math.ceil(sizes.sum() / capacity - 1e-9)
+    if len(ffd) == area_bound:
+        return RowPacking(ffd, area_bound, float(sizes.sum() / capacity), "first-fit decreasing")
+    deadline = time.monotonic() + time_limit
+    generator = _ColumnGeneration(sizes, capacity)
+    for row in ffd:
+        generator.add_pattern_of(row)
+    lp_value, bound = generator.solve(deadline)
+    bound = max(bound, area_bound)
+    best, method = ffd, "first-fit decreasing"
+    for candidate, name in ((generator.residual_rounding(), "column generation + rounding"),
+                            (generator.integer_solution(deadline), "column generation + HiGHS MIP")):
+        if candidate is not None and len(candidate) < len(best):
+            best, method = candidate, name
+        if len(best) == bound:
+            break
+    return RowPacking(best, bound, lp_value, method)
+
+
+class _ColumnGeneration:
+    """Gilmore-Gomory column generation over the distinct item sizes."""
+
+    def __init__(self, sizes: np.ndarray, capacity: float):
+        self.sizes = sizes
+        self.capacity = capacity
+        rounded = np.round(sizes, 3)
+        self.distinct, self.item_type, self.demand = np.unique(rounded, return_inverse=True, return_counts=True)
+        # Exact feasibility uses the largest real size of each type.
+        self.type_size = np.zeros(len(self.distinct))
+        np.maximum.at(self.type_size, self.item_type, sizes)
+        self.weights = np.ceil(self.type_size / DP_RESOLUTION - 1e-9).astype(int)
+        self.cap_units = int(math.floor(capacity / DP_RESOLUTION + 1e-9))
+        self.patterns: list[np.ndarray] = []
+        self.seen: set[bytes] = set()
+        self.x = np.zeros(0)
+        self.duals = np.zeros(len(self.distinct))
+        for t in range(len(self.distinct)):
+            single = np.zeros(len(self.distinct), dtype=int)
+            single[t] = min(self.demand[t], int(capacity // self.type_size[t]))
+            self._add(single)
+
+    def _add(self, pattern: np.ndarray) -> bool:
+        key = pattern.tobytes()
+        if key in self.seen or not pattern.any():
+            return False
+        self.seen.add(key)
+        self.patterns.append(pattern)
+        return True
+
+    def add_pattern_of(self, row: list[int]) -> None:
+        """Add the pattern of a row found by another method (it is feasible by construction)."""
+        self._add(np.bincount(self.item_type[row], minlength=len(self.distinct)).astype(int))
+
+    def _matrix(self) -> tuple[np.ndarray, np.ndarray]:
+        """Pattern columns (cost 1) followed by the exchange columns (cost 0).
+
+        Exchange column k lets a slot of type k+1 hold an item of the smaller type k; it is the primal
+        side of the dual-optimal inequalities y[k+1] >= y[k] (Ben Amor, Desrosiers and Valerio de
+        Carvalho 2006), which removes the dual degeneracy that makes plain column generation tail off.
+        """
+        types = len(self.distinct)
+        exchange = np.zeros((types, max(types - 1, 0)))
+        exchange[np.arange(types - 1), np.arange(types - 1)] = 1.0
+        exchange[np.arange(1, types), np.arange(types - 1)] = -1.0
+        matrix = np.hstack([np.array(self.patterns, dtype=float).T, exchange])
+        cost = np.concatenate([np.ones(len(self.patterns)), np.zeros(types - 1)])
+        return matrix, cost
+
+    def _master(self) -> tuple[float, np.ndarray, np.ndarray]:
+        matrix, cost = self._matrix()
+        result = linprog(cost, A_ub=-matrix, b_ub=-self.demand.astype(float), bounds=(0, None), method="highs")
+        if result.status != 0:
+            raise RuntimeError(f"cutting-stock LP failed: {result.message}")
+        return float(result.fun), result.x[:len(self.patterns)], -result.ineqlin.marginals
+
+    def solve(self, deadline: float) -> tuple[float, int]:
+        """Generate columns until no pattern prices out or time runs out; return the LP value and the row bound."""
+        best_bound = 0.0
+        value = math.inf
+        while True:
+            value, self.x, self.duals = self._master()
+            pattern, price = self._price(self.duals)
+            # Farley's bound: valid at every iteration, equal to the LP optimum at convergence.
+            best_bound = max(best_bound, float(self.duals @ self.demand) / max(price, 1.0))
+            if price <= 1.0 + 1e-9 or time.monotonic() > deadline or not self._add(pattern):
+                break
+        return value, math.ceil(best_bound - 1e-6)
+
+    def _price(self, duals: np.ndarray) -> tuple[np.ndarray, float]:
+        """Bounded knapsack (binary splitting of copies) maximising the dual value of one row."""
+        chunks_type, chunks_count = [], []
+        for t in np.flatnonzero(duals > 1e-12):
+            copies = min(int(self.demand[t]), self.cap_units // self.weights[t])
+            step = 1
+            while copies > 0:
+                take = min(step, copies)
+                chunks_type.append(t)
+                chunks_count.append(take)
+                copies -= take
+                step *= 2
+        best = np.zeros(self.cap_units + 1)
+        taken = np.zeros((len(chunks_type), self.cap_units + 1), dtype=bool)
+        for k, (t, count) in enumerate(zip(chunks_type, chunks_count)):
+            w = int(self.weights[t]) * count
+            if w > self.cap_units:
+                continue
+            candidate = best[:-w] + duals[t] * count
+            better = candidate > best[w:] + 1e-12
+            taken[k, w:] = better
+            best[w:] = np.where(better, candidate, best[w:])
+        pattern = np.zeros(len(self.distinct), dtype=int)
+        cap = int(np.argmax(best))
+        value = float(best[cap])
+        for k in range(len(chunks_type) - 1, -1, -1):
+            if taken[k, cap]:
+                t, count = chunks_type[k], chunks_count[k]
+                pattern[t] += count
+                cap -= int(self.weights[t]) * count
+        if pattern @ self.type_size > self.capacity + 1e-9:
+            raise RuntimeError("knapsack produced an infeasible pattern")
+        return pattern, value
+
+    def _rows_from(self, counts: np.ndarray) -> list[list[int]]:
+        """Integer pattern counts -> rows of item indices; the rest by FFD.
+
+        Each slot of a pattern takes the longest remaining item that fits it (its own type first, else a
+        shorter one, as the exchange columns allow); slots left empty are dropped.
+        """
+        order = list(np.argsort(self.sizes, kind="stable"))
+        sorted_sizes = list(self.sizes[order])
+        rows = []
+        for pattern, count in zip(self.patterns, counts):
+            for _ in range(int(round(count))):
+                row = []
+                for t in np.flatnonzero(pattern)[::-1]:
+                    for _ in range(pattern[t]):
+                        k = bisect.bisect_right(sorted_sizes, self.type_size[t] + 1e-9) - 1
+                        if k >= 0:
+                            row.append(int(order.pop(k)))
+                            sorted_sizes.pop(k)
+                if row:
+                    rows.append(row)
+        if order:
+            rows += [[order[i] for i in r] for r in first_fit_decreasing(np.array(sorted_sizes), self.capacity)]
+        return rows
+
+    def residual_rounding(self) -> list[list[int]]:
+        """Round the LP solution down and pack what is left by first-fit decreasing."""
+        return self._rows_from(np.floor(self.x + 1e-9))
+
+    def integer_solution(self, deadline: float) -> list[list[int]] | None:
+        """Best integer combination of the generated patterns within the remaining time (HiGHS MIP)."""
+        remaining = deadline - time.monotonic()
+        if remaining <= 0.2:
+            return None
+        matrix, cost = self._matrix()
+        result = milp(cost, integrality=np.ones(matrix.shape[1]),
+                      constraints=LinearConstraint(matrix, lb=self.demand.astype(float)),
+                      bounds=Bounds(0, np.inf), options={"time_limit": remaining, "disp": False})
+        if result.x is None:
+            return None
+        return self._rows_from(np.round(result.x[:len(self.patterns)]))

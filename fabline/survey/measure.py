@@ -1,0 +1,259 @@
+"""The as-built survey: detect tags in every photo, reconstruct, register to the design, report per node.
+
+Bad photos (unreadable, another resolution, no tags) and unknown tag ids are reported by file and id and
+left out; the survey goes on with the rest as long as the photos still join into one reconstruction.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from fabline.errors import FablineError
+from fabline.fileio import atomic_output, write_json
+from fabline.model import Network
+from fabline.progress import progress
+from fabline.survey.camera import Camera
+from fabline.survey.detect import TagDetection, detect_tags, read_gray
+from fabline.survey.reconstruct import Observation, bundle_adjust
+from fabline.survey.register import register
+from fabline.survey.tagmap import TagMap, check_tag_map
+
+SURVEY_SCHEMA = "fabline.survey/1"
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
+PREVIEW_WIDTH = 1600
+
+
+@dataclass
+class MeasureOptions:
+    """Tolerance (mm), the registration's reference nodes ('all', 'supports' or ids), views a node needs."""
+
+    tolerance_mm: float = 20.0
+    reference: str | list[str] = "all"
+    min_views: int = 2
+    pictures: bool = True
+
+
+def list_photos(folder: str | os.PathLike) -> list[Path]:
+    """The image files in a folder, sorted by name; a missing or empty folder raises naming it."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FablineError(f"{folder}: not a folder of photos")
+    photos = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not photos:
+        raise FablineError(f"{folder}: no photos ({', '.join(IMAGE_SUFFIXES)}) in this folder")
+    return photos
+
+
+def detect_photos(photos: list[Path], camera: Camera | None, known_tags: set[int] | None = None):
+    """Detections per photo and the problems found: unreadable, wrong resolution, no tags, unknown ids."""
+    detections: dict[int, list[TagDetection]] = {}
+    problems: list[dict] = []
+    for k, path in enumerate(progress(photos, "detecting tags")):
+        try:
+            gray = read_gray(path)
+            if camera is not None:
+                camera.check_image(gray.shape, str(path))
+        except FablineError as exc:
+            problems.append({"file": str(path), "problem": str(exc)})
+            continue
+        found = detect_tags(gray)
+        if not found:
+            problems.append({"file": str(path), "problem": f"{path}: no tags found in this photo"})
+        for det in found:
+            if known_tags is not None and det.tag_id not in known_tags:
+                problems.append({"file": str(path), "tag": det.tag_id,
+                                 "problem": f"{path}: tag {det.tag_id} maps to no node of the model (ignored)"})
+        detections[k] = [d for d in found if known_tags is None or d.tag_id in known_tags]
+    return detections, problems
+
+
+def _reference_mask(option: str | list[str], node_ids: list[str], network: Network) -> np.ndarray:
+    if option == "all":
+        return np.ones(len(node_ids), dtype=bool)
+    if option == "supports":
+        mask = np.array([network.nodes[n].kind == "support" for n in node_ids], dtype=bool)
+        if mask.sum() < 3:
+            raise FablineError(f"--reference supports: only {int(mask.sum())} support nodes were measured, need 3")
+        return mask
+    missing = [n for n in option if n not in network.nodes]
+    if missing:
+        raise FablineError(f"--reference: node {missing[0]} is not in the model")
+    unmeasured = [n for n in option if n not in node_ids]
+    if unmeasured:
+        raise FablineError(f"--reference: node {unmeasured[0]} was not measured")
+    return np.isin(node_ids, option)
+
+
+def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map: TagMap,
+                   out_dir: str | os.PathLike, options: MeasureOptions | None = None) -> dict:
+    """Run the whole survey and write `survey.json` and the pictures into `out_dir`; return the record."""
+    options = options or MeasureOptions()
+    model = network.in_mm()
+    check_tag_map(tag_map, model)
+    detections, problems = detect_photos(photos, camera, set(tag_map.node_of_tag))
+    observations = [Observation(k, d.tag_id, camera.normalise(d.corners)) for k, found in detections.items() for d in found]
+    if not observations:
+        detail = f" ({problems[0]['problem']}" + (f"; {len(problems) - 1} more problem(s))" if len(problems) > 1 else ")") if problems else ""
+        raise FablineError(f"no tags of the tag map were found in any usable photo{detail}")
+    reconstruction = bundle_adjust(observations, camera, tag_map.tag_size_mm)
+    for k in reconstruction.unregistered_photos:
+        problems.append({"file": str(photos[k]), "problem": f"{photos[k]}: shares too few tags with the other photos (left out)"})
+    for k, tag in reconstruction.rejected:
+        problems.append({"file": str(photos[k]), "tag": tag, "problem": f"{photos[k]}: tag {tag} rejected as an outlier"})
+    tag_ids, points, covariances = reconstruction.points_below_tags(tag_map.mount_offset_mm)
+    views = np.array([reconstruction.observation_count[t] for t in tag_ids], dtype=int)
+    keep = views >= options.min_views
+    tag_ids = [t for t, k in zip(tag_ids, keep) if k]
+    points, covariances, views = points[keep], covariances[keep], views[keep]
+    node_ids = [tag_map.node_of_tag[t] for t in tag_ids]
+    design = np.array([model.nodes[n].xyz for n in node_ids]).reshape(-1, 3)
+    reference = _reference_mask(options.reference, node_ids, model)
+    rotation, translation, fit_rms = register(points, design, reference)
+    wrong = wrong_tags(points @ rotation.T + translation, node_ids, model, options.tolerance_mm)
+    if wrong and reference[[node_ids.index(n) for n in wrong]].any():
+        # a tag on the wrong node would pull the fit: fit again without it
+        reference[[node_ids.index(n) for n in wrong]] = False
+        rotation, translation, fit_rms = register(points, design, reference)
+        wrong = wrong_tags(points @ rotation.T + translation, node_ids, model, options.tolerance_mm)
+    for nid, likely in wrong.items():
+        problems.append({"node": nid, "tag": tag_map.tag_of_node[nid],
+                         "problem": f"node {nid}: tag {tag_map.tag_of_node[nid]} was measured at node {likely}'s design "
+                                    f"position: wrong tag mounted? (node {nid} reported as not measured)"})
+    measured_all = points @ rotation.T + translation
+    keep = np.array([n not in wrong for n in node_ids], dtype=bool)
+    tag_ids = [t for t, k in zip(tag_ids, keep) if k]
+    node_ids = [n for n, k in zip(node_ids, keep) if k]
+    measured, design, covariances, views = measured_all[keep], design[keep], covariances[keep], views[keep]
+    deviation = measured - design
+    distance = np.linalg.norm(deviation, axis=1)
+    sigma = np.sqrt(np.einsum("ij,njk,ik->ni", rotation, covariances, rotation))
+    passed = distance <= options.tolerance_mm
+    record = _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviation, distance, sigma, views, passed,
+                     rotation, translation, fit_rms, reconstruction, photos, detections, problems, wrong)
+    out_dir = Path(out_dir)
+    write_json(out_dir / "survey.json", record)
+    if options.pictures:
+        write_deviation_map(model, record, out_dir / "deviation_map.png")
+        write_detection_pictures(photos, detections, out_dir / "detections")
+    return record
+
+
+def wrong_tags(measured: np.ndarray, node_ids: list[str], model: Network, tolerance_mm: float) -> dict[str, str]:
+    """Nodes whose tag was measured out of tolerance but within tolerance of another node's design position.
+
+    Such a tag is most likely mounted on that other node; returns node id -> the node it seems to sit on.
+    """
+    ids, design, _ = model.node_array()
+    index = {nid: i for i, nid in enumerate(ids)}
+    suspects = {}
+    for nid, point in zip(node_ids, measured):
+        gaps = np.linalg.norm(design - point, axis=1)
+        own, nearest = gaps[index[nid]], int(np.argmin(gaps))
+        if own > tolerance_mm and ids[nearest] != nid and gaps[nearest] <= min(tolerance_mm, 0.5 * own):
+            suspects[nid] = ids[nearest]
+    return suspects
+
+
+def _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviation, distance, sigma, views, passed,
+            rotation, translation, fit_rms, reconstruction, photos, detections, problems, wrong) -> dict:
+    seen_once = {tag_map.node_of_tag[t] for t, n in reconstruction.observation_count.items() if n < options.min_views}
+    measured_set = set(node_ids)
+    not_seen = {}
+    for nid in model.nodes:
+        if nid in measured_set:
+            continue
+        tag = tag_map.tag_of_node.get(nid)
+        not_seen[nid] = ("no tag" if tag is None else
+                         f"wrong tag? tag {tag} was found at node {wrong[nid]}" if nid in wrong else
+                         f"tag {tag} seen in fewer than {options.min_views} photos" if nid in seen_once else f"tag {tag} not seen")
+    order = np.argsort(-distance)
+    return {
+        "schema": SURVEY_SCHEMA, "model": model.name, "units": "mm", "tolerance_mm": options.tolerance_mm,
+        "registration": {"method": "rigid", "reference": options.reference if isinstance(options.reference, str) else list(options.reference),
+                         "rms_mm": round(fit_rms, 4), "rotation": np.round(rotation, 9).tolist(),
+                         "translation_mm": np.round(translation, 4).tolist()},
+        "summary": {
+            "nodes": len(model.nodes), "measured": len(node_ids), "passed": int(passed.sum()),
+            "failed": int((~passed).sum()), "not_seen": len(not_seen),
+            "rms_deviation_mm": round(float(np.sqrt(np.mean(distance ** 2))), 4) if len(distance) else None,
+            "max_deviation_mm": round(float(distance.max()), 4) if len(distance) else None,
+            "worst": [node_ids[i] for i in order[:10]],
+            "reprojection_rms_px": round(reconstruction.rms_px, 4),
+            "photos": len(photos), "photos_used": len(reconstruction.camera_rotations),
+        },
+        "nodes": {
+            nid: {"tag": tag_ids[i], "design_mm": np.round(design[i], 3).tolist(), "measured_mm": np.round(measured[i], 3).tolist(),
+                  "deviation_mm": np.round(deviation[i], 3).tolist(), "distance_mm": round(float(distance[i]), 3),
+                  "sigma_mm": np.round(sigma[i], 3).tolist(), "views": int(views[i]), "pass": bool(passed[i])}
+            for i, nid in enumerate(node_ids)
+        },
+        "not_seen": not_seen,
+        "photos": [{"file": str(p), "tags": [d.tag_id for d in detections.get(k, [])],
+                    "used": k in reconstruction.camera_rotations} for k, p in enumerate(photos)],
+        "problems": problems,
+    }
+
+
+def write_deviation_map(model: Network, record: dict, path: Path, width: int = 1600) -> None:
+    """Plan view of the design: lamellas in grey, measured nodes coloured by deviation, unseen nodes hollow."""
+    ids, xyz, _ = model.node_array()
+    low, high = xyz[:, :2].min(axis=0), xyz[:, :2].max(axis=0)
+    scale = (width - 160) / max(high[0] - low[0], high[1] - low[1], 1e-9)
+    height = int((high[1] - low[1]) * scale) + 160
+    canvas = np.full((height, width + 200, 3), 255, dtype=np.uint8)
+
+    def to_px(points: np.ndarray) -> np.ndarray:
+        return np.column_stack([80 + (points[:, 0] - low[0]) * scale, height - 80 - (points[:, 1] - low[1]) * scale])
+
+    for lamella in model.lamellas:
+        cv2.polylines(canvas, [np.round(to_px(lamella.curve) * 16).astype(np.int32)], False, (200, 200, 200), 2, cv2.LINE_AA, shift=4)
+    tolerance = record["tolerance_mm"]
+    radius = max(4, int(min(12, 0.3 * scale * np.median(np.linalg.norm(np.diff(xyz, axis=0), axis=1)))))
+    for nid, (x, y) in zip(ids, to_px(xyz)):
+        centre = (int(round(x)), int(round(y)))
+        node = record["nodes"].get(nid)
+        if node is None:
+            cv2.circle(canvas, centre, radius, (120, 120, 120), 1, cv2.LINE_AA)
+            continue
+        level = np.uint8(min(node["distance_mm"] / tolerance, 1.0) * 255)
+        colour = cv2.applyColorMap(np.array([[level]], dtype=np.uint8), cv2.COLORMAP_TURBO)[0, 0].tolist()
+        cv2.circle(canvas, centre, radius, colour, -1, cv2.LINE_AA)
+        if not node["pass"]:
+            cv2.circle(canvas, centre, radius + 3, (0, 0, 255), 2, cv2.LINE_AA)
+    bar = cv2.applyColorMap(np.linspace(255, 0, height - 160).astype(np.uint8)[:, None].repeat(30, axis=1), cv2.COLORMAP_TURBO)
+    canvas[80:height - 80, width + 40:width + 70] = bar
+    for label, y in ((f"{tolerance:g} mm", 90), ("0 mm", height - 75)):
+        cv2.putText(canvas, label, (width + 80, y), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    summary = record["summary"]
+    cv2.putText(canvas, f"{model.name}: {summary['measured']} nodes measured, RMS {summary['rms_deviation_mm']} mm, "
+                        f"max {summary['max_deviation_mm']} mm, {summary['failed']} over {tolerance:g} mm, {summary['not_seen']} not seen",
+                (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 1, cv2.LINE_AA)
+    _write_image(path, canvas, ".png")
+
+
+def write_detection_pictures(photos: list[Path], detections: dict[int, list[TagDetection]], folder: Path) -> None:
+    """A reduced copy of each photo with its detected tags outlined and labelled."""
+    for k, found in detections.items():
+        image = cv2.imread(str(photos[k]), cv2.IMREAD_COLOR)
+        factor = min(1.0, PREVIEW_WIDTH / image.shape[1])
+        image = cv2.resize(image, None, fx=factor, fy=factor, interpolation=cv2.INTER_AREA)
+        for det in found:
+            quad = (det.corners + 0.5) * factor - 0.5
+            cv2.polylines(image, [np.round(quad * 16).astype(np.int32)], True, (0, 220, 0), 2, cv2.LINE_AA, shift=4)
+            cv2.circle(image, tuple(np.round(quad[0]).astype(int)), 3, (0, 0, 255), -1)
+            cv2.putText(image, str(det.tag_id), tuple(np.round(quad.mean(axis=0)).astype(int)), cv2.FONT_HERSHEY_SIMPLEX,
+                        0.5, (255, 0, 0), 1, cv2.LINE_AA)
+        _write_image(folder / f"{photos[k].stem}.jpg", image, ".jpg")
+
+
+def _write_image(path: Path, image: np.ndarray, suffix: str) -> None:
+    ok, encoded = cv2.imencode(suffix, image)
+    if not ok:
+        raise FablineError(f"{path}: could not encode the picture")
+    with atomic_output(path, "wb") as handle:
+        handle.write(encoded.tobytes())

@@ -1,0 +1,157 @@
+"""The unrolled strip in its own plane: a centreline of circular arcs and the notched outline around it.
+
+The flat centreline keeps the arc length x of the (offset) lamella and bends in plane with the normal
+curvature k_n (domain.md 2): constant over each sample interval, so the edges at y = +-h/2 are arcs too
+and go out with DXF bulges. A strip whose centreline stays within `straight_tolerance` of its chord is
+cut as an exact rectangle. Points are placed by (anchor, dx, y): the local frame at station `anchor`
+(origin on the centreline, x along the tangent, y across) shifted by (dx, y), so slots stay rectangular.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+QUARTER_ARC_BULGE = float(np.tan(np.pi / 8.0))
+
+
+@dataclass
+class FlatCentreline:
+    """Arcs of curvature `kappa` between stations `x`; tangent angle `theta` and `points` at the stations."""
+
+    x: np.ndarray
+    kappa: np.ndarray
+    theta: np.ndarray
+    points: np.ndarray
+    straight: bool = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.straight = not np.any(self.kappa)
+
+    @classmethod
+    def build(cls, x: np.ndarray, kappa_at_x: np.ndarray, straight_tolerance: float) -> "FlatCentreline":
+        """Integrate the in-plane curvature from station x[0] (mapped to the origin) and lay the chord along +x."""
+        x = np.asarray(x, dtype=float)
+        length = x[-1] - x[0]
+        kappa = (kappa_at_x[1:] + kappa_at_x[:-1]) / 2.0
+        line = cls(np.array([x[0], x[-1]]), np.zeros(1), np.zeros(2), np.array([[0.0, 0.0], [length, 0.0]]))
+        if not np.any(kappa):
+            return line
+        mean = float(np.sum(kappa * np.diff(x)) / length)
+        if np.max(np.abs(kappa - mean)) * length ** 2 / 2.0 < straight_tolerance:
+            x, kappa = np.array([x[0], x[-1]]), np.array([mean])
+        steps = np.diff(x)
+        theta = np.concatenate([[0.0], np.cumsum(kappa * steps)])
+        chords = steps * np.sinc(kappa * steps / (2.0 * np.pi))
+        middle = theta[:-1] + kappa * steps / 2.0
+        points = np.vstack([[0.0, 0.0], np.cumsum(np.column_stack([chords * np.cos(middle), chords * np.sin(middle)]), axis=0)])
+        turn = np.arctan2(points[-1, 1], points[-1, 0])
+        rotation = np.array([[np.cos(turn), np.sin(turn)], [-np.sin(turn), np.cos(turn)]])
+        curved = cls(x, kappa, theta - turn, points @ rotation.T)
+        if np.max(np.abs(curved.points[:, 1])) < straight_tolerance and _sagitta(kappa, steps) < straight_tolerance:
+            return line
+        return curved
+
+    def at(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Centreline points (N, 2) and tangent angles (N,) at stations x (arcs continued past the ends)."""
+        x = np.asarray(x, dtype=float)
+        k = np.clip(np.searchsorted(self.x, x, side="right") - 1, 0, len(self.kappa) - 1)
+        dx = x - self.x[k]
+        kappa = self.kappa[k]
+        chord = dx * np.sinc(kappa * dx / (2.0 * np.pi))
+        middle = self.theta[k] + kappa * dx / 2.0
+        return self.points[k] + np.column_stack([chord * np.cos(middle), chord * np.sin(middle)]), self.theta[k] + kappa * dx
+
+    def place(self, anchor: np.ndarray, dx: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Points at (dx, y) in the local frame at each station `anchor`."""
+        anchor, dx, y = np.broadcast_arrays(np.asarray(anchor, float), np.asarray(dx, float), np.asarray(y, float))
+        if self.straight:
+            return np.column_stack([anchor - self.x[0] + dx, y])
+        origin, theta = self.at(anchor)
+        c, s = np.cos(theta), np.sin(theta)
+        return origin + np.column_stack([c * dx - s * y, s * dx + c * y])
+
+    def bulge(self, x_from: np.ndarray, x_to: np.ndarray) -> np.ndarray:
+        """DXF bulge of the edge arc from station x_from to x_to (both within one arc of the centreline)."""
+        if self.straight:
+            return np.zeros(np.shape(x_from))
+        return np.tan((self.at(x_to)[1] - self.at(x_from)[1]) / 4.0)
+
+
+def _sagitta(kappa: np.ndarray, steps: np.ndarray) -> float:
+    """Largest sagitta of one arc piece: below the tolerance, a polyline through the stations would do."""
+    return float(np.max(np.abs(kappa) * steps ** 2 / 8.0))
+
+
+@dataclass
+class Notches:
+    """Edge notches (joint slots) of one edge: centre stations, width, depth (round end included)."""
+
+    centres: np.ndarray
+    width: float
+    depth: float
+
+
+def notch_vertices(centres: np.ndarray, width: float, depth: float, y_edge: float, top: bool) -> tuple[np.ndarray, ...]:
+    """Per notch, its four vertices in traversal order: anchor, dx, y, fixed bulge of the segment that follows.
+
+    The bottom edge runs towards +x, the top edge towards -x; the round end (a half circle, bulge -1)
+    is the concave turn of a counter-clockwise outline.
+    """
+    half, inward = width / 2.0, -1.0 if top else 1.0
+    bottom_of_notch = y_edge + inward * (depth - half)
+    dx = np.array([half, half, -half, -half]) if top else np.array([-half, -half, half, half])
+    ys = np.array([y_edge, bottom_of_notch, bottom_of_notch, y_edge])
+    bulges = np.array([0.0, -1.0, 0.0, np.nan])
+    n = len(centres)
+    return (np.repeat(centres, 4), np.tile(dx, n), np.tile(ys, n), np.tile(bulges, n))
+
+
+def strip_outline(centre: FlatCentreline, start: float, end: float, height: float,
+                  top: Notches, bottom: Notches) -> np.ndarray:
+    """Closed counter-clockwise outline of the strip from station `start` to `end` with its edge notches.
+
+    Edge vertices sit at the notch corners and wherever the centreline's curvature changes; edge segments
+    carry the bulge of their arc, notch sides are straight and notch ends half circles.
+    """
+    rows = []
+    for edge_y, notches, forward in ((-height / 2.0, bottom, True), (height / 2.0, top, False)):
+        breaks = centre.x[1:-1]
+        breaks = breaks[(breaks > start) & (breaks < end)]
+        if notches.centres.size:
+            breaks = breaks[~(np.abs(breaks[:, None] - notches.centres[None, :]) <= notches.width / 2.0).any(axis=1)]
+        n_anchor, n_dx, n_y, n_bulge = notch_vertices(notches.centres, notches.width, notches.depth, edge_y, not forward)
+        first, last = (start, end) if forward else (end, start)
+        plain = 1 + len(breaks)
+        anchor = np.concatenate([[first], breaks, n_anchor, [last]])
+        dx = np.concatenate([np.zeros(plain), n_dx, [0.0]])
+        y = np.concatenate([np.full(plain, edge_y), n_y, [edge_y]])
+        fixed = np.concatenate([np.full(plain, np.nan), n_bulge, [0.0]])
+        within = np.concatenate([np.zeros(plain), np.tile(np.arange(4), len(notches.centres)), [4]])
+        order = np.lexsort((within, anchor if forward else -anchor))
+        rows.append((anchor[order], dx[order], y[order], fixed[order]))
+    anchor, dx, y, fixed = (np.concatenate(parts) for parts in zip(*rows))
+    station = anchor + dx
+    bulge = np.where(np.isnan(fixed), centre.bulge(station, np.roll(station, -1)), fixed)
+    points = centre.place(anchor, dx, y)
+    contour = np.column_stack([points, bulge])
+    contour = np.vstack([contour, contour[:1]])
+    contour[-1, 2] = 0.0
+    return contour if np.any(contour[:, 2]) else contour[:, :2]
+
+
+_QUARTERS = np.column_stack([np.cos(np.arange(5) * np.pi / 2.0), np.sin(np.arange(5) * np.pi / 2.0)])
+
+
+def circle(centre: np.ndarray, radius: float) -> np.ndarray:
+    """A closed circular contour of four quarter arcs (bulges), counter-clockwise."""
+    return circles(np.asarray(centre, dtype=float).reshape(1, 2), radius)[0]
+
+
+def circles(centres: np.ndarray, radius: float) -> list[np.ndarray]:
+    """Closed circular contours of four quarter arcs each, one per centre (M, 2), counter-clockwise."""
+    rings = np.empty((len(centres), 5, 3))
+    rings[:, :, :2] = centres[:, None, :] + radius * _QUARTERS[None, :, :]
+    rings[:, :, 2] = [QUARTER_ARC_BULGE] * 4 + [0.0]
+    return list(rings)

@@ -1,0 +1,133 @@
+"""Joint hardware cut in the same run as the strips: star washers, cable clamps and singularity joints.
+
+Sizing rule (documented in docs/unroll.md), from the profile h x t and the pair spacing d:
+- every arm is 2a wide with a = d/2 + 2t, so it covers both strips of a pair with their slot play;
+- washer (kind "washer"): two per crossing node, above and below; one arm along each lamella pair at the
+  node's design crossing angle, reaching d + h/4 from the bolt, with a square hole for the carriage bolt's neck;
+- clamp (kind "clamp"): one per crossing node on every second diagonal (one colour of the grid's
+  checkerboard); four arms along the diagonals reaching 15 mm past the washer, each with a cable hole;
+- joint (kind "joint"): two hexagonal star plates per singularity node when it gets a separate joint; six
+  arms along the three lamellas, reaching h/2 past the pair ends, each with a bolt hole between the pair.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from shapely import affinity
+from shapely.geometry import Polygon, box
+from shapely.ops import unary_union
+
+from fabline.unroll.flat import circle
+from fabline.unroll.materials import Profile
+from fabline.unroll.parts import Part
+
+CLAMP_EXTRA_REACH = 15.0
+CABLE_HOLE = 6.5
+
+
+@dataclass(frozen=True)
+class HardwareSizes:
+    """The dimensions every hardware part is drawn from (mm)."""
+
+    half_width: float
+    washer_reach: float
+    clamp_reach: float
+    joint_setback: float
+    joint_reach: float
+    bolt_square: float
+    bolt_hole: float
+
+    @classmethod
+    def of(cls, profile: Profile, pair_spacing: float, bolt_square: float) -> "HardwareSizes":
+        half = pair_spacing / 2.0 + 2.0 * profile.t
+        washer = pair_spacing + profile.h / 4.0
+        setback = half / np.tan(np.pi / 6.0) + 2.0 * profile.t
+        return cls(half, washer, washer + CLAMP_EXTRA_REACH, setback, setback + profile.h / 2.0,
+                   bolt_square, bolt_square)
+
+
+@lru_cache(maxsize=4096)
+def _star(angles_deg: tuple[float, ...], half_width: float, reach: float) -> np.ndarray:
+    """Outline of the union of bars through the origin, one per angle, 2 * half_width wide, reaching `reach` both ways.
+
+    Cached: a job has few distinct (rounded) crossing angles but thousands of washers.
+    """
+    bar = box(-reach, -half_width, reach, half_width)
+    contour = _contour(unary_union([affinity.rotate(bar, a, origin=(0, 0)) for a in angles_deg]))
+    contour.flags.writeable = False
+    return contour
+
+
+def _contour(polygon: Polygon) -> np.ndarray:
+    """The exterior as a closed counter-clockwise vertex list, rounded to 1e-4 mm."""
+    ring = polygon.exterior
+    coords = np.asarray(ring.coords)
+    if not ring.is_ccw:
+        coords = coords[::-1]
+    return np.round(coords, 4)
+
+
+@lru_cache(maxsize=4096)
+def _square(side: float, angle_deg: float) -> np.ndarray:
+    half = side / 2.0
+    contour = _contour(affinity.rotate(box(-half, -half, half, half), angle_deg, origin=(0, 0)))
+    contour.flags.writeable = False
+    return contour
+
+
+def washers(node: str, arm_angles_deg: list[float], sizes: HardwareSizes) -> list[Part]:
+    """The two star washers (top, bottom) of a node: one arm pair along each lamella pair, at its angle (degrees).
+
+    Angles are taken relative to the first lamella and rounded to half a degree, the washer's tolerance.
+    """
+    angles = tuple(sorted({round(((a - arm_angles_deg[0]) % 180.0) * 2.0) / 2.0 % 180.0 for a in arm_angles_deg}))
+    outline = _star(angles, sizes.half_width, sizes.washer_reach)
+    hole = _square(sizes.bolt_square, angles[1] / 2.0 if len(angles) > 1 else 0.0)
+    name = "/".join(f"{a:g}" for a in angles[1:])
+    meta = {"node": node, "arm_angles_deg": list(angles)}
+    return [Part(f"W-{node}-{side}", "washer", outline, holes=[hole], label=f"W {name}", meta={**meta, "side": side})
+            for side in ("T", "B")]
+
+
+def clamp(node: str, crossing_deg: float, sizes: HardwareSizes) -> Part:
+    """The cross-shaped cable clamp of a node: arms along the two diagonals, a cable hole near each arm end."""
+    angle = round(crossing_deg * 2.0) / 2.0
+    diagonals = [angle / 2.0, angle / 2.0 + 90.0]
+    outline = _star(tuple(diagonals), sizes.half_width / 2.0, sizes.clamp_reach)
+    holes = [_square(sizes.bolt_square, angle / 2.0)]
+    for a in np.radians(diagonals + [d + 180.0 for d in diagonals]):
+        centre = (sizes.clamp_reach - CABLE_HOLE) * np.array([np.cos(a), np.sin(a)])
+        holes.append(circle(centre, CABLE_HOLE / 2.0))
+    return Part(f"C-{node}", "clamp", outline, holes=holes, label=f"C {angle:g}", meta={"node": node, "crossing_deg": angle})
+
+
+def singularity_joints(node: str, arm_angles_deg: list[float], sizes: HardwareSizes) -> list[Part]:
+    """The two hexagonal star plates (top, bottom) of a singularity node, arms along its lamellas' tangents."""
+    directions = [a % 180.0 for a in arm_angles_deg]
+    outline = _star(tuple(directions), sizes.half_width, sizes.joint_reach)
+    bolt_at = (sizes.joint_setback + sizes.joint_reach) / 2.0
+    holes = [circle(bolt_at * np.array([np.cos(a), np.sin(a)]), sizes.bolt_hole / 2.0)
+             for d in directions for a in np.radians([d, d + 180.0])]
+    meta = {"node": node, "arm_angles_deg": [round(d, 2) for d in directions], "setback": round(sizes.joint_setback, 2)}
+    return [Part(f"J-{node}-{side}", "joint", outline, holes=holes, label=f"J {node}", meta={**meta, "side": side})
+            for side in ("T", "B")]
+
+
+def checkerboard(nodes: list[str], neighbours: dict[str, list[str]]) -> set[str]:
+    """Nodes of one colour of a two-colouring along the lamellas: in a quad grid, every second diagonal."""
+    colour: dict[str, int] = {}
+    for root in nodes:
+        if root in colour:
+            continue
+        colour[root] = 0
+        queue = [root]
+        while queue:
+            current = queue.pop()
+            for other in neighbours.get(current, []):
+                if other not in colour:
+                    colour[other] = 1 - colour[current]
+                    queue.append(other)
+    return {n for n, c in colour.items() if c == 0}

@@ -1,0 +1,103 @@
+"""The settings of an unroll run: profile, material, joint and seam dimensions, and what to make.
+
+Every length in millimetres. Derived sizes (slot width 2 t, slot depth h/2 + clearance, end length h/2)
+follow domain.md section 5 unless given explicitly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from fabline.errors import FablineError
+from fabline.unroll.materials import Material, Profile, get_material
+
+SINGULARITY_MODES = ("joint", "slots")
+TEXT_GAP = 1.5  # mm between a mark and its text, and between text and an edge
+
+
+def _default_material() -> Material:
+    return get_material("steel-s235")
+
+
+@dataclass
+class UnrollOptions:
+    """How to unroll a network: see docs/unroll.md for what each setting does and its default's origin."""
+
+    profile: Profile = field(default_factory=lambda: Profile(100.0, 1.5))
+    material: Material = field(default_factory=_default_material)
+    pair_spacing: float = 25.0          # d: centre distance of a pair's two strips; 0 makes single lamellas
+    slot_clearance: float = 1.0         # slot depth = h/2 + this
+    slot_width: float | None = None     # default 2 t: lets the joint rotate during assembly
+    min_web: float | None = None        # least material between two slots; default the slot width
+    overlap: float = 150.0              # length of a seam's overlap
+    screw_hole: float = 5.5             # diameter of the six seam screw holes
+    sheet_length: float = 4000.0
+    sheet_margin: float = 10.0          # usable strip length = sheet_length - 2 * sheet_margin
+    end_length: float | None = None     # strip beyond its outermost slot or node; default h/2
+    compensate_twist: bool = False      # lengthen node distances by the helix contraction of the centre fibre
+    singularity: str = "joint"          # valence-6 nodes: separate hexagonal "joint" or "slots" for three pairs
+    hardware: bool = True               # washers, clamps and singularity joints as parts too
+    bolt_square: float = 8.5            # carriage bolt neck, square hole in washers and clamps
+    text_height: float = 6.0            # cap height of engraved node ids and labels
+    min_crossing_angle: float = 30.0    # the slotted joint rotates up to 60 degrees from square
+    straight_tolerance: float = 0.01    # a strip within this of straight is cut as a rectangle
+    strict: bool = False                # structural warnings become errors
+
+    @property
+    def slot(self) -> float:
+        """Slot width (mm)."""
+        return self.slot_width if self.slot_width is not None else 2.0 * self.profile.t
+
+    @property
+    def slot_depth(self) -> float:
+        """Slot depth from its edge, round end included (mm)."""
+        return self.profile.h / 2.0 + self.slot_clearance
+
+    @property
+    def web(self) -> float:
+        """Least material between two neighbouring slots (mm)."""
+        return self.min_web if self.min_web is not None else self.slot
+
+    @property
+    def end(self) -> float:
+        """Strip length beyond the outermost slot or node (mm)."""
+        return self.end_length if self.end_length is not None else self.profile.h / 2.0
+
+    @property
+    def free_height(self) -> float:
+        """Height of the strip's unslotted half, from its free edge to the slot ends (mm)."""
+        return self.profile.h - self.slot_depth
+
+    @property
+    def engrave_height(self) -> float:
+        """Cap height of engraved text: `text_height`, shrunk so node ids and a label fit in the free half."""
+        return max(0.5, min(self.text_height, (self.free_height - 3.0 * TEXT_GAP) / 2.5))
+
+    @property
+    def usable_length(self) -> float:
+        """Longest strip segment a sheet holds (mm)."""
+        return self.sheet_length - 2.0 * self.sheet_margin
+
+    def check(self) -> "UnrollOptions":
+        """Raise a FablineError naming the first setting that cannot work."""
+        positive = {"overlap": self.overlap, "screw hole": self.screw_hole, "sheet length": self.sheet_length,
+                    "text height": self.text_height, "bolt square": self.bolt_square, "slot width": self.slot,
+                    "end length": self.end, "straight tolerance": self.straight_tolerance}
+        for name, value in positive.items():
+            if not value > 0:
+                raise FablineError(f"option {name} must be positive, got {value:g}")
+        if self.pair_spacing < 0 or self.slot_clearance < 0 or self.sheet_margin < 0 or self.web < 0:
+            raise FablineError("options pair spacing, slot clearance, sheet margin and web must not be negative")
+        if 0 < self.pair_spacing <= self.profile.t + self.slot:
+            raise FablineError(f"pair spacing {self.pair_spacing:g} mm leaves no room between two {self.profile.t:g} mm "
+                               f"strips with {self.slot:g} mm slots (use 0 for single lamellas)")
+        if self.slot_depth >= self.profile.h:
+            raise FablineError(f"slot depth {self.slot_depth:g} mm (h/2 + clearance) cuts through the {self.profile.h:g} mm strip")
+        if self.usable_length <= 2.0 * self.overlap:
+            raise FablineError(f"usable sheet length {self.usable_length:g} mm is not longer than two overlaps "
+                               f"of {self.overlap:g} mm")
+        if self.singularity not in SINGULARITY_MODES:
+            raise FablineError(f"singularity mode {self.singularity!r}: use one of {', '.join(SINGULARITY_MODES)}")
+        if not 0 < self.min_crossing_angle <= 90:
+            raise FablineError(f"minimum crossing angle {self.min_crossing_angle:g} must lie in (0, 90] degrees")
+        return self

@@ -1,0 +1,204 @@
+"""One strip segment to one flat part: notched outline, slots, seam screw holes, node marks, ids and label.
+
+Layout across the strip (family A slotted from the top edge, B from the bottom): node marks run from the
+free edge to just short of the slot ends; node ids sit beside their marks along the free edge; the label
+(segment id, which segments it joins, an arrow pointing along the node order) sits once per part in the
+widest stretch of the free half that no node id or seam overlap takes. Six screw holes per seam end.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fabline.unroll.flat import FlatCentreline, Notches, circles, strip_outline
+from fabline.unroll.options import TEXT_GAP, UnrollOptions
+from fabline.unroll.parts import Part, Slot
+from fabline.unroll.seams import Segment, node_text_reach
+from fabline.unroll.stations import FAMILY_EDGE, OTHER_EDGE
+from fabline.unroll.strokes import arrow, layout, split_rows
+
+SEAM_HOLE_COLUMNS = np.array([-1.0, 0.0, 1.0]) / 3.0  # of the overlap, about the seam
+SEAM_HOLE_ROWS = np.array([-0.25, 0.25])              # of the height, about the centreline
+MIN_LABEL_HEIGHT = 1.5
+
+
+def segment_part(segment: Segment, options: UnrollOptions) -> Part:
+    """The flat part of one strip segment, in its own frame: x from 0 along the chord, centreline at y = 0."""
+    strip, a, b = segment.strip, segment.start, segment.end
+    h, width, depth = options.profile.h, options.slot, options.slot_depth
+    xs = strip.curve.s_at_samples
+    inside = (xs > a) & (xs < b)
+    stations = np.concatenate([[a], xs[inside], [b]])
+    centre = FlatCentreline.build(stations, np.interp(stations, xs, strip.geometry.k_n), options.straight_tolerance)
+
+    in_part = (strip.slot_x > a) & (strip.slot_x < b)
+    slot_x = strip.slot_x[in_part]
+    slot_nodes = [n for n, keep in zip(strip.slot_nodes, in_part) if keep]
+    slot_edges = [e for e, keep in zip(strip.slot_edges, in_part) if keep]
+    top = np.array([x for x, e in zip(slot_x, slot_edges) if e == "top"])
+    bottom = np.array([x for x, e in zip(slot_x, slot_edges) if e == "bottom"])
+    outline = strip_outline(centre, a, b, h, Notches(top, width, depth), Notches(bottom, width, depth))
+    slots = [Slot(n, c, e) for n, c, e in zip(slot_nodes, slot_contours(centre, slot_x, slot_edges, options), slot_edges)]
+
+    free_edge = OTHER_EDGE[FAMILY_EDGE[strip.family]]
+    sign = -1.0 if free_edge == "bottom" else 1.0           # which way from the centreline the free edge lies
+    edge_y = sign * h / 2.0
+    slot_end_y = sign * (h / 2.0 - options.free_height)     # where the other edge's slots end
+    in_nodes = [(n, float(x)) for n, x in zip(strip.node_ids, strip.node_x) if a < x < b]
+    slotted = set(slot_nodes)
+    marks_at = np.array([x for _, x in in_nodes])
+    mark_far = np.array([slot_end_y + sign * TEXT_GAP if n in slotted else -edge_y + sign * TEXT_GAP for n, _ in in_nodes])
+    marks = _marks(centre, marks_at, edge_y - sign * TEXT_GAP, mark_far)
+
+    height = options.engrave_height
+    reach = node_text_reach(options, [n for n, _ in in_nodes]) if in_nodes else 0.0
+    baseline = edge_y - sign * TEXT_GAP - (height if sign > 0 else 0.0)
+    items, blocked = [], [(a, a + options.overlap) if _is_seam(segment.start_join) else (a, a),
+                          (b - options.overlap, b) if _is_seam(segment.end_join) else (b, b)]
+    for nid, x in in_nodes:
+        glyphs = layout(nid)
+        right = x + reach <= b - TEXT_GAP and not _inside_any(x + reach, blocked)
+        dx = TEXT_GAP if right else -TEXT_GAP - glyphs.width * height
+        items.append((glyphs, x, dx, baseline, height))
+        blocked.append((x - TEXT_GAP, x + reach) if right else (x - reach, x + TEXT_GAP))
+    label = segment_label(segment)
+    text = _engrave(centre, items)
+    text += _label(centre, label, a, b, blocked, sign, slot_end_y, edge_y, height)
+
+    holes = circles(_seam_holes(centre, segment, options), options.screw_hole / 2.0)
+    nodes = [{"id": nid, "s": round(x - a, 4)} for nid, x in in_nodes]
+    meta = {
+        "strip": strip.id, "family": strip.family, "side": strip.side, "offset_mm": strip.offset,
+        "segment": segment.index, "segments": segment.count, "strip_range_mm": [round(a, 3), round(b, 3)],
+        "length_mm": round(b - a, 3), "in_plane_radius_mm": _radius(centre),
+        "joins": {"start": _join_meta(segment, -1), "end": _join_meta(segment, +1)},
+    }
+    kind = "strip" if centre.straight else "curved-strip"
+    return Part(segment.id, kind, outline, lamella=strip.lamella, holes=holes, slots=slots, marks=marks, text=text,
+                nodes=nodes, label=label, grain=True, meta=meta)
+
+
+def slot_contours(centre: FlatCentreline, x: np.ndarray, edges: list[str], options: UnrollOptions) -> list[np.ndarray]:
+    """Closed counter-clockwise outline of each edge slot: straight sides, a half-circle end (bulge 1)."""
+    if not len(x):
+        return []
+    half, h = options.slot / 2.0, options.profile.h
+    top = np.array([e == "top" for e in edges])[:, None]
+    sign = np.where(top, 1.0, -1.0)
+    y_edge = sign * h / 2.0
+    y_end = sign * (h / 2.0 - options.slot_depth + half)
+    dx = -sign * half * np.array([1.0, 1.0, -1.0, -1.0])
+    ys = np.hstack([y_edge, y_end, y_end, y_edge])
+    points = centre.place(np.repeat(x, 4), dx.ravel(), ys.ravel()).reshape(-1, 4, 2)
+    contours = np.empty((len(x), 5, 3))
+    contours[:, :4, :2] = points
+    contours[:, 4, :2] = points[:, 0]
+    contours[:, :, 2] = [0.0, 1.0, 0.0, 0.0, 0.0]
+    return list(contours)
+
+
+def segment_label(segment: Segment) -> str:
+    """The engraved label: segment id, k/n, which segments it joins at seams, and singularity joints at its ends."""
+    parts = [segment.id]
+    if segment.count > 1:
+        parts.append(f"{segment.index}/{segment.count}")
+    strip_id = segment.strip.id
+    for join, step, fmt in ((segment.start_join, -1, "<{}"), (segment.end_join, +1, "{}>")):
+        if join is None:
+            continue
+        if join.kind == "seam":
+            parts.append(fmt.format(f"{strip_id}.{segment.index + step}"))
+        else:
+            parts.append(fmt.format(f"J {join.node}"))
+    return " ".join(parts)
+
+
+def _is_seam(join) -> bool:
+    return join is not None and join.kind == "seam"
+
+
+def _inside_any(x: float, spans: list[tuple[float, float]]) -> bool:
+    return any(lo < x < hi for lo, hi in spans)
+
+
+def _join_meta(segment: Segment, step: int) -> dict | None:
+    join = segment.start_join if step < 0 else segment.end_join
+    if join is None:
+        return None
+    if join.kind == "seam":
+        return {"kind": "seam", "part": f"{segment.strip.id}.{segment.index + step}", "between": list(join.interval),
+                "seam_mm": round(join.x - segment.start, 3)}
+    return {"kind": "joint", "node": join.node}
+
+
+def _radius(centre: FlatCentreline) -> float | None:
+    """Smallest in-plane radius of the flat centreline (None when straight), mm."""
+    if centre.straight:
+        return None
+    kappa = float(np.abs(centre.kappa).max())
+    return round(1.0 / kappa, 3) if kappa > 0 else None
+
+
+def _marks(centre: FlatCentreline, x: np.ndarray, y_from: float, y_to: np.ndarray) -> list[np.ndarray]:
+    """Engrave lines across the strip at stations x, from y_from to y_to, all placed in one call."""
+    if not len(x):
+        return []
+    points = centre.place(np.repeat(x, 2), np.zeros(2 * len(x)), np.column_stack([np.full(len(x), y_from), y_to]).ravel())
+    return list(points.reshape(-1, 2, 2))
+
+
+def _engrave(centre: FlatCentreline, items: list) -> list[np.ndarray]:
+    """Strokes of several texts, each (glyphs, anchor, dx, baseline y, height), placed in one vectorised call."""
+    items = [item for item in items if len(item[0].points)]
+    if not items:
+        return []
+    anchors, dx, y, splits, offset = [], [], [], [], 0
+    for glyphs, anchor, x0, y0, height in items:
+        anchors.append(np.full(len(glyphs.points), anchor))
+        dx.append(x0 + glyphs.points[:, 0] * height)
+        y.append(y0 + glyphs.points[:, 1] * height)
+        splits.extend(glyphs.starts + offset)
+        offset += len(glyphs.points)
+    points = centre.place(np.concatenate(anchors), np.concatenate(dx), np.concatenate(y))
+    return split_rows(points, splits)
+
+
+def _label(centre: FlatCentreline, label: str, a: float, b: float, blocked: list[tuple[float, float]],
+           sign: float, slot_end_y: float, edge_y: float, height: float) -> list[np.ndarray]:
+    """The label and an arrow along +x, centred in the widest free stretch of the free half, shrunk to fit."""
+    glyphs = layout(label)
+    spans = sorted((max(a, lo), min(b, hi)) for lo, hi in blocked if hi > a and lo < b)
+    free, cursor = [], a + TEXT_GAP
+    for lo, hi in spans:
+        if lo > cursor:
+            free.append((cursor, lo))
+        cursor = max(cursor, hi)
+    if b - TEXT_GAP > cursor:
+        free.append((cursor, b - TEXT_GAP))
+    if not free:
+        return []
+    lo, hi = max(free, key=lambda span: span[1] - span[0])
+    room = hi - lo - 2.0 * TEXT_GAP
+    arrow_length = 3.0
+    size = min(height, room / (glyphs.width + arrow_length + 1.0)) if room > 0 else 0.0
+    if size < MIN_LABEL_HEIGHT:
+        return []
+    total = (glyphs.width + 1.0 + arrow_length) * size
+    mid_y = (slot_end_y + edge_y) / 2.0
+    anchor = (lo + hi) / 2.0
+    start = -total / 2.0
+    strokes = _engrave(centre, [(glyphs, anchor, start, mid_y - size / 2.0, size)])
+    shaft_start = start + (glyphs.width + 1.0) * size
+    for line in arrow(arrow_length * size, size * 0.8):
+        strokes.append(centre.place(np.full(len(line), anchor), shaft_start + line[:, 0], mid_y + line[:, 1]))
+    return strokes
+
+
+def _seam_holes(centre: FlatCentreline, segment: Segment, options: UnrollOptions) -> np.ndarray:
+    """Centres (M, 2) of the six screw holes at each seam end of the segment."""
+    seams = [join.x for join in (segment.start_join, segment.end_join) if _is_seam(join)]
+    if not seams:
+        return np.zeros((0, 2))
+    x = (np.array(seams)[:, None] + SEAM_HOLE_COLUMNS[None, :] * options.overlap).ravel()
+    gx, gy = np.meshgrid(x, SEAM_HOLE_ROWS * options.profile.h)
+    return centre.place(gx.ravel(), np.zeros(gx.size), gy.ravel())

@@ -1,0 +1,120 @@
+"""Cutting a strip into pieces a sheet can hold: seams midway between two joints, and ends at singularity joints.
+
+A strip longer than the usable sheet length is split at seams. A seam lies midway between two
+neighbouring nodes; the two segments overlap there by `overlap` and are screwed together through six
+holes (domain.md 1). Seams go as far along as a sheet allows (greedy), and the second strip of a pair
+avoids the node intervals its partner's seams use, so the two seams of a pair are staggered. In the
+separate-joint mode a strip also ends `setback` before each singularity node and starts again after it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fabline.errors import FablineError
+from fabline.unroll.options import TEXT_GAP, UnrollOptions
+from fabline.unroll.stations import Strip
+from fabline.unroll.strokes import layout
+
+
+@dataclass
+class Join:
+    """What a segment end meets: a seam (overlap centred at `x`), a singularity joint at node `node`, or nothing."""
+
+    kind: str
+    x: float
+    node: str = ""
+    interval: tuple[str, str] = ("", "")
+
+
+@dataclass
+class Segment:
+    """One piece of a strip to cut: arc-length range [start, end] along the strip, and what each end joins."""
+
+    strip: Strip
+    start: float
+    end: float
+    index: int = 1
+    count: int = 1
+    start_join: Join | None = None
+    end_join: Join | None = None
+
+    @property
+    def id(self) -> str:
+        return self.strip.id if self.count == 1 else f"{self.strip.id}.{self.index}"
+
+
+def strip_extent(strip: Strip, options: UnrollOptions) -> tuple[float, float]:
+    """Arc-length range of the whole strip: its outermost node or slot plus the end length at both ends."""
+    xs = np.concatenate([strip.node_x, strip.slot_x])
+    return float(xs.min() - options.end), float(xs.max() + options.end)
+
+
+def split_strip(strip: Strip, options: UnrollOptions, setback: float,
+                avoid: set[tuple[str, str]] = frozenset()) -> list[Segment]:
+    """The strip's segments in order along it; seams in `avoid` (node intervals) are used only if nothing else fits."""
+    start, end = strip_extent(strip, options)
+    runs: list[tuple[float, float, Join | None, Join | None]] = []
+    run_start, start_join = start, None
+    for nid, x in sorted(((n, float(x)) for n, x in zip(strip.node_ids, strip.node_x) if n in strip.joint_nodes),
+                         key=lambda item: item[1]):
+        joint = Join("joint", x, nid)
+        if x - setback > run_start + options.end:
+            runs.append((run_start, x - setback, start_join, joint))
+        run_start, start_join = x + setback, joint
+    if end > run_start + options.end:
+        runs.append((run_start, end, start_join, None))
+    segments: list[Segment] = []
+    for a, b, join_a, join_b in runs:
+        segments.extend(_split_run(strip, options, a, b, join_a, join_b, avoid))
+    for k, segment in enumerate(segments, start=1):
+        segment.index, segment.count = k, len(segments)
+    return segments
+
+
+def _split_run(strip: Strip, options: UnrollOptions, start: float, end: float, join_start: Join | None,
+               join_end: Join | None, avoid: set[tuple[str, str]]) -> list[Segment]:
+    """Greedy seams: each segment as long as the usable sheet length allows, each seam in a free node interval."""
+    usable, half = options.usable_length, options.overlap / 2.0
+    candidates = seam_candidates(strip, options, start, end)
+    segments, current, join = [], start, join_start
+    while end - current > usable:
+        fits = [c for c in candidates if current + half < c.x - half and c.x + half <= current + usable]
+        preferred = [c for c in fits if c.interval not in avoid] or fits
+        if not preferred:
+            raise FablineError(
+                f"lamella {strip.lamella}, strip {strip.id}: no seam fits between x = {current:.0f} and "
+                f"{current + usable:.0f} mm: no node interval there leaves {options.overlap:g} mm of overlap clear "
+                f"of slots and marks (usable sheet length {usable:g} mm)")
+        seam = preferred[-1]
+        segments.append(Segment(strip, current, seam.x + half, start_join=join, end_join=seam))
+        current, join = seam.x - half, seam
+    segments.append(Segment(strip, current, end, start_join=join, end_join=join_end))
+    return segments
+
+
+def seam_candidates(strip: Strip, options: UnrollOptions, start: float, end: float) -> list[Join]:
+    """Midpoints of node intervals inside (start, end) whose overlap keeps a web clear of every slot and node mark."""
+    order = np.argsort(strip.node_x)
+    x = strip.node_x[order]
+    ids = [strip.node_ids[k] for k in order]
+    middle = (x[1:] + x[:-1]) / 2.0
+    half = options.overlap / 2.0
+    keep_out_slot = half + options.slot / 2.0 + options.web
+    keep_out_mark = half + node_text_reach(options, ids)
+    clear = np.ones(len(middle), dtype=bool)
+    if len(strip.slot_x):
+        nearest = np.abs(middle[:, None] - strip.slot_x[None, :]).min(axis=1)
+        clear &= nearest >= keep_out_slot
+    clear &= np.abs(middle[:, None] - x[None, :]).min(axis=1) >= keep_out_mark
+    clear &= (middle - half > start) & (middle + half < end)
+    return [Join("seam", float(middle[k]), interval=(ids[k], ids[k + 1])) for k in np.flatnonzero(clear)]
+
+
+def node_text_reach(options: UnrollOptions, node_ids: list[str]) -> float:
+    """How far a node's engraved id reaches from its mark along the strip (mm): the longest id plus a gap."""
+    widest = max((layout(n).width for n in node_ids), default=0.0)
+    return widest * options.engrave_height + 2.0 * TEXT_GAP
+

@@ -1,0 +1,208 @@
+"""Where every slot and node mark lies along each strip: the crossings of the lamella pairs' offset curves.
+
+Each lamella of a pair runs d/2 beside the network curve on the surface (side "L" along u = n x t, side
+"R" against it) and is unrolled along its own offset curve: its slots sit where it crosses the other
+pair's two offset curves, measured along its own arc length, and its node mark midway between them.
+All crossings of a network are solved together (one Gauss-Newton run), so the work is vectorised.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fabline.errors import FablineError
+from fabline.geometry.darboux import LamellaGeometry, NetworkGeometry
+from fabline.geometry.offsets import OffsetCurve, closest_approach
+from fabline.unroll.options import UnrollOptions
+
+CROSSING_GAP_MM = 1.0  # two strips whose offset curves pass farther apart than this at a node do not cross there
+FAMILY_EDGE = {"A": "top", "B": "bottom"}
+OTHER_EDGE = {"top": "bottom", "bottom": "top"}
+
+
+@dataclass
+class Strip:
+    """One strip to cut (before seams): its offset curve and, along its arc length x, its nodes and slots."""
+
+    geometry: LamellaGeometry
+    side: str
+    curve: OffsetCurve
+    node_ids: list[str]
+    node_x: np.ndarray
+    slot_nodes: list[str] = field(default_factory=list)
+    slot_x: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    slot_edges: list[str] = field(default_factory=list)
+    joint_nodes: set[str] = field(default_factory=set)
+
+    @property
+    def lamella(self) -> str:
+        return self.geometry.lamella.id
+
+    @property
+    def family(self) -> str:
+        return self.geometry.lamella.family
+
+    @property
+    def id(self) -> str:
+        return f"{self.lamella}-{self.side}" if self.side else self.lamella
+
+    @property
+    def offset(self) -> float:
+        return self.curve.offset
+
+
+def side_offsets(options: UnrollOptions) -> list[tuple[str, float]]:
+    """The strips of one lamella: ("L", +d/2) and ("R", -d/2) for pairs, ("", 0) for single lamellas."""
+    half = options.pair_spacing / 2.0
+    return [("L", half), ("R", -half)] if half > 0 else [("", 0.0)]
+
+
+def singular_nodes(geometry: NetworkGeometry) -> set[str]:
+    """Nodes where three or more lamellas meet (valence 6 and up): the network's singularities."""
+    count: dict[str, int] = {}
+    for geo in geometry.lamellas.values():
+        for nid in geo.node_ids:
+            count[nid] = count.get(nid, 0) + 1
+    return {nid for nid, c in count.items() if c >= 3}
+
+
+def helix_stretch(geo: LamellaGeometry, options: UnrollOptions) -> np.ndarray | float:
+    """Length element factor 1 / (1 + eps_H,min) that undoes the twisted centre fibre's contraction (6.8, 6.9)."""
+    if not options.compensate_twist:
+        return 1.0
+    return 1.0 / (1.0 - 0.5 * options.profile.polar_radius_sq * geo.tau_g ** 2)
+
+
+def strip_stations(geometry: NetworkGeometry, options: UnrollOptions) -> list[Strip]:
+    """Every strip of the network with its node and slot positions; bad crossings raise naming node and lamellas."""
+    geos = list(geometry.lamellas.values())
+    sides = side_offsets(options)
+    node_tau = [geo.fit.parameter_at(geo.node_s) for geo in geos]
+    singular = singular_nodes(geometry)
+    joint_mode = options.singularity == "joint"
+    pairs = _crossing_pairs(geos, geometry, singular if joint_mode else set(), options)
+    solved = _solve_crossings(geos, geometry, node_tau, pairs, sides, options)
+    strips = []
+    for li, geo in enumerate(geos):
+        stretch = helix_stretch(geo, options)
+        for side_index, (side, offset) in enumerate(sides):
+            curve = OffsetCurve.of(geo, offset, stretch)
+            node_x = curve.arc_length(node_tau[li])
+            strip = Strip(geo, side, curve, list(geo.node_ids), node_x,
+                          joint_nodes={n for n in geo.node_ids if n in singular} if joint_mode else set())
+            entry = solved.get((li, side_index))
+            if entry is not None:
+                nodes, tau, edges = entry
+                x = curve.arc_length(tau)
+                order = np.argsort(x, kind="stable")
+                strip.slot_x, strip.slot_nodes = x[order], [nodes[k] for k in order]
+                strip.slot_edges = [edges[k] for k in order]
+                if offset != 0.0:
+                    _marks_between_slots(strip)
+            _check_slot_spacing(strip, options)
+            strips.append(strip)
+    return strips
+
+
+def _crossing_pairs(geos: list[LamellaGeometry], geometry: NetworkGeometry, skip: set[str],
+                    options: UnrollOptions) -> list[tuple[str, int, int, int, int]]:
+    """(node, lamella i, its node index, lamella j, its node index) for every two lamellas crossing at a node."""
+    at: dict[str, list[tuple[int, int]]] = {}
+    for li, geo in enumerate(geos):
+        for k, nid in enumerate(geo.node_ids):
+            at.setdefault(nid, []).append((li, k))
+    pairs = []
+    for nid, members in at.items():
+        if len(members) < 2 or nid in skip:
+            continue
+        angle = geometry.crossing_angles.get(nid)
+        if angle is not None and angle < options.min_crossing_angle:
+            names = " and ".join(geos[li].lamella.id for li, _ in members)
+            raise FablineError(f"node {nid}: lamellas {names} cross at {angle:.1f} degrees, under the "
+                               f"{options.min_crossing_angle:g} degrees the slotted joint can rotate to")
+        for a in range(len(members)):
+            for b in range(a + 1, len(members)):
+                pairs.append((nid, *members[a], *members[b]))
+    return pairs
+
+
+def _solve_crossings(geos: list[LamellaGeometry], geometry: NetworkGeometry, node_tau: list[np.ndarray],
+                     pairs: list[tuple[str, int, int, int, int]], sides: list[tuple[str, float]],
+                     options: UnrollOptions) -> dict[tuple[int, int], tuple[list[str], np.ndarray, list[str]]]:
+    """Solve every strip-strip crossing; per (lamella index, side index): slot nodes, curve parameters, edges."""
+    if not pairs:
+        return {}
+    nodes = [p[0] for p in pairs]
+    li, ki, lj, kj = (np.array([p[c] for p in pairs], dtype=int) for c in range(1, 5))
+    normals = np.array([geometry.network.nodes[n].normal for n in nodes], dtype=float)
+    t_i = np.array([geos[a].node_tangents[k] for a, k in zip(li, ki)])
+    t_j = np.array([geos[a].node_tangents[k] for a, k in zip(lj, kj)])
+    tau_i0 = np.array([node_tau[a][k] for a, k in zip(li, ki)])
+    tau_j0 = np.array([node_tau[a][k] for a, k in zip(lj, kj)])
+    offsets = np.array([o for _, o in sides])
+    count = len(sides)
+    # every pair crossed with every side combination: index = pair * count^2 + side_i * count + side_j
+    rep = count * count
+    side_i = np.tile(np.repeat(np.arange(count), count), len(pairs))
+    side_j = np.tile(np.tile(np.arange(count), count), len(pairs))
+    o_i, o_j = offsets[side_i], offsets[side_j]
+    n, ti, tj = (np.repeat(a, rep, axis=0) for a in (normals, t_i, t_j))
+    u_i, u_j = np.cross(n, ti), np.cross(n, tj)
+    cos_ij, sin_ij = np.einsum("ij,ij->i", tj, ti), np.einsum("ij,ij->i", tj, u_i)
+    along_j = np.einsum("ij,ij->i", u_j, ti)
+    across_j = np.einsum("ij,ij->i", u_j, u_i)
+    b = (o_i - o_j * across_j) / sin_ij
+    a = b * cos_ij + o_j * along_j
+    reach = options.end + abs(offsets).max() * 2.0
+    tau_i, tau_j, gap = closest_approach([g.fit for g in geos], np.repeat(li, rep), np.repeat(tau_i0, rep) + a, o_i,
+                                         np.repeat(lj, rep), np.repeat(tau_j0, rep) + b, o_j, iterations=4, reach=reach)
+    bad = np.flatnonzero(gap > CROSSING_GAP_MM)
+    if bad.size:
+        k = int(bad[np.argmax(gap[bad])])
+        p = pairs[k // rep]
+        raise FablineError(f"node {p[0]}: the strips of lamellas {geos[p[1]].lamella.id} and {geos[p[3]].lamella.id} "
+                           f"pass {gap[k]:.2f} mm apart instead of crossing (over {CROSSING_GAP_MM:g} mm)")
+    fam_i = [geos[p[1]].lamella.family for p in pairs]
+    fam_j = [geos[p[3]].lamella.family for p in pairs]
+    edge_i = [FAMILY_EDGE[f] for f in fam_i]
+    edge_j = [FAMILY_EDGE[g] if g != f else OTHER_EDGE[FAMILY_EDGE[g]] for f, g in zip(fam_i, fam_j)]
+    pair_of = np.tile(np.arange(len(tau_i)) // rep, 2)
+    lam = np.concatenate([np.repeat(li, rep), np.repeat(lj, rep)])
+    key = lam * count + np.concatenate([side_i, side_j])
+    tau = np.concatenate([tau_i, tau_j])
+    edges = np.concatenate([np.array(edge_i), np.array(edge_j)])[np.concatenate([pair_of[:len(tau_i)], pair_of[len(tau_i):] + len(pairs)])]
+    node_names = np.array(nodes, dtype=object)[pair_of]
+    order = np.argsort(key, kind="stable")
+    out = {}
+    for group in np.split(order, np.flatnonzero(np.diff(key[order])) + 1):
+        lamella, side = divmod(int(key[group[0]]), count)
+        out[(lamella, side)] = (node_names[group].tolist(), tau[group], edges[group].tolist())
+    return out
+
+
+def _marks_between_slots(strip: Strip) -> None:
+    """A paired strip's node mark lies midway between the slots it gets at that node."""
+    index = {nid: k for k, nid in enumerate(strip.node_ids)}
+    total = np.zeros(len(strip.node_ids))
+    count = np.zeros(len(strip.node_ids))
+    np.add.at(total, [index[n] for n in strip.slot_nodes], strip.slot_x)
+    np.add.at(count, [index[n] for n in strip.slot_nodes], 1)
+    slotted = count > 0
+    strip.node_x = np.where(slotted, total / np.maximum(count, 1), strip.node_x)
+
+
+def _check_slot_spacing(strip: Strip, options: UnrollOptions) -> None:
+    """Two neighbouring slots need one slot width plus the least web between them."""
+    if len(strip.slot_x) < 2:
+        return
+    need = options.slot + options.web
+    gaps = np.diff(strip.slot_x)
+    close = np.flatnonzero(gaps < need)
+    if close.size:
+        k = int(close[np.argmin(gaps[close])])
+        a, b = strip.slot_nodes[k], strip.slot_nodes[k + 1]
+        where = f"node {a}" if a == b else f"nodes {a} and {b}"
+        raise FablineError(f"lamella {strip.lamella}, strip {strip.id}: slots at {where} are {gaps[k]:.2f} mm apart; "
+                           f"a slot pair needs at least {need:.2f} mm (slot {options.slot:g} + web {options.web:g} mm)")

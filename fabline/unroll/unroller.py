@@ -1,0 +1,145 @@
+"""Unroll a whole network: every lamella to flat strip parts, the joint hardware, and the structural report.
+
+`unroll_network(network, options)` is the stage's entry point: geometry (fabline.geometry), strip stations
+(offset-curve crossings), seams, one part per segment, washers/clamps/joints, and per lamella the check
+of domain.md section 6. Mistakes that make parts impossible raise a FablineError naming lamella and node;
+over-stress is a warning in the report (an error with `strict`), since cutting can still go on.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fabline.errors import FablineError
+from fabline.geometry.darboux import NetworkGeometry, analyse
+from fabline.geometry.offsets import OffsetCurve
+from fabline.model.network import Network
+from fabline.progress import progress
+from fabline.unroll.hardware import HardwareSizes, checkerboard, clamp, singularity_joints, washers
+from fabline.unroll.options import UnrollOptions
+from fabline.unroll.parts import Part, PartSet
+from fabline.unroll.pieces import segment_part
+from fabline.unroll.seams import Segment, split_strip
+from fabline.unroll.stations import Strip, singular_nodes, strip_stations
+from fabline.unroll.structure import check_lamella, limits
+
+
+def unroll_network(network: Network, options: UnrollOptions | None = None,
+                   geometry: NetworkGeometry | None = None) -> PartSet:
+    """All flat parts of a network (mm) and the report; pass `geometry` to reuse an `analyse` result."""
+    options = (options or UnrollOptions()).check()
+    geometry = geometry if geometry is not None else analyse(network)
+    for lam_id, geo in geometry.lamellas.items():
+        if geo.length < options.overlap:
+            raise FablineError(f"lamella {lam_id}: {geo.length:.1f} mm long (nodes {geo.node_ids[0]}..{geo.node_ids[-1]}), "
+                               f"shorter than one {options.overlap:g} mm seam overlap")
+    strips = strip_stations(geometry, options)
+    sizes = HardwareSizes.of(options.profile, options.pair_spacing, options.bolt_square)
+    parts: list[Part] = []
+    strip_rows = []
+    partner_seams: dict[str, set[tuple[str, str]]] = {}
+    for strip in progress(strips, "unroll", total=len(strips)):
+        avoid = partner_seams.setdefault(strip.lamella, set())
+        segments = split_strip(strip, options, sizes.joint_setback, avoid)
+        avoid.update(s.end_join.interval for s in segments if s.end_join is not None and s.end_join.kind == "seam")
+        parts.extend(segment_part(segment, options) for segment in segments)
+        strip_rows.append(_strip_row(strip, segments, options))
+    checks = [check_lamella(geo, options.material, options.profile) for geo in geometry.lamellas.values()]
+    warnings = [line for check in checks for line in check.warnings]
+    if options.strict and warnings:
+        more = f" (and {len(warnings) - 1} more warnings)" if len(warnings) > 1 else ""
+        raise FablineError(warnings[0] + more)
+    if options.hardware:
+        parts.extend(hardware_parts(geometry, options, sizes))
+    lamella_rows = [check.summary(options.material, options.profile) for check in checks]
+    report = {
+        "summary": _summary(parts, lamella_rows, strip_rows, warnings),
+        "limits": limits(options.material, options.profile),
+        "options": _options_row(options),
+        "lamellas": lamella_rows,
+        "strips": strip_rows,
+        "warnings": warnings,
+    }
+    profile = {"h": options.profile.h, "t": options.profile.t, "name": str(options.profile)}
+    return PartSet(parts, profile, options.material.name, network.name, report)
+
+
+def hardware_parts(geometry: NetworkGeometry, options: UnrollOptions, sizes: HardwareSizes) -> list[Part]:
+    """Washers (two per crossing node), clamps (checkerboard nodes) and hexagonal joints (singularities, joint mode)."""
+    tangents: dict[str, list[np.ndarray]] = {}
+    neighbours: dict[str, list[str]] = {}
+    for geo in geometry.lamellas.values():
+        for nid, t in zip(geo.node_ids, geo.node_tangents):
+            tangents.setdefault(nid, []).append(t)
+        for a, b in zip(geo.node_ids[:-1], geo.node_ids[1:]):
+            neighbours.setdefault(a, []).append(b)
+            neighbours.setdefault(b, []).append(a)
+    clamped = checkerboard(sorted(neighbours), neighbours)
+    singular = singular_nodes(geometry)
+    parts: list[Part] = []
+    for nid in sorted(tangents):
+        ts = tangents[nid]
+        if len(ts) < 2:
+            continue
+        angles = arm_angles(ts, geometry.network.nodes[nid].normal)
+        if nid in singular and options.singularity == "joint":
+            parts.extend(singularity_joints(nid, angles, sizes))
+            continue
+        pair = washers(nid, angles, sizes)
+        parts.extend(pair)
+        if nid in clamped and nid not in singular:
+            parts.append(clamp(nid, pair[0].meta["arm_angles_deg"][1], sizes))
+    return parts
+
+
+def arm_angles(tangents: list[np.ndarray], normal: np.ndarray) -> list[float]:
+    """Directions (degrees) of the lamellas at a node in its tangent plane, the first lamella at 0."""
+    first = tangents[0] - np.dot(tangents[0], normal) * normal
+    first /= np.linalg.norm(first)
+    second = np.cross(normal, first)
+    return [float(np.degrees(np.arctan2(np.dot(t, second), np.dot(t, first)))) for t in tangents]
+
+
+def _strip_row(strip: Strip, segments: list[Segment], options: UnrollOptions) -> dict:
+    """A strip's report row: length, segments, seams, how its node distances differ from the centreline's."""
+    start, end = segments[0].start, segments[-1].end
+    change = np.diff(strip.node_x) - np.diff(strip.geometry.node_s)
+    row = {
+        "strip": strip.id, "lamella": strip.lamella, "side": strip.side, "offset_mm": strip.offset,
+        "length_mm": round(end - start, 3), "segments": [s.id for s in segments],
+        "seams": [list(s.end_join.interval) for s in segments if s.end_join is not None and s.end_join.kind == "seam"],
+        "slots": len(strip.slot_x),
+        "node_distance_change_max_mm": round(float(np.abs(change).max()), 4) if change.size else 0.0,
+        "node_distance_change_total_mm": round(float(change.sum()), 4) if change.size else 0.0,
+    }
+    if options.compensate_twist:
+        plain = OffsetCurve.of(strip.geometry, strip.offset)
+        row["twist_compensation_mm"] = round(strip.curve.length - plain.length, 4)
+    return row
+
+
+def _summary(parts: list[Part], lamellas: list[dict], strips: list[dict], warnings: list[str]) -> dict:
+    """Counts, total strip length and the governing utilisation of the run."""
+    kinds: dict[str, int] = {}
+    for part in parts:
+        kinds[part.kind] = kinds.get(part.kind, 0) + 1
+    worst = max(lamellas, key=lambda row: row["utilisation"]) if lamellas else None
+    return {
+        "lamellas": len(lamellas), "strips": len(strips), "parts": len(parts), "parts_by_kind": kinds,
+        "strip_length_m": round(sum(s["length_mm"] for s in strips) / 1000.0, 3),
+        "max_utilisation": worst["utilisation"] if worst else 0.0,
+        "governing_lamella": worst["lamella"] if worst else None,
+        "governing_check": worst["governing"] if worst else None,
+        "warnings": len(warnings),
+    }
+
+
+def _options_row(options: UnrollOptions) -> dict:
+    """The settings that shaped the parts, for the record in parts.json."""
+    return {
+        "pair_spacing_mm": options.pair_spacing, "slot_width_mm": options.slot, "slot_depth_mm": options.slot_depth,
+        "overlap_mm": options.overlap, "screw_hole_mm": options.screw_hole, "usable_length_mm": options.usable_length,
+        "end_length_mm": options.end, "compensate_twist": options.compensate_twist,
+        "singularity": options.singularity, "hardware": options.hardware, "text_height_mm": options.engrave_height,
+        "min_crossing_angle_deg": options.min_crossing_angle,
+    }

@@ -1,0 +1,134 @@
+"""`fabline export` and `fabline gcode-check` end to end, machine profiles as data, and every bad-input case."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from fabline.export import check_program, load_machine
+from fabline.export.machine import BUILTIN_DIR
+from fabline.nest.layout import Placement, Sheet, save_nesting
+from fabline.unroll.parts import save_parts
+
+from test_export_helpers import every_kind_nesting, every_kind_partset, placed_contours, truth_ring
+
+
+@pytest.fixture
+def job(tmp_path):
+    """A nesting.json and its parts.json with every part kind."""
+    nesting, partset = every_kind_nesting(), every_kind_partset()
+    save_parts(partset, tmp_path / "parts.json")
+    save_nesting(nesting, tmp_path / "nesting.json")
+    return tmp_path, nesting, partset
+
+
+def _outputs(folder):
+    return sorted(p.name for p in folder.rglob("*") if p.is_file()) if folder.exists() else []
+
+
+def test_export_then_check_agrees_with_independent_truth(cli, job):
+    folder, nesting, partset = job
+    code, out, err = cli("export", folder / "nesting.json", "--dxf", folder / "out", "--gcode", folder / "out",
+                         "--machine", "grbl-laser", "--kerf", "0")
+    assert code == 0, err
+    assert _outputs(folder / "out") == ["nesting_S1.dxf", "nesting_S1.gcode", "nesting_all-sheets.dxf"]
+    assert re.search(r"^total\s+6\s", out, re.M)
+    code, out, err = cli("gcode-check", folder / "out" / "nesting_S1.gcode", "--machine", "grbl-laser")
+    assert code == 0, out
+    assert out.strip().endswith(": ok")
+    cut = float(re.search(r"cut ([\d.]+) mm", out).group(1))
+    perimeters = sum(truth_ring(c, 0.0, role).exterior.length for _, role, c in placed_contours(nesting, partset))
+    assert cut == pytest.approx(perimeters, abs=0.05)
+
+
+def test_check_recomputes_what_the_writer_reported(cli, job):
+    folder, _, _ = job
+    assert cli("export", folder / "nesting.json", "--gcode", folder / "out")[0] == 0
+    text = (folder / "out" / "nesting_S1.gcode").read_text()
+    written = re.search(r"cut ([\d.]+) mm, mark ([\d.]+) mm, travel ([\d.]+) mm", text)
+    report = check_program(text, load_machine("grbl-laser"))
+    assert report.problems == []
+    assert report.summary.cut_length == pytest.approx(float(written.group(1)), abs=0.05)
+    assert report.summary.mark_length == pytest.approx(float(written.group(2)), abs=0.05)
+    assert report.summary.travel == pytest.approx(float(written.group(3)), abs=0.05)
+
+
+def test_check_reports_unsupported_words_out_of_bed_moves_laser_on_travel_and_long_lines(cli, tmp_path):
+    program = "\n".join([
+        "G21", "G90", "G28",                                # G28: not in the laser profile
+        "M4 S1000",
+        "G0 X10.000 Y10.000",                               # travel with the laser firing
+        "G1 X5000.000 Y10.000 F1500.000",                   # beyond the 4100 mm bed
+        "M5",
+        "G1 X1.000 Y1.000 ; " + "x" * 80,                   # over 80 characters
+        "M2", ""])
+    (tmp_path / "bad.gcode").write_text(program)
+    code, out, _ = cli("gcode-check", tmp_path / "bad.gcode", "--machine", "grbl-laser")
+    assert code == 1
+    assert "line 3: G28 is not supported" in out
+    assert "line 5: travel move (G0) with the tool on" in out
+    assert "line 6: move reaches x" in out and "outside the bed" in out
+    assert "line 8:" in out and "over the limit of 80" in out
+
+
+def test_a_user_profile_file_works_without_touching_code(cli, job, monkeypatch):
+    folder, _, _ = job
+    (folder / "machines").mkdir()
+    (folder / "machines" / "shop-laser.toml").write_text('extends = "grbl-laser"\nname = "shop-laser"\nkerf = 0.15\n'
+                                                         '[operations.cut-outer]\nfeed = 900.0\n')
+    monkeypatch.setenv("FABLINE_MACHINE_PATH", str(folder / "machines"))
+    code, out, err = cli("export", folder / "nesting.json", "--gcode", folder / "out", "--machine", "shop-laser")
+    assert code == 0, err
+    text = (folder / "out" / "nesting_S1.gcode").read_text()
+    assert "machine shop-laser" in text and "kerf 0.150 mm" in text and "F900.000" in text
+
+
+def _bad(cli, folder, *extra):
+    code, out, err = cli("export", folder / "nesting.json", "--dxf", folder / "out", "--gcode", folder / "out", *extra)
+    assert code == 2
+    assert err.count("\n") == 1 and err.startswith("fabline export: error: ")
+    assert _outputs(folder / "out") == []
+    return err
+
+
+def test_nesting_referring_to_a_missing_part(cli, job):
+    folder, nesting, _ = job
+    nesting.sheets[0].placements.append(Placement("NOPE", 10, 1500))
+    save_nesting(nesting, folder / "nesting.json")
+    err = _bad(cli, folder)
+    assert "nesting.json" in err and "'NOPE'" in err and "sheet S1" in err
+
+
+def test_sheet_larger_than_the_bed(cli, job):
+    folder, nesting, _ = job
+    nesting.sheets.append(Sheet("BIG", 5000.0, 2000.0, []))
+    save_nesting(nesting, folder / "nesting.json")
+    err = _bad(cli, folder)
+    assert "sheet BIG" in err and "bed" in err and "grbl-laser.toml" in err
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda t: t.replace("acceleration = 800.0", ""), "motion.acceleration: missing setting"),
+    (lambda t: t.replace("kerf = 0.2 ", "kerf = -0.2 "), "kerf: -0.2 is out of range"),
+    (lambda t: t.replace("power = 1000", "power = 1200", 1), "operations.cut-inner.power: 1200"),
+    (lambda t: t.replace('tool_on = ["M4 S{power}"]', 'tool_on = ["M3 S{power}"]'), "tool_on: M3 is not in the profile's words"),
+    (lambda t: t.replace("passes = 1", "passes = 0", 1), "operations.engrave-mark.passes"),
+])
+def test_bad_machine_profiles_name_the_file_and_the_field(cli, job, edit, field):
+    folder, _, _ = job
+    text = (BUILTIN_DIR / "grbl-laser.toml").read_text()
+    changed = edit(text)
+    assert changed != text
+    (folder / "bad.toml").write_text(changed)
+    err = _bad(cli, folder, "--machine", folder / "bad.toml")
+    assert "bad.toml" in err and field in err
+
+
+def test_unknown_machine_and_missing_parts_file(cli, job):
+    folder, _, _ = job
+    err = _bad(cli, folder, "--machine", "no-such-machine")
+    assert "no-such-machine" in err and "grbl-laser" in err
+    (folder / "parts.json").unlink()
+    err = _bad(cli, folder)
+    assert "parts.json: file not found" in err

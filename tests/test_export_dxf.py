@@ -1,0 +1,84 @@
+"""DXF output read back with ezdxf: audit clean, R2010 in mm, layers and colours, arcs kept as bulges, exact geometry."""
+
+from __future__ import annotations
+
+import ezdxf
+import numpy as np
+import pytest
+
+from fabline.export import ToolpathOptions, export_job, load_machine
+from fabline.export.dxf import LAYERS
+from fabline.nest.layout import place
+
+from test_export_helpers import every_kind_nesting, every_kind_partset
+
+
+@pytest.fixture(scope="module")
+def drawings(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("dxf")
+    nesting, partset = every_kind_nesting(), every_kind_partset()
+    export_job(nesting, {p.id: p for p in partset.parts}, load_machine("grbl-laser"), ToolpathOptions(kerf=0.2),
+               dxf_dir=folder, name="job")
+    return folder, nesting, partset
+
+
+def test_every_file_passes_the_audit_in_r2010_millimetres(drawings):
+    folder, _, _ = drawings
+    files = sorted(folder.glob("*.dxf"))
+    assert [f.name for f in files] == ["job_S1.dxf", "job_all-sheets.dxf"]
+    for path in files:
+        doc = ezdxf.readfile(path)
+        auditor = doc.audit()
+        assert not auditor.has_errors, [str(e) for e in auditor.errors]
+        assert doc.dxfversion >= "AC1024"                       # R2010 or later
+        assert doc.header["$INSUNITS"] == 4                     # millimetres
+        for name, colour in LAYERS.items():
+            assert doc.layers.get(name).color == colour
+
+
+def test_layers_hold_closed_contours_marks_text_and_the_sheet(drawings):
+    folder, nesting, partset = drawings
+    msp = ezdxf.readfile(folder / "job_S1.dxf").modelspace()
+    by_layer = {name: msp.query(f'LWPOLYLINE[layer=="{name}"]') for name in LAYERS}
+    parts = partset.parts
+    assert len(by_layer["CUT-OUTER"]) == len(parts)
+    assert len(by_layer["CUT-INNER"]) == sum(len(p.holes) + sum(s.edge is None for s in p.slots) for p in parts)
+    assert len(by_layer["ENGRAVE-MARK"]) == sum(len(p.marks) for p in parts)
+    assert len(by_layer["ENGRAVE-TEXT"]) == sum(len(p.text) for p in parts)
+    assert len(by_layer["SHEET"]) == 1
+    assert all(e.closed for name in ("CUT-OUTER", "CUT-INNER", "SHEET") for e in by_layer[name])
+    sheet = nesting.sheets[0]
+    corners = np.array([p[:2] for p in by_layer["SHEET"][0].get_points("xy")])
+    assert np.allclose(corners.max(axis=0) - corners.min(axis=0), [sheet.width, sheet.height])
+
+
+def test_outlines_read_back_exactly_with_arcs_as_bulges(drawings):
+    folder, nesting, partset = drawings
+    msp = ezdxf.readfile(folder / "job_S1.dxf").modelspace()
+    outers = list(msp.query('LWPOLYLINE[layer=="CUT-OUTER"]'))
+    parts = {p.id: p for p in partset.parts}
+    for placement in nesting.sheets[0].placements:
+        part = parts[placement.part]
+        outline = part.outline if part.outline.shape[1] == 3 else np.column_stack([part.outline, np.zeros(len(part.outline))])
+        expected = place(outline, placement)[:-1]
+        match = [e for e in outers if len(e) == len(expected)
+                 and np.allclose(np.array(e.get_points("xyb")), expected, atol=1e-5)]
+        assert len(match) == 1, part.id
+        assert match[0].has_arc == bool(np.any(outline[:, 2]))
+    curved = next(e for e in outers if e.has_arc)
+    assert sorted(np.round(np.abs(np.array(curved.get_points("xyb"))[:, 2]), 6).tolist())[-1] == pytest.approx(
+        np.tan(np.radians(40) / 4), abs=1e-6)
+
+
+def test_all_sheets_drawing_lays_sheets_side_by_side(tmp_path):
+    nesting, partset = every_kind_nesting(), every_kind_partset()
+    second = type(nesting.sheets[0])("S2", 3000.0, 1500.0, nesting.sheets[0].placements[3:])
+    nesting.sheets.append(second)
+    export_job(nesting, {p.id: p for p in partset.parts}, load_machine("grbl-laser"), ToolpathOptions(),
+               dxf_dir=tmp_path, name="two")
+    msp = ezdxf.readfile(tmp_path / "two_all-sheets.dxf").modelspace()
+    sheets = msp.query('LWPOLYLINE[layer=="SHEET"]')
+    assert len(sheets) == 2
+    xs = sorted(min(p[0] for p in s.get_points("xy")) for s in sheets)
+    assert xs[1] > xs[0] + 4000.0
+    assert len(msp.query('LWPOLYLINE[layer=="CUT-OUTER"]')) == 6 + 3

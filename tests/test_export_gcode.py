@@ -1,0 +1,114 @@
+"""G-code programs: Grbl line limits and words, fixed precision, header, determinism, machine profiles, timing."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from fabline.export import MoveLog, ToolpathOptions, estimate_time, export_job, load_machine
+from fabline.export import samplejob
+
+from test_export_helpers import every_kind_nesting, every_kind_partset, gcodeparser, read_toolpaths
+
+NUMBER = re.compile(r"[XYIJ](-?\d+\.\d+)")
+
+
+def _export(machine="grbl-laser", kerf=0.2, **options):
+    nesting, partset = every_kind_nesting(), every_kind_partset()
+    profile = load_machine(machine)
+    return export_job(nesting, {p.id: p for p in partset.parts}, profile, ToolpathOptions(kerf=kerf, **options),
+                      name="job"), profile
+
+
+@pytest.mark.parametrize("machine", ["grbl-laser", "grbl-plotter", "rs274-mill"])
+def test_one_command_per_line_within_limits_and_only_profile_words(machine):
+    result, profile = _export(machine)
+    text = result.sheets[0].gcode
+    lines = text.splitlines()
+    assert text.endswith("\n") and text.isascii()
+    assert max(len(line) for line in lines) <= profile.max_line_length <= 80
+    used = set()
+    for line in gcodeparser.parse_gcode_lines(text):
+        letter, number = line.command
+        assert letter in "GM"
+        used.add(f"{letter}{number}")
+    assert used <= profile.words
+    for line in lines:
+        if not line.startswith(";"):
+            assert len(re.findall(r"\b[GM]\d+", line)) == 1, line          # one command per line
+            for value in NUMBER.findall(line):
+                assert len(value.split(".")[1]) == 3, line                    # fixed 0.001 mm precision
+
+
+def test_laser_program_uses_m4_dynamic_power_within_the_s_range_and_says_it_needs_laser_mode():
+    result, profile = _export("grbl-laser")
+    text = result.sheets[0].gcode
+    header = [line for line in text.splitlines() if line.startswith(";")][:8]
+    assert any("$32=1" in line for line in header)
+    assert any("job job" in line and "sheet S1" in line for line in header)
+    assert any("A B C W K J" in line for line in header)
+    powers = [float(m) for m in re.findall(r"^M4 S(\d+\.?\d*)$", text, re.M)]
+    assert powers and all(profile.s_min <= s <= profile.s_max for s in powers)
+    assert "M3" not in text
+    runs = read_toolpaths(text)
+    assert {r["power"] for r in runs if r["comment"].startswith("engrave")} == {250.0}
+    assert {r["power"] for r in runs if r["comment"].startswith("cut")} == {1000.0}
+
+
+def test_plotter_lifts_the_pen_between_paths_and_mill_plunges_per_pass():
+    result, profile = _export("grbl-plotter", kerf=0.0)
+    lines = result.sheets[0].gcode.splitlines()
+    for k, line in enumerate(lines):
+        if line.startswith("G0 ") and k > 0:
+            pen = next(x for x in reversed(lines[:k]) if x.startswith("M3"))
+            assert pen == "M3 S30.000", (k, line)
+    result, profile = _export("rs274-mill", kerf=2.0)
+    text = result.sheets[0].gcode
+    assert "G1 Z-0.850 F300.000" in text and "G1 Z-1.700 F300.000" in text     # two passes to 1.7 mm
+    assert text.count("G0 Z5.000") >= text.count("G1 Z-1.700 F300.000")
+
+
+def test_same_input_gives_the_same_bytes(tmp_path):
+    first, _ = _export()
+    second, _ = _export()
+    assert first.sheets[0].gcode == second.sheets[0].gcode
+
+
+def test_estimated_time_matches_the_trapezoid_closed_form():
+    """One 1000 mm move at 6000 mm/min, 800 mm/s^2 from rest to rest: L/v + v/a."""
+    log = MoveLog()
+    log.add((0.0, 0.0), (1000.0, 0.0), 6000.0, False, True, stop_before=True)
+    assert estimate_time(log.table(), 800.0, 0.01) == pytest.approx(1000 / 100 + 100 / 800)
+    short = MoveLog()                                   # too short to reach speed: a triangle profile
+    short.add((0.0, 0.0), (4.0, 0.0), 6000.0, False, True)
+    assert estimate_time(short.table(), 800.0, 0.01) == pytest.approx(2 * np.sqrt(4.0 / 800))
+    corner = MoveLog()                                  # a 90 degree corner: the machine stops only where the rule says
+    corner.add((0.0, 0.0), (500.0, 0.0), 6000.0, False, True)
+    corner.add((500.0, 0.0), (500.0, 500.0), 6000.0, False, True)
+    stop = MoveLog()
+    stop.add((0.0, 0.0), (500.0, 0.0), 6000.0, False, True)
+    stop.add((500.0, 0.0), (500.0, 500.0), 6000.0, False, True, stop_before=True)
+    assert estimate_time(corner.table(), 800.0, 0.01) < estimate_time(stop.table(), 800.0, 0.01)
+    assert estimate_time(stop.table(), 800.0, 0.01) == pytest.approx(2 * (5 + 100 / 800))
+
+
+def test_marks_and_cuts_are_summarised_apart():
+    result, _ = _export(kerf=0.0)
+    summary = result.sheets[0].summary
+    partset = every_kind_partset()
+    marks = sum(np.hypot(*np.diff(m[:, :2], axis=0).T).sum() for p in partset.parts for m in p.marks + p.text)
+    assert summary.mark_length == pytest.approx(marks, abs=1e-3)
+    assert summary.cut_length > 0 and summary.travel > 0 and summary.time > 0
+
+
+def test_pavilion_sample_job_has_the_asked_for_size():
+    nesting, partset = samplejob.pavilion_job()
+    kinds = [p.kind for p in partset.parts]
+    assert kinds.count("strip") == 700 and kinds.count("washer") == 1400 and kinds.count("clamp") == 350
+    lengths = [np.ptp(p.outline[:, 0]) for p in partset.parts if p.kind == "strip"]
+    assert 500 <= min(lengths) and max(lengths) <= 3900
+    assert 14 <= len(nesting.sheets) <= 22
+    placed = [pl.part for s in nesting.sheets for pl in s.placements]
+    assert sorted(placed) == sorted(p.id for p in partset.parts)

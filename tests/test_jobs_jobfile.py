@@ -1,0 +1,131 @@
+"""Job files: the example parses, and every bad input is one line naming the key path, exit 2, nothing written."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from fabline.errors import FablineError
+from fabline.jobs.jobfile import DEFAULT_STAGES, load_job_file
+
+REPO = Path(__file__).resolve().parent.parent
+
+GOOD = """
+name = "small"
+[model]
+design = "enneper"
+[model.options]
+size = [2.0, 2.5]
+spacing = 0.5
+[output]
+folder = "out"
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "job.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_example_job_parses_with_defaults_filled_in():
+    spec = load_job_file(REPO / "jobs" / "pavilion.toml")
+    assert spec.name == "pavilion"
+    assert spec.model == {"design": "enneper", "options": {"size": (9.0, 12.0), "spacing": 0.35, "k_max": 1.1}}
+    assert spec.machine["port"] == "sim://grbl"
+    assert spec.stages == ("unroll", "nest", "export", "stream", "report")
+    assert spec.output_folder == (REPO / "out" / "pavilion").resolve()
+
+
+def test_defaults_and_relative_paths(tmp_path):
+    spec = load_job_file(write(tmp_path, GOOD))
+    assert spec.stages == DEFAULT_STAGES
+    assert spec.lamella == {"material": "stainless", "profile": "100x1.5", "materials_file": None}
+    assert spec.output_folder == (tmp_path / "out").resolve()
+    assert spec.output("gcode/a.gcode") == (tmp_path / "out" / "gcode" / "a.gcode").resolve()
+
+
+def test_required_keys(tmp_path):
+    with pytest.raises(FablineError) as err:
+        load_job_file(write(tmp_path, GOOD.replace('name = "small"', "")))
+    assert str(err.value) == "job.toml: name: missing (required)"
+    with pytest.raises(FablineError) as err:
+        load_job_file(write(tmp_path, GOOD.replace('folder = "out"', 'report = "r.html"')))
+    assert str(err.value) == "job.toml: output.folder: missing (required)"
+
+
+@pytest.mark.parametrize("extra, message", [
+    ("colour = 3", "job.toml: colour: unknown key"),
+    ("[machine]\nspeed = 3", "job.toml: machine.speed: unknown key"),
+    ("[machine]\nport = 7", "job.toml: machine.port: expected a string, got integer 7"),
+    ("[machine]\ntime_scale = \"fast\"", "job.toml: machine.time_scale: expected a number, got string 'fast'"),
+    ("[machine]\ntime_scale = -1.0", "job.toml: machine.time_scale: must be positive"),
+    ("[machine]\nprofile = \"laser9000\"", "job.toml: machine.profile: unknown machine 'laser9000'"),
+    ("[machine]\nprofile = \"missing.toml\"", "job.toml: machine.profile: file not found"),
+    ("[stock]\nsheet = \"4000by2000\"", "job.toml: stock.sheet:"),
+    ("[stock]\nfile = \"stock.json\"", "job.toml: stock.file: file not found"),
+    ("[stock]\ncount = true", "job.toml: stock.count: expected an integer, got boolean True"),
+    ("[lamella]\nprofile = \"1.5x100\"", "job.toml: lamella.profile:"),
+    ("[lamella]\nmaterial = \"unobtainium\"", "job.toml: lamella.material: unknown material 'unobtainium'"),
+    ("[nest]\ngap = -1", "job.toml: nest.gap: must not be negative"),
+    ("[survey]\nresult = \"survey.json\"", "job.toml: survey.result: file not found"),
+    ("stages = [\"unroll\", \"polish\"]", "job.toml: stages[1]: unknown stage 'polish'"),
+    ("stages = \"unroll\"", "job.toml: stages: expected a list, got string 'unroll'"),
+    ("machine = 3", "job.toml: machine: expected a table, got integer"),
+])
+def test_bad_keys_name_the_key_path(tmp_path, extra, message):
+    top, _, table = extra.partition("\n")
+    text = (extra + "\n" + GOOD) if not top.startswith("[") else (GOOD + "\n" + extra + "\n")
+    with pytest.raises(FablineError) as err:
+        load_job_file(write(tmp_path, text))
+    assert str(err.value).startswith(message), str(err.value)
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("model, message", [
+    ('[model]\ndesign = "torus"', "job.toml: model.design: unknown design 'torus'"),
+    ('[model]\nfile = "nope.network.json"', "job.toml: model.file: file not found"),
+    ('[model]\ndesign = "enneper"\nfile = "x.json"', "job.toml: model: give exactly one of"),
+    ('[model]\ndesign = "enneper"\n[model.options]\nsizes = [1.0, 2.0]', "job.toml: model.options.sizes: unknown option"),
+    ('[model]\ndesign = "enneper"\n[model.options]\nspacing = "wide"', "job.toml: model.options.spacing: expected a number"),
+    ('[model]\ndesign = "enneper"\n[model.options]\nsize = [1.0, "x"]', "job.toml: model.options.size[1]: expected a number"),
+])
+def test_bad_model(tmp_path, model, message):
+    text = 'name = "m"\n[output]\nfolder = "out"\n' + model + "\n"
+    with pytest.raises(FablineError) as err:
+        load_job_file(write(tmp_path, text))
+    assert str(err.value).startswith(message), str(err.value)
+
+
+@pytest.mark.parametrize("report", ["../escape.html", "/tmp/abs.html", "sub/../../up.html"])
+def test_outputs_outside_the_output_folder_are_refused(tmp_path, report):
+    text = GOOD.replace('folder = "out"', f'folder = "out"\nreport = "{report}"')
+    with pytest.raises(FablineError, match="outside the output folder"):
+        load_job_file(write(tmp_path, text))
+
+
+def test_symlink_escaping_the_output_folder_is_refused(tmp_path):
+    (tmp_path / "out").mkdir()
+    (tmp_path / "elsewhere").mkdir()
+    (tmp_path / "out" / "link").symlink_to(tmp_path / "elsewhere")
+    text = GOOD.replace('folder = "out"', 'folder = "out"\nreport = "link/report.html"')
+    with pytest.raises(FablineError, match="outside the output folder"):
+        load_job_file(write(tmp_path, text))
+
+
+def test_bad_name_and_malformed_toml(tmp_path):
+    with pytest.raises(FablineError, match="job.toml: name: '../x' must be letters"):
+        load_job_file(write(tmp_path, GOOD.replace('name = "small"', 'name = "../x"')))
+    with pytest.raises(FablineError, match="job.toml: malformed TOML"):
+        load_job_file(write(tmp_path, GOOD + "\n[[[\n"))
+    with pytest.raises(FablineError, match="nothere.toml: file not found"):
+        load_job_file(tmp_path / "nothere.toml")
+
+
+def test_cli_bad_job_file_exits_2_with_one_line_and_writes_nothing(tmp_path, cli):
+    path = write(tmp_path, GOOD + "\n[machine]\nport = 7\n")
+    code, out, err = cli("run", path)
+    assert code == 2
+    assert err.strip() == "fabline run: error: job.toml: machine.port: expected a string, got integer 7"
+    assert not (tmp_path / "out").exists()

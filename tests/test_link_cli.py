@@ -1,0 +1,105 @@
+"""`fabline stream` and `fabline grbl-sim` from the command line: a job, check mode, and every bad input."""
+
+from __future__ import annotations
+
+import os
+import pty
+import uuid
+
+import pytest
+import serial
+
+from fabline.link import executed_file_lines
+from fabline.link.protocol_sim import close_simulator
+
+PROGRAM = "G21\nG90\nM4 S600\n" + "".join(f"G1 X{i % 7} Y{i % 5} F3000\n" for i in range(1, 60)) + "M5\nG0 X0 Y0\n"
+
+
+@pytest.fixture
+def gcode(tmp_path):
+    path = tmp_path / "sheet-03.gcode"
+    path.write_text(PROGRAM, encoding="ascii")
+    return path
+
+
+@pytest.fixture
+def simulator(tmp_path):
+    name = f"cli{uuid.uuid4().hex[:8]}"
+    log = tmp_path / "executed.log"
+    yield (lambda extra="": f"sim://{name}?time_scale=500&log={log}{extra}"), log
+    close_simulator(name)
+
+
+def written(tmp_path) -> set[str]:
+    return {path.name for path in tmp_path.iterdir()}
+
+
+def test_stream_runs_a_job_and_logs_the_exchange(cli, gcode, simulator):
+    url, log = simulator
+    code, out, err = cli("stream", gcode, "--port", url(), "--check")
+    assert code == 0, err
+    assert "64 lines streamed" in out
+    assert executed_file_lines(log) == list(range(1, 65))
+    exchange = (gcode.parent / "sheet-03.gcode.link.log").read_text()
+    assert ">>> N4G1X1Y1F3000T4" in exchange and "<<< ok" in exchange and "<<< [MSG:Enabled]" in exchange
+    code, _, err = cli("stream", gcode, "--port", url(), "--resume")
+    assert code == 2 and "already finished" in err
+
+
+def test_check_mode_error_stops_before_anything_moves(cli, gcode, simulator, tmp_path):
+    url, log = simulator
+    code, out, err = cli("stream", gcode, "--port", url("&error_line=30&error_code=33"), "--check")
+    assert code == 2
+    assert err.startswith("fabline stream: error: ") and err.count("\n") == 1
+    assert f"{gcode}:30: check mode: error:33 (the motion command has an invalid target" in err
+    assert not log.exists() or executed_file_lines(log) == []
+    assert "sheet-03.gcode.journal" not in written(tmp_path)
+
+
+def test_port_that_does_not_exist(cli, gcode, tmp_path):
+    code, _, err = cli("stream", gcode, "--port", "/dev/ttyFABLINE9")
+    assert code == 2 and "port /dev/ttyFABLINE9: cannot open" in err and err.count("\n") == 1
+    assert written(tmp_path) == {"sheet-03.gcode"}
+
+
+def test_port_that_is_busy(cli, gcode, tmp_path):
+    master, slave = pty.openpty()
+    path = os.ttyname(slave)
+    holder = serial.Serial(path, exclusive=True)
+    try:
+        code, _, err = cli("stream", gcode, "--port", path)
+    finally:
+        holder.close()
+        os.close(master)
+        os.close(slave)
+    assert code == 2 and f"port {path}: cannot open" in err and "lock" in err
+    assert written(tmp_path) == {"sheet-03.gcode"}
+
+
+def test_device_that_is_not_grbl(cli, gcode, tmp_path):
+    code, _, err = cli("stream", gcode, "--port", "loop://", "--connect-timeout", "0.5")
+    assert code == 2 and "no GRBL answer within 0.5 s" in err
+    assert written(tmp_path) == {"sheet-03.gcode"}
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"G21\nG1 X" + b"9" * 90 + b" F100\n", "sheet-03.gcode:2: line too long for the controller"),
+    (b"G21\nG1 X1 F100 (\xc2\xb0)\n", "sheet-03.gcode:2:13: non-ASCII byte 0xc2"),
+])
+def test_bad_file_is_refused_before_the_port_is_touched(cli, gcode, simulator, tmp_path, content, message):
+    url, log = simulator
+    gcode.write_bytes(content)
+    code, _, err = cli("stream", gcode, "--port", url())
+    assert code == 2 and message in err and err.count("\n") == 1
+    assert written(tmp_path) == {"sheet-03.gcode"}
+
+
+def test_resume_without_a_journal(cli, gcode, simulator):
+    url, _ = simulator
+    code, _, err = cli("stream", gcode, "--port", url(), "--resume")
+    assert code == 2 and "no journal to resume from" in err
+
+
+def test_grbl_sim_rejects_unknown_fault(cli):
+    code, _, err = cli("grbl-sim", "--fault", "explode=1")
+    assert code == 2 and "unknown simulator option(s) ['explode']" in err

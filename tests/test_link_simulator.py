@@ -1,0 +1,144 @@
+"""The simulator answers like the real Grbl 1.1h in tests/data/grbl-1.1h-transcript.txt, replayed host line by host line."""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+
+import pytest
+
+from fabline.link.protocol import LineSplitter, classify
+from fabline.link.simulator import GrblSimulator
+
+TRANSCRIPT = Path(__file__).parent / "data" / "grbl-1.1h-transcript.txt"
+REALTIME = {"ctrl-x": b"\x18", "?": b"?", "!": b"!", "~": b"~"}
+
+
+def exchanges() -> list[tuple[bytes, list[str]]]:
+    """(bytes the host sent, answer lines the firmware gave after it) for every '>>>' in the transcript."""
+    steps: list[tuple[bytes, list[str]]] = []
+    for raw in TRANSCRIPT.read_text(encoding="ascii").splitlines():
+        if raw.startswith(">>> "):
+            command = raw[4:].split("    #")[0]
+            if command.startswith("realtime "):
+                steps.append((REALTIME[command.split()[1]], []))
+            else:
+                steps.append((command.encode("ascii") + b"\n", []))
+        elif raw.startswith("<<< "):
+            steps[-1][1].append(raw[4:])
+    return steps
+
+
+def status_shape(line: str) -> tuple:
+    """What must match in a status report: state and field names in order, buffer and override values."""
+    fields = line[1:-1].split("|")
+    exact = tuple(f for f in fields[1:] if f.startswith(("Bf:", "Ov:", "A:", "WCO:")))
+    return fields[0], tuple(f.split(":")[0] for f in fields[1:]), exact
+
+
+class Host:
+    """Talks to a simulator like the capture script did: send, then read the answers."""
+
+    def __init__(self, simulator: GrblSimulator):
+        self.simulator = simulator
+        self.splitter = LineSplitter()
+        self.lines: list[str] = []
+
+    def read(self, count: int, quiet: float = 0.15, timeout: float = 5.0) -> list[str]:
+        """Read until `count` lines arrived, then a little more to catch extra ones."""
+        deadline = time.monotonic() + timeout
+        while len(self.lines) < count and time.monotonic() < deadline:
+            self.lines += self.splitter.feed(self.simulator.read(4096, 0.02))
+        end = time.monotonic() + quiet
+        while time.monotonic() < end:
+            self.lines += self.splitter.feed(self.simulator.read(4096, 0.02))
+        lines, self.lines = self.lines, []
+        return lines
+
+    def status(self) -> str:
+        self.simulator.receive(b"?")
+        return self.read(1, quiet=0)[0]
+
+
+@pytest.fixture
+def host():
+    simulator = GrblSimulator(time_scale=1.0)
+    simulator.attach()
+    yield Host(simulator)
+    simulator.close()
+
+
+def test_transcript_is_present_and_complete():
+    steps = exchanges()
+    assert len(steps) == 44 and sum(len(answers) for _, answers in steps) == 98
+    assert steps[0] == (b"\x18", ["Grbl 1.1h ['$' for help]"])
+
+
+def test_simulator_replays_the_real_firmware_transcript(host):
+    pending = 0  # answers of the real firmware that arrived only after later sends (the late ok for M5)
+    for sent, expected in exchanges():
+        if sent == b"~":
+            while not host.status().startswith("<Hold:0"):  # the capture waited long enough for the hold to end
+                time.sleep(0.05)
+        host.simulator.receive(sent)
+        if sent == b"M5\n":
+            pending = 1
+            time.sleep(0.1)
+            continue
+        wanted = len(expected)
+        got = host.read(wanted, quiet=0.05 if wanted else 0.1)
+        if pending and sent == b"?":
+            got = [line for line in got if line != "ok"]
+        if pending and expected and expected[0] == "ok":
+            pending = 0
+            got = ["ok"] + got if got[:1] != ["ok"] else got
+        assert len(got) == len(expected), (sent, got, expected)
+        for answer, truth in zip(got, expected):
+            if truth.startswith("<"):
+                assert status_shape(answer) == status_shape(truth), (sent, answer, truth)
+            else:
+                assert answer == truth, (sent, answer, truth)
+
+
+def test_status_report_values_follow_the_motion(host):
+    for line in (b"$10=3\n", b"$32=1\n", b"M4S500\n", b"G1X10Y10F3000\n"):
+        host.simulator.receive(line)
+    assert host.read(4) == ["ok"] * 4
+    time.sleep(0.3)
+    report = classify(host.status()).status
+    assert report.state == "Run"
+    assert report.feed == pytest.approx(707, abs=1)  # 500 mm/min per axis on a 45 degree move
+    assert report.speed == pytest.approx(118, abs=1)  # laser M4: power scales with speed, S500 * 707/3000
+    assert report.mpos[0] == pytest.approx(report.mpos[1]) and 0 < report.mpos[0] < 10
+
+
+def test_receive_buffer_holds_128_bytes_and_overflow_is_counted():
+    simulator = GrblSimulator(time_scale=1.0)
+    try:
+        simulator.attach()
+        simulator.receive(b"G4P100\n")  # a dwell keeps the parser waiting
+        time.sleep(0.05)
+        simulator.receive(b"X" * 130)
+        assert simulator.overflowed == 2
+        report = classify(Host(simulator).status()).status
+        assert report.state == "Idle"
+    finally:
+        simulator.close()
+
+
+def test_executed_log_records_lines_in_order(tmp_path):
+    log = tmp_path / "executed.log"
+    simulator = GrblSimulator(time_scale=100.0, executed_log=log)
+    try:
+        simulator.attach()
+        host = Host(simulator)
+        simulator.receive(b"N1G21\nN2G1X5F600\nN3G1Y5\nN4M5\n")
+        assert host.read(4, timeout=10) == ["ok"] * 4
+        deadline = time.monotonic() + 10
+        while "Idle" not in host.status() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert log.read_text().splitlines() == ["N1G21", "N2G1X5F600", "N3G1Y5", "N4M5"]
+        assert re.match(r"<Idle\|MPos:5\.000,5\.000,0\.000", host.status())
+    finally:
+        simulator.close()

@@ -1,0 +1,78 @@
+"""The runner survives kill -9: 20 SIGKILLs at random moments of a 3-sheet job, then completion, and the
+controller (a simulator in its own process) executed every program line exactly once, in order."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+from fabline.jobs.queue import JobQueue
+from fabline.link import SimulatorServer
+from runner_helpers import JOBS_CLI, executed_program_lines, square_program, wire_lines
+
+REPO = Path(__file__).resolve().parent.parent
+KILLS = 20
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start_runner(tmp_path: Path, db: Path, url: str) -> subprocess.Popen:
+    command = [*JOBS_CLI, "runner", "serve", "--jobs", str(tmp_path / "jobs"), "--db", str(db),
+               "--machine", f"m1={url}", "--auto-confirm", "--port", str(free_port()), "--token", "t"]
+    return subprocess.Popen(command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+
+
+def progress(queue: JobQueue, job_id: int) -> tuple[str, int]:
+    job = queue.job(job_id)
+    return job.state, sum(s.done_lines for s in queue.sheets(job_id))
+
+
+def test_twenty_sigkills_during_a_three_sheet_job(tmp_path):
+    (tmp_path / "jobs").mkdir()
+    sheets = [square_program(tmp_path / "gcode" / f"sheet{k + 1}.gcode", 20, 20 + 30 * k, squares=16) for k in range(3)]
+    expected = [line for sheet in sheets for line in wire_lines(sheet)]
+    db = tmp_path / "runner.sqlite"
+    queue = JobQueue(db)
+    job_id = queue.submit("kill-test", programs=[(p.stem, str(p), "") for p in sheets])
+    log = tmp_path / "executed.log"
+    rng = random.Random(20171)
+    kills_during_cutting = 0
+    with SimulatorServer(log=log, time_scale=2.0) as simulator:
+        for kill in range(KILLS):
+            runner = start_runner(tmp_path, db, simulator.url)
+            _, before = progress(queue, job_id)
+            deadline = time.monotonic() + 30
+            while progress(queue, job_id)[1] <= before and runner.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.02)  # wait until this runner streams, then kill it at a random moment
+            assert runner.poll() is None, f"runner {kill + 1} exited: {runner.stderr.read()[-2000:]}"
+            time.sleep(rng.uniform(0.0, 0.6))
+            state, _ = progress(queue, job_id)
+            assert state != "done", f"the job finished before kill {kill + 1}; make the sheets longer"
+            kills_during_cutting += state == "cutting"
+            os.killpg(runner.pid, signal.SIGKILL)
+            runner.wait()
+            runner.stderr.close()
+        runner = start_runner(tmp_path, db, simulator.url)
+        try:
+            deadline = time.monotonic() + 120
+            while progress(queue, job_id)[0] not in ("done", "failed") and time.monotonic() < deadline:
+                assert runner.poll() is None, runner.stderr.read()[-2000:]
+                time.sleep(0.1)
+        finally:
+            runner.send_signal(signal.SIGTERM)
+            runner.wait(timeout=30)
+            runner.stderr.close()
+    job = queue.job(job_id)
+    assert job.state == "done", job.describe()
+    assert kills_during_cutting == KILLS
+    assert executed_program_lines(log) == expected

@@ -1,0 +1,116 @@
+"""`fabline survey ...` end to end in-process: outputs, JSON, and one-line errors with exit code 2."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from fabline.model import save_network
+from fabline.survey import saddle_network
+
+
+@pytest.fixture(scope="module")
+def model_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("model") / "saddle.network.json"
+    save_network(saddle_network(2.0, 0.5, 3.0), path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory, model_file):
+    """`survey simulate` run once through the CLI: a small, fast photo set."""
+    from fabline.cli import main
+
+    out = tmp_path_factory.mktemp("sim")
+    code = main(["survey", "simulate", "--model", str(model_file), "-o", str(out), "--photos", "8", "--size", "1600x1200",
+                 "--focal", "1300", "--seed", "5"])
+    assert code == 0
+    return out
+
+
+def test_tags_writes_sheets_and_map(cli, model_file, tmp_path):
+    code, out, err = cli("survey", "tags", "--model", model_file, "-o", tmp_path, "--tag-size", "50", "--mount-offset", "15")
+    assert code == 0, err
+    tag_map = json.loads((tmp_path / "tagmap.json").read_text())
+    assert tag_map["schema"] == "fabline.tagmap/1" and tag_map["tag_size_mm"] == 50 and tag_map["mount_offset_mm"] == 15
+    assert len(tag_map["tags"]) == 25
+    assert (tmp_path / "tags.pdf").read_bytes().startswith(b"%PDF") and list(tmp_path.glob("tags-*.svg"))
+
+
+def test_simulate_writes_photos_camera_and_truth(simulated):
+    truth = json.loads((simulated / "truth.json").read_text())
+    assert truth["schema"] == "fabline.survey-truth/1" and len(truth["photos"]) == 8
+    node = next(iter(truth["nodes"].values()))
+    assert np.allclose(np.subtract(node["built_mm"], node["design_mm"]), node["deviation_mm"], atol=1e-3)
+    assert json.loads((simulated / "camera.json").read_text())["width"] == 1600
+    assert cv2.imread(str(simulated / truth["photos"][0]["file"])).shape == (1200, 1600, 3)
+
+
+def test_detect_json_with_poses(cli, simulated):
+    truth = json.loads((simulated / "truth.json").read_text())
+    record = max(truth["photos"], key=lambda p: len(p["visible"]))
+    photo = simulated / record["file"]
+    code, out, err = cli("survey", "detect", photo, "--camera", simulated / "camera.json", "--tag-size", "0.065", "--json")
+    assert code == 0, err
+    (entry,) = json.loads(out)
+    found = {t["id"]: t for t in entry["tags"]}
+    assert set(map(int, record["visible"])) <= set(found)
+    for tag_id, corners in record["visible"].items():
+        tag = found[int(tag_id)]
+        assert np.abs(np.array(tag["corners_px"]) - corners).max() < 0.5
+        assert len(tag["rotation"]) == 3 and 0.5 < tag["translation_m"][2] < 10  # metres, in front of the camera
+
+
+def test_measure_prints_a_summary_and_writes_the_survey(cli, model_file, simulated, tmp_path):
+    code, out, err = cli("survey", "measure", simulated / "photos", "--model", model_file, "--camera", simulated / "camera.json",
+                         "--tags", simulated / "tagmap.json", "-o", tmp_path, "--reference", "supports", "--tolerance", "15")
+    assert code == 0, err
+    assert "nodes measured from" in out and "RMS deviation" in out
+    record = json.loads((tmp_path / "survey.json").read_text())
+    assert record["tolerance_mm"] == 15 and record["registration"]["reference"] == "supports"
+    truth = json.loads((simulated / "truth.json").read_text())
+    errors = [np.linalg.norm(np.subtract(n["deviation_mm"], truth["nodes"][nid]["deviation_mm"])) for nid, n in record["nodes"].items()]
+    assert len(errors) > 10 and np.sqrt(np.mean(np.square(errors))) < 1.0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["survey", "detect", "{tmp}/missing.jpg"], "missing.jpg: cannot read the image"),
+    (["survey", "detect", "{sim}/photos/photo-000.jpg", "--camera", "{sim}/camera.json"], "poses need both --camera and --tag-size"),
+    (["survey", "tags", "--model", "{tmp}/none.json", "-o", "{tmp}/out"], "none.json: file not found"),
+    (["survey", "measure", "{tmp}", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out"], "no photos"),
+    (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{tmp}/bad-camera.json", "-o", "{tmp}/out"],
+     "bad-camera.json: field 'fx' must be a positive number"),
+    (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{tmp}/other-camera.json", "-o", "{tmp}/out"],
+     "photo-000.jpg: image is 1600 x 1200 px but the camera file is for 4000 x 3000 px"),
+    (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "--tags", "{tmp}/two.json",
+      "-o", "{tmp}/out"], "two.json: tag 1 is given to two nodes"),
+    (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "--tags", "{tmp}/ghost.json",
+      "-o", "{tmp}/out"], "tag 2 is mapped to node ghost, which the model does not define"),
+    (["survey", "calibrate", "{tmp}", "-o", "{tmp}/cam.json"], "no photos"),
+    (["survey", "simulate", "--model", "{model}", "-o", "{tmp}/out", "--size", "big"], "--size 'big': expected WxH"),
+])
+def test_bad_input_is_one_line_exit_2_nothing_written(cli, model_file, simulated, tmp_path, args, message):
+    camera = json.loads((simulated / "camera.json").read_text())
+    (tmp_path / "bad-camera.json").write_text(json.dumps({**camera, "fx": -1}))
+    (tmp_path / "other-camera.json").write_text(json.dumps({**camera, "width": 4000, "height": 3000}))
+    tag_map = json.loads((simulated / "tagmap.json").read_text())
+    (tmp_path / "two.json").write_text(json.dumps({**tag_map, "tags": tag_map["tags"] + [{"tag": 1, "node": "n00-00"}]}))
+    ghost = json.loads(json.dumps(tag_map))
+    ghost["tags"][2]["node"] = "ghost"
+    (tmp_path / "ghost.json").write_text(json.dumps(ghost))
+    fill = {"tmp": str(tmp_path), "sim": str(simulated), "model": str(model_file)}
+    code, out, err = cli(*[a.format(**fill) for a in args])
+    assert code == 2
+    assert err.startswith("fabline survey: error: ") and message in err and err.count("\n") == 1
+    assert not (tmp_path / "out").exists() and not (tmp_path / "cam.json").exists()
+
+
+def test_calibrate_write_board(cli, tmp_path):
+    code, out, err = cli("survey", "calibrate", "--write-board", tmp_path / "board.png", "--board", "6x4", "--square", "30",
+                         "--marker", "22")
+    assert code == 0, err
+    assert cv2.imread(str(tmp_path / "board.png"), cv2.IMREAD_GRAYSCALE).shape == (1200, 1800)
+    assert "print at 180 x 120 mm" in out

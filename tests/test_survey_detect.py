@@ -1,0 +1,98 @@
+"""Tag detection against rendered truth and against the AprilTag 3 reference detector."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from fabline.errors import FablineError
+from fabline.survey import SyntheticSpec, detect_tags, load_camera, read_gray, saddle_network, simulate_survey, tag_pose
+from fabline.survey.reconstruct import rotation_matrices
+
+
+@pytest.fixture(scope="module")
+def photo_set(tmp_path_factory):
+    out = tmp_path_factory.mktemp("detect-set")
+    spec = SyntheticSpec(photos=5, width=1600, height=1200, focal_px=1400, coverage=0.8, seed=7)
+    truth = simulate_survey(saddle_network(2.0, 0.4, 3.0), out, spec)
+    detections = [detect_tags(read_gray(out / p["file"])) for p in truth["photos"]]
+    return out, truth, detections
+
+
+def test_every_visible_tag_found_no_false_tag_subpixel_corners(photo_set):
+    _, truth, detections = photo_set
+    errors = []
+    for record, found in zip(truth["photos"], detections):
+        by_id = {d.tag_id: d.corners for d in found}
+        visible = {int(k): np.array(v) for k, v in record["visible"].items()}
+        assert set(visible) <= set(by_id), f"missed tags {set(visible) - set(by_id)} in {record['file']}"
+        assert set(by_id) <= set(record["rendered"]), f"false tags {set(by_id) - set(record['rendered'])}"
+        errors += [np.linalg.norm(by_id[t] - c, axis=1) for t, c in visible.items()]
+    errors = np.concatenate(errors)
+    assert len(errors) > 4 * 40
+    assert errors.mean() < 0.12 and errors.max() < 0.6
+
+
+def test_single_view_pose_matches_the_rendered_pose(photo_set):
+    out, truth, detections = photo_set
+    camera = load_camera(out / "camera.json")
+    record, found = truth["photos"][0], detections[0]
+    rotation = rotation_matrices(np.array([record["rotation"]]))[0]
+    tags = {entry["tag"]: entry["node"] for entry in json.loads((out / "tagmap.json").read_text())["tags"]}
+    for det in found:
+        if str(det.tag_id) not in record["visible"]:
+            continue
+        rvec, tvec, error = tag_pose(det.corners, camera, 0.065)
+        node = truth["nodes"][tags[det.tag_id]]
+        # the tag centre sits 20 mm above the built node along the upward normal
+        depth_true = (rotation @ np.array(node["built_mm"]) + record["translation_mm"])[2] / 1000
+        assert error < 0.5
+        assert tvec[2] == pytest.approx(depth_true, abs=0.03)
+
+
+def test_corners_agree_with_pupil_apriltags(photo_set):
+    """Same tags as the AprilTag 3 library; corners within 0.25 px once conventions are aligned.
+
+    pupil-apriltags puts pixel centres at +0.5 (OpenCV at integers) and lists corners
+    counter-clockwise from the bottom-left, i.e. OpenCV's order [1, 0, 3, 2] on the image.
+    """
+    apriltags = pytest.importorskip("pupil_apriltags", reason="pupil-apriltags (optional reference detector) not installed")
+    out, truth, detections = photo_set
+    detector = apriltags.Detector(families="tag36h11", quad_decimate=1.0, refine_edges=1)
+    gaps = []
+    for record, found in zip(truth["photos"], detections):
+        ours = {d.tag_id: d.corners for d in found}
+        theirs = {r.tag_id: r.corners for r in detector.detect(read_gray(out / record["file"])) if r.hamming == 0}
+        assert set(theirs) <= set(ours), f"pupil-apriltags found {set(theirs) - set(ours)} that we missed"
+        for tag_id, corners in theirs.items():
+            aligned = (corners - 0.5)[[1, 0, 3, 2]]
+            gaps.append(np.linalg.norm(aligned - ours[tag_id], axis=1))
+            if str(tag_id) in record["visible"]:
+                truth_corners = np.array(record["visible"][str(tag_id)])
+                assert np.linalg.norm(aligned - truth_corners, axis=1).mean() < 0.5  # the alignment itself is right
+    assert len(gaps) > 40
+    assert np.concatenate(gaps).mean() < 0.25
+
+
+def test_conventions_on_an_upright_tag():
+    """An upright tag drawn axis-aligned: corners clockwise from top-left, pixel centres on integers."""
+    from fabline.survey import tag_image
+
+    image = np.full((200, 200), 200, dtype=np.uint8)
+    tag = tag_image(3, 10)  # 100 px with quiet zone; black square from pixel 10 to 89 inclusive
+    image[50:150, 60:160] = tag
+    found = detect_tags(cv2.GaussianBlur(image, (0, 0), 0.8))
+    assert [d.tag_id for d in found] == [3]
+    expected = np.array([[69.5, 59.5], [149.5, 59.5], [149.5, 139.5], [69.5, 139.5]])
+    assert np.abs(found[0].corners - expected).max() < 0.1
+
+
+def test_no_tags_and_unreadable_images(tmp_path):
+    blank = np.random.default_rng(0).integers(0, 255, size=(300, 400), dtype=np.uint8)
+    assert detect_tags(cv2.GaussianBlur(blank, (0, 0), 2)) == []
+    (tmp_path / "broken.jpg").write_bytes(b"not a jpeg")
+    with pytest.raises(FablineError, match=r"broken.jpg: cannot read the image"):
+        read_gray(tmp_path / "broken.jpg")

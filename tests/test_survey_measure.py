@@ -1,0 +1,150 @@
+"""The whole survey on a rendered photo set with known truth, plus every bad input the issue lists."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from fabline.errors import FablineError
+from fabline.survey import (MeasureOptions, SyntheticSpec, list_photos, load_camera, load_tag_map, measure_survey,
+                            saddle_network, simulate_survey, tag_image, tagmap_from_dict, tagmap_to_dict)
+
+
+@pytest.fixture(scope="module")
+def network():
+    return saddle_network(3.0, 0.5, 4.0)
+
+
+@pytest.fixture(scope="module")
+def photo_set(tmp_path_factory, network):
+    out = tmp_path_factory.mktemp("measure-set")
+    spec = SyntheticSpec(photos=10, width=1600, height=1200, focal_px=1300, coverage=0.7, sag_mm=25.0, seed=3)
+    truth = simulate_survey(network, out, spec)
+    return out, truth
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory, network, photo_set):
+    """The set with four bad photos added: unreadable, no tags, another resolution, a tag of no node."""
+    out, truth = photo_set
+    photos = tmp_path_factory.mktemp("photos-with-bad-ones")
+    for path in list_photos(out / "photos"):
+        shutil.copy(path, photos / path.name)
+    (photos / "x-broken.jpg").write_bytes(b"\xff\xd8 truncated jpeg")
+    cv2.imwrite(str(photos / "x-blank.png"), np.full((1200, 1600), 140, np.uint8))
+    small = cv2.imread(str(photos / "photo-000.jpg"), cv2.IMREAD_GRAYSCALE)
+    cv2.imwrite(str(photos / "x-small.jpg"), cv2.resize(small, (800, 600)))
+    stray = np.full((1200, 1600), 120, np.uint8)
+    stray[500:600, 700:800] = tag_image(500, 10)
+    cv2.imwrite(str(photos / "x-stray.png"), stray)
+    result = tmp_path_factory.mktemp("survey")
+    record = measure_survey(list_photos(photos), network, load_camera(out / "camera.json"), load_tag_map(out / "tagmap.json"),
+                            result, MeasureOptions(tolerance_mm=20.0, reference="supports"))
+    return record, result
+
+
+def test_recovers_injected_deviations_to_a_fraction_of_a_millimetre(survey, photo_set):
+    record, _ = survey
+    _, truth = photo_set
+    ids = list(record["nodes"])
+    assert len(ids) >= 0.9 * len(truth["nodes"])
+    recovered = np.array([record["nodes"][n]["deviation_mm"] for n in ids])
+    injected = np.array([truth["nodes"][n]["deviation_mm"] for n in ids])
+    error = np.linalg.norm(recovered - injected, axis=1)
+    assert np.sqrt(np.mean(error ** 2)) < 0.5
+    assert np.abs(injected[:, 2]).max() > 20  # the sag is really there and really measured
+    # the reported uncertainty is honest: errors are of its size, not far beyond it
+    sigma = np.array([record["nodes"][n]["sigma_mm"] for n in ids])
+    assert np.all(sigma > 0)
+    assert np.mean(np.abs(recovered - injected) <= 3 * sigma + 0.02) > 0.95
+
+
+def test_per_node_record_and_summary_are_consistent(survey, photo_set):
+    record, result = survey
+    _, truth = photo_set
+    assert json.loads((result / "survey.json").read_text()) == record
+    assert record["schema"] == "fabline.survey/1"
+    for nid, node in record["nodes"].items():
+        deviation = np.subtract(node["measured_mm"], node["design_mm"])
+        assert np.allclose(deviation, node["deviation_mm"], atol=2e-3)
+        assert node["distance_mm"] == pytest.approx(np.linalg.norm(node["deviation_mm"]), abs=2e-3)
+        assert node["pass"] == (node["distance_mm"] <= 20.0)
+        assert node["design_mm"] == pytest.approx(truth["nodes"][nid]["design_mm"], abs=1e-3)
+        assert node["views"] >= 2
+    summary = record["summary"]
+    distances = np.array([n["distance_mm"] for n in record["nodes"].values()])
+    assert summary["measured"] == len(distances)
+    assert summary["failed"] == int((distances > 20.0).sum()) > 0
+    assert summary["passed"] + summary["failed"] == summary["measured"]
+    assert summary["max_deviation_mm"] == pytest.approx(distances.max(), abs=1e-3)
+    assert summary["rms_deviation_mm"] == pytest.approx(np.sqrt(np.mean(distances ** 2)), abs=1e-3)
+    assert record["nodes"][summary["worst"][0]]["distance_mm"] == pytest.approx(distances.max(), abs=1e-3)
+    assert summary["nodes"] == summary["measured"] + summary["not_seen"] == len(truth["nodes"])
+    assert set(record["not_seen"]) == set(truth["nodes"]) - set(record["nodes"])
+    assert (result / "deviation_map.png").stat().st_size > 10_000
+    assert len(list((result / "detections").glob("*.jpg"))) == 10 + 2  # the ten photos, the blank and the stray one
+
+
+def test_bad_photos_are_reported_by_file_and_id_and_the_rest_runs(survey):
+    record, _ = survey
+    problems = [p["problem"] for p in record["problems"]]
+    assert any("x-broken.jpg: cannot read the image" in p for p in problems)
+    assert any("x-blank.png: no tags found in this photo" in p for p in problems)
+    assert any("x-small.jpg: image is 800 x 600 px but the camera file is for 1600 x 1200 px" in p for p in problems)
+    assert any("x-stray.png: tag 500 maps to no node of the model" in p for p in problems)
+    used = {p["file"].rsplit("/", 1)[-1]: p["used"] for p in record["photos"]}
+    assert sum(used.values()) == 10 and not used["x-stray.png"]
+
+
+def test_a_tag_on_the_wrong_node_is_named(tmp_path, network, photo_set):
+    """Swap two nodes' tags in the map (= tags mounted the wrong way round): both nodes are flagged."""
+    out, _ = photo_set
+    data = tagmap_to_dict(load_tag_map(out / "tagmap.json"))
+    entries = {e["node"]: e for e in data["tags"]}
+    entries["n02-02"]["node"], entries["n02-03"]["node"] = "n02-03", "n02-02"
+    record = measure_survey(list_photos(out / "photos"), network, load_camera(out / "camera.json"), tagmap_from_dict(data),
+                            tmp_path, MeasureOptions(reference="all", pictures=False))
+    flagged = {p["node"]: p["problem"] for p in record["problems"] if "node" in p}
+    assert set(flagged) == {"n02-02", "n02-03"}
+    assert "node n02-02: tag" in flagged["n02-02"] and "node n02-03's design position" in flagged["n02-02"]
+    assert "wrong tag" in record["not_seen"]["n02-03"]
+    assert record["summary"]["failed"] == 0 or record["summary"]["max_deviation_mm"] < 30
+
+
+def test_reference_nodes_by_id_and_their_errors(tmp_path, network, photo_set, survey):
+    """Naming the measured supports by id gives the same registration as `supports`; a bad id is named."""
+    out, _ = photo_set
+    photos, camera, tag_map = list_photos(out / "photos"), load_camera(out / "camera.json"), load_tag_map(out / "tagmap.json")
+    with pytest.raises(FablineError, match=r"--reference: node nowhere is not in the model"):
+        measure_survey(photos, network, camera, tag_map, tmp_path / "a", MeasureOptions(reference=["n00-00", "nowhere"]))
+    assert not (tmp_path / "a").exists()
+    by_supports, _ = survey
+    supports = [n for n in by_supports["nodes"] if network.nodes[n].kind == "support"]
+    assert len(supports) >= 3
+    record = measure_survey(photos, network, camera, tag_map, tmp_path / "b", MeasureOptions(reference=supports, pictures=False))
+    assert record["registration"]["reference"] == supports
+    for nid, node in record["nodes"].items():
+        assert node["deviation_mm"] == pytest.approx(by_supports["nodes"][nid]["deviation_mm"], abs=0.05)
+
+
+def test_camera_for_another_resolution_stops_with_the_reason(tmp_path, network, photo_set):
+    out, _ = photo_set
+    camera = load_camera(out / "camera.json")
+    camera.width, camera.height = 3200, 2400
+    with pytest.raises(FablineError, match=r"no tags of the tag map were found in any usable photo "
+                                           r"\(.*photo-000.jpg: image is 1600 x 1200 px but the camera file is for 3200 x 2400 px; 9 more"):
+        measure_survey(list_photos(out / "photos"), network, camera, load_tag_map(out / "tagmap.json"), tmp_path / "s")
+    assert not (tmp_path / "s" / "survey.json").exists()
+
+
+def test_tag_map_naming_a_node_the_model_lacks(tmp_path, network, photo_set):
+    out, _ = photo_set
+    data = tagmap_to_dict(load_tag_map(out / "tagmap.json"))
+    data["tags"][3]["node"] = "ghost"
+    with pytest.raises(FablineError, match=r"tag 3 is mapped to node ghost, which the model does not define"):
+        measure_survey(list_photos(out / "photos"), network, load_camera(out / "camera.json"), tagmap_from_dict(data), tmp_path)
+    assert not (tmp_path / "survey.json").exists()

@@ -1,0 +1,142 @@
+"""Bundle adjustment and registration on exactly projected observations (no images): closed forms and truth."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from fabline.errors import FablineError
+from fabline.survey import Camera, Observation, bundle_adjust, register, rigid_fit, tag_object_points
+from fabline.survey.reconstruct import _project, rotation_derivatives, rotation_matrices
+
+TAG_MM = 65.0
+
+
+def _quaternion_matrix(q: np.ndarray) -> np.ndarray:
+    """The rotation of a quaternion (w, x, y, z), normalised here: an independent route to a random rotation."""
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def test_rotation_matrices_match_opencv_rodrigues():
+    rvecs = np.random.default_rng(1).normal(size=(20, 3)) * 1.5
+    expected = np.array([cv2.Rodrigues(r)[0] for r in rvecs])
+    assert np.allclose(rotation_matrices(rvecs), expected, atol=1e-12)
+    assert np.allclose(rotation_matrices(np.zeros((1, 3))), np.eye(3))
+
+
+def test_analytic_jacobians_match_central_differences():
+    rng = np.random.default_rng(2)
+    rvecs, vectors = rng.normal(size=(6, 3)), rng.normal(size=(6, 3))
+    step = 1e-6
+    numeric = np.stack([(np.einsum("nij,nj->ni", rotation_matrices(rvecs + step * e), vectors)
+                         - np.einsum("nij,nj->ni", rotation_matrices(rvecs - step * e), vectors)) / (2 * step)
+                        for e in np.eye(3)], axis=2)
+    assert np.allclose(rotation_derivatives(rvecs, vectors), numeric, atol=1e-8)
+    # the projection Jacobian, one observation per (camera, tag) pair, first camera fixed
+    model = tag_object_points(TAG_MM)
+    params = np.concatenate([rng.normal(0, 0.2, 3), [10.0, -20.0, 30.0], *[np.concatenate([rng.normal(0, 0.5, 3),
+                             rng.uniform([-500, -500, 2500], [500, 500, 3500])]) for _ in range(2)]])
+    cam_index, tag_index = np.array([0, 1, 1]), np.array([0, 0, 1])
+    _, analytic = _project(params, 1, cam_index, tag_index, model, with_jacobian=True)
+    columns = [list(range(0, 6)) + list(range(6, 12)), list(range(0, 6)) + list(range(6, 12)), list(range(0, 6)) + list(range(12, 18))]
+    for m in range(3):
+        for c, column in enumerate(columns[m]):
+            if m == 0 and c < 6:
+                continue  # camera 0 is fixed: its columns do not exist
+            shift = np.zeros_like(params)
+            shift[column] = 1e-6
+            diff = (_project(params + shift, 1, cam_index, tag_index, model)[m]
+                    - _project(params - shift, 1, cam_index, tag_index, model)[m]) / 2e-6
+            assert np.allclose(analytic[m, :, :, c], diff, atol=1e-7), (m, c)
+
+
+def _scene(rng, photos=8, tags=30, noise_px=0.0):
+    """Tags on a gentle dome seen from cameras above it: exact normalised observations, optional noise."""
+    camera = Camera(np.array([[2000.0, 0, 1000], [0, 2000, 750], [0, 0, 1]]), np.zeros(5), 2000, 1500)
+    xy = rng.uniform(-1500, 1500, size=(tags, 2))
+    centres = np.column_stack([xy, -xy[:, 0] ** 2 / 6000 - xy[:, 1] ** 2 / 8000])
+    rotations = [rotation_matrices(np.array([[0, 0, a]]))[0] @ rotation_matrices(rng.normal(0, 0.15, (1, 3)))[0]
+                 for a in rng.uniform(0, 2 * np.pi, tags)]
+    model = tag_object_points(TAG_MM)
+    corners = [centre + model @ r.T for centre, r in zip(centres, rotations)]
+    observations, poses = [], []
+    for k in range(photos):
+        angle = 2 * np.pi * k / photos
+        position = np.array([1500 * np.cos(angle), 1500 * np.sin(angle), 4500.0])
+        forward = -position / np.linalg.norm(position)
+        right = np.cross(forward, [0, 0, 1.0])
+        right /= np.linalg.norm(right)
+        rotation = np.array([right, np.cross(forward, right), forward])
+        translation = -rotation @ position
+        poses.append((rotation, translation))
+        for t, world in enumerate(corners):
+            cam = world @ rotation.T + translation
+            xy_n = cam[:, :2] / cam[:, 2:]
+            pixels = xy_n * 2000 + [1000, 750]
+            if np.all((pixels > 0) & (pixels < [2000, 1500])):
+                observations.append(Observation(k, t, xy_n + rng.normal(0, noise_px / 2000, (4, 2))))
+    return camera, observations, centres, rotations, poses
+
+
+def test_exact_observations_give_exact_tags_at_the_right_scale():
+    rng = np.random.default_rng(3)
+    camera, observations, centres, _, _ = _scene(rng)
+    result = bundle_adjust(observations, camera, TAG_MM)
+    ids = sorted(result.tag_poses)
+    assert len(ids) == len(centres) and not result.rejected and not result.unregistered_photos
+    recovered = np.array([result.tag_poses[t][3:] for t in ids])
+    rotation, translation = rigid_fit(recovered, centres[ids])
+    assert np.abs(recovered @ rotation.T + translation - centres[ids]).max() < 1e-4
+    assert result.rms_px < 1e-5
+
+
+def test_noisy_observations_covariance_and_outlier_rejection():
+    rng = np.random.default_rng(4)
+    camera, observations, centres, _, _ = _scene(rng, noise_px=0.3)
+    victim = observations[17]
+    victim.normalised = victim.normalised + 25.0 / 2000  # 25 px off: a misdetected tag in one photo
+    result = bundle_adjust(observations, camera, TAG_MM)
+    assert (victim.photo, victim.tag) in result.rejected and len(result.rejected) <= 2
+    assert result.rms_px == pytest.approx(0.3, rel=0.35)
+    ids, points, covariances = result.points_below_tags(0.0)
+    rotation, translation = rigid_fit(points, centres[ids])
+    errors = points @ rotation.T + translation - centres[ids]
+    sigma = np.sqrt(np.einsum("ij,njk,ik->ni", rotation, covariances, rotation))
+    # the errors include the (unknown) gauge fitted away above, so they are at most of the size sigma predicts
+    assert 0.3 < np.sqrt(np.mean((errors / sigma) ** 2)) < 1.5
+    assert np.all(np.abs(errors) < 4.5 * sigma)
+
+
+def test_points_below_tags_follow_the_tag_normal():
+    rng = np.random.default_rng(5)
+    camera, observations, centres, rotations, _ = _scene(rng, photos=6, tags=12)
+    result = bundle_adjust(observations, camera, TAG_MM)
+    ids, above, _ = result.points_below_tags(0.0)
+    _, below, _ = result.points_below_tags(20.0)
+    normals = rotation_matrices(np.array([result.tag_poses[t][:3] for t in ids]))[:, :, 2]
+    assert np.allclose(above - below, 20.0 * normals)
+    assert np.allclose(np.linalg.norm(above - below, axis=1), 20.0)
+
+
+def test_rigid_fit_recovers_a_known_motion_and_register_needs_three_reference_nodes():
+    rng = np.random.default_rng(6)
+    source = rng.uniform(-1000, 1000, size=(25, 3))
+    rotation = _quaternion_matrix(rng.normal(size=4))
+    translation = np.array([120.0, -40.0, 3000.0])
+    target = source @ rotation.T + translation
+    r, t = rigid_fit(source, target)
+    assert np.allclose(r, rotation, atol=1e-10) and np.allclose(t, translation, atol=1e-7)
+    assert np.linalg.det(r) == pytest.approx(1.0)
+    mask = np.zeros(25, dtype=bool)
+    mask[:4] = True
+    r, t, rms = register(source, target, mask)
+    assert rms < 1e-9 and np.allclose(r, rotation, atol=1e-9)
+    line = np.column_stack([np.arange(5.0), 2 * np.arange(5.0), np.zeros(5)])
+    with pytest.raises(FablineError, match=r"at least 3 measured reference nodes not on one line"):
+        register(line, line, np.ones(5, dtype=bool))
+    with pytest.raises(FablineError, match=r"got 2"):
+        register(source, target, np.arange(25) < 2)
