@@ -11,6 +11,7 @@ points), and vpype's `linesort` (greedy, and with --two-opt), the peer from PyPI
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import sys
 import tempfile
 import time
@@ -102,12 +103,11 @@ def main(argv: list[str] | None = None) -> int:
     orders = {"plain (nesting order)": lambda s: sheet_toolpaths(s, parts, ToolpathOptions(kerf=profile.kerf, optimise=False)),
               "fabline (NN + 2-opt + starts)": lambda s: sheet_toolpaths(s, parts, options)}
     if not args.no_peers:
-        try:
-            import vpype  # noqa: F401  (only to see whether the peer is installed)
+        if importlib.util.find_spec("vpype") is None:
+            print("vpype is not installed (pip install 'fabline[bench]'): peers skipped", file=sys.stderr)
+        else:
             orders["vpype linesort"] = lambda s: vpype_order(orders["plain (nesting order)"](s), False)
             orders["vpype linesort --two-opt"] = lambda s: vpype_order(orders["plain (nesting order)"](s), True)
-        except ImportError:
-            print("vpype is not installed (pip install 'fabline[bench]'): peers skipped", file=sys.stderr)
     print(f"\ntravel and estimated machine time over {len(sheets)} sheets (same toolpaths, different order)")
     print(f"{'order':<32}{'travel m':>10}{'vs plain':>10}{'time h':>9}{'order s':>9}")
     plain_travel = None

@@ -132,3 +132,33 @@ def test_unknown_machine_and_missing_parts_file(cli, job):
     (folder / "parts.json").unlink()
     err = _bad(cli, folder)
     assert "parts.json: file not found" in err
+
+
+def test_toolpath_leaving_the_bed_through_an_arc_is_refused(cli, job):
+    """A round part whose vertices lie on the bed but whose arc bulges past x = 0 (closed form: x = 40 - 50)."""
+    import numpy as np
+
+    from fabline.export.samplejob import circle
+    from fabline.unroll.parts import Part, PartSet
+
+    folder, nesting, partset = job
+    disc = circle(0.0, 0.0, 50.0)
+    turn = np.radians(45)
+    disc[:, :2] = disc[:, :2] @ np.array([[np.cos(turn), np.sin(turn)], [-np.sin(turn), np.cos(turn)]])
+    save_parts(PartSet(partset.parts + [Part("DISC", "washer", disc)]), folder / "parts.json")
+    nesting.sheets[0].placements.append(Placement("DISC", 40.0, 1800.0))
+    save_nesting(nesting, folder / "nesting.json")
+    err = _bad(cli, folder, "--kerf", "0")
+    assert "part DISC" in err and "outside the bed" in err
+    assert float(re.search(r"spans x (-?[\d.]+)\.\.", err).group(1)) == pytest.approx(-10.0, abs=0.01)
+
+
+@pytest.mark.parametrize("machine", ["grbl-laser", "grbl-plotter", "rs274-mill"])
+def test_every_builtin_profile_exports_programs_that_check_clean(cli, job, machine):
+    folder, _, _ = job
+    code, out, err = cli("export", folder / "nesting.json", "--gcode", folder / machine, "--machine", machine,
+                         "--lead-in", "2", "--tabs", "2")
+    assert code == 0, err
+    code, out, _ = cli("gcode-check", folder / machine / "nesting_S1.gcode", "--machine", machine)
+    assert code == 0, out
+    assert re.search(r"cut [1-9][\d.]+ mm, mark [1-9][\d.]+ mm", out)

@@ -1,11 +1,13 @@
-"""CAD specifics: Rhino .3dm curves and units, DXF splines, lines and layers, against closed-form crossings.
+"""CAD specifics: family names, OBJ groups, DXF splines, lines, layers and units, against closed-form crossings.
 
 A semicircle of radius r crosses the line y = h at x = +/- sqrt(r^2 - h^2): the importer must find
-those nodes from flattened NURBS (rhino3dm) and SPLINE (ezdxf) curves within 0.02 mm (0.01 mm sagitta
-over a 66 degree crossing).
+those nodes from flattened NURBS (rhino3dm, in test_import_rhino.py) and SPLINE (ezdxf) curves within
+0.02 mm (0.01 mm sagitta over a 66 degree crossing).
 """
 
 from __future__ import annotations
+
+import sys
 
 import ezdxf
 import numpy as np
@@ -15,6 +17,7 @@ import trimesh
 from fabline.errors import FablineError
 from fabline.model.importers import import_model
 from fabline.model.importers.curves import family_and_id
+from fabline.model.importers.dxf import _bulk_3d_polylines, read_dxf
 from fabline.model.writers import write_dxf
 from test_import_roundtrip import assert_same_network, hypar_mesh, hypar_network
 
@@ -30,7 +33,7 @@ def plane_mesh() -> trimesh.Trimesh:
 
 
 def assert_semicircle_nodes(network) -> None:
-    found = np.array(sorted((n.xyz for n in network.nodes.values()), key=lambda p: (p[1], p[0])))
+    found = np.array(sorted((n.xyz for n in network.nodes.values()), key=lambda p: (round(p[1], 6), p[0])))
     assert found.shape == (4, 3)
     assert np.abs(found - expected_nodes()).max() * network.mm_per_unit < 0.02
     assert all(np.allclose(n.normal, (0, 0, 1)) for n in network.nodes.values())
@@ -49,10 +52,8 @@ def test_dxf_spline_and_lines_cross_where_the_closed_form_says(tmp_path):
     doc = ezdxf.new()
     doc.header["$INSUNITS"] = 6  # metres
     msp = doc.modelspace()
-    t = np.linspace(0, np.pi, 9)
-    # a cubic spline through 9 points of the semicircle is not a circle: fit it densely instead
-    fit = np.c_[RADIUS * np.cos(np.linspace(0, np.pi, 181)), RADIUS * np.sin(np.linspace(0, np.pi, 181)), 0 * t.repeat(1)[:1].repeat(181)]
-    msp.add_spline(fit.tolist(), dxfattribs={"layer": "FAMILY-B"})
+    angle = np.linspace(0, np.pi, 181)  # a cubic through fit points 1 degree apart stays within ~1e-9 m of the circle
+    msp.add_spline(np.c_[RADIUS * np.cos(angle), RADIUS * np.sin(angle), 0 * angle].tolist(), dxfattribs={"layer": "FAMILY-B"})
     for h in HEIGHTS:
         msp.add_line((-1, h, 0), (1, h, 0), dxfattribs={"layer": "FAMILY-A"})
     msp.add_line((-1, -1, 0), (1, -1, 0), dxfattribs={"layer": "Grid"})  # names no family: ignored with a note
@@ -60,9 +61,7 @@ def test_dxf_spline_and_lines_cross_where_the_closed_form_says(tmp_path):
     plane_mesh().export(tmp_path / "plane.stl")
     network, report = import_model(tmp_path / "arc.dxf", surface=tmp_path / "plane.stl")
     assert network.units == "m"
-    found = np.array(sorted((n.xyz for n in network.nodes.values()), key=lambda p: (p[1], p[0])))
-    # the spline interpolates the circle to ~1e-9 m between fit points 1 degree apart
-    assert np.abs(found - expected_nodes()).max() * 1000 < 0.02
+    assert_semicircle_nodes(network)
     assert sorted(lam.id for lam in network.lamellas) == ["A-001", "A-002", "B-001"]
     assert any("ignored 1 curve(s) on layers that name no family (Grid)" in note for note in report.notes)
 
@@ -78,92 +77,88 @@ def test_dxf_polyline_in_millimetres_keeps_its_units(tmp_path):
     assert_same_network(network, imported)
 
 
-rhino3dm = pytest.importorskip("rhino3dm", reason="rhino3dm (optional extra 'rhino') is not installed")
+def test_obj_groups_name_families_and_continued_lines_join(tmp_path):
+    """Rhino-style OBJ: `g` per family layer, unnamed lines numbered, `l` runs that continue one another joined."""
+    text = """# two A lines in one group, one of them split over two `l` elements and a continuation line
+v -1 0.1 0
+v 0 0.1 0
+v 1 0.1 0
+v -1 0.2 0
+v 1 0.2 0
+g Family A
+l 1 2
+l 2 \\
+  3
+l 4 5
+g B
+o B-arc
+"""
+    angle = np.linspace(0, np.pi, 721)
+    text += "".join(f"v {RADIUS * np.cos(a):.15g} {RADIUS * np.sin(a):.15g} 0\n" for a in angle)
+    text += "l " + " ".join(str(6 + k) for k in range(len(angle))) + "\n"
+    (tmp_path / "arc.obj").write_text(text)
+    plane_mesh().export(tmp_path / "plane.obj")
+    network, report = import_model(tmp_path / "arc.obj", surface=tmp_path / "plane.obj", units="m")
+    assert sorted(lam.id for lam in network.lamellas) == ["A-001", "A-002", "B-arc"]
+    # a polyline with 721 vertices is within 0.0012 mm of the circle: nodes within 0.02 mm
+    found = np.array(sorted((n.xyz for n in network.nodes.values()), key=lambda p: (round(p[1], 6), p[0])))
+    assert np.abs(found - expected_nodes()).max() * 1000 < 0.02
+    assert len(network.lamellas[0].curve) == 3
 
 
-def rhino_model(unit_system) -> "rhino3dm.File3dm":
-    model = rhino3dm.File3dm()
-    model.Settings.ModelUnitSystem = unit_system
-    return model
+def test_3dm_without_rhino3dm_says_how_to_install_it(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "rhino3dm", None)  # makes `import rhino3dm` raise ImportError
+    (tmp_path / "model.3dm").write_bytes(b"")
+    with pytest.raises(FablineError, match=r"reading .3dm files needs rhino3dm: pip install 'fabline\[rhino\]'"):
+        import_model(tmp_path / "model.3dm")
 
 
-def add_layer(model, name: str) -> int:
-    layer = rhino3dm.Layer()
-    layer.Name = name
-    return model.Layers.Add(layer)
+@pytest.mark.parametrize("version", ["R12", "R2000", "R2018"])
+def test_dxf_bulk_polyline_reader_agrees_with_ezdxf(tmp_path, version):
+    """3D polylines are read in bulk from the group codes; ezdxf's own reading of the same file is the truth.
+
+    The file mixes what the bulk reader must take (model-space 3D polylines, one closed) with what it must
+    leave to ezdxf (a 2D polyline, a polyface mesh, a 3D polyline in paper space, lines).
+    """
+    doc = ezdxf.new(version)
+    doc.header["$INSUNITS"] = 6
+    msp = doc.modelspace()
+    rng = np.random.default_rng(7)
+    for k in range(3):
+        points = np.c_[np.linspace(0, 1, 6 + k), rng.uniform(-1, 1, 6 + k), rng.uniform(-1, 1, 6 + k)]
+        msp.add_polyline3d(points.tolist(), close=(k == 1), dxfattribs={"layer": f"A-{k}"})
+    msp.add_polyline2d([(0, 0), (1, 1), (2, 0)], dxfattribs={"layer": "B-2d"})
+    msp.add_line((0, 0, 0), (1, 0, 0), dxfattribs={"layer": "B-line"})
+    face = msp.add_polyface()
+    face.append_face([(0, 0, 0), (1, 0, 0), (1, 1, 0)])
+    doc.paperspace().add_polyline3d([(0, 0, 0), (5, 5, 5)], dxfattribs={"layer": "A-paper"})
+    doc.saveas(tmp_path / "mixed.dxf")
+
+    bulk = _bulk_3d_polylines(str(tmp_path / "mixed.dxf"))
+    assert bulk is not None and len(bulk.polylines) == 3  # the fast path took the three model-space 3D polylines
+    source = read_dxf(tmp_path / "mixed.dxf")
+    truth = ezdxf.readfile(tmp_path / "mixed.dxf")
+    expected = {}
+    for entity in truth.modelspace().query("POLYLINE"):
+        if entity.is_3d_polyline:
+            points = [tuple(v.dxf.location) for v in entity.vertices]
+            expected[entity.dxf.layer] = np.array(points + points[:1] if entity.is_closed else points)
+    got = {curve.id: curve.points for curve in source.curves}
+    assert sorted(got) == ["A-0", "A-1", "A-2", "B-2d", "B-line"]
+    for layer, points in expected.items():
+        assert np.array_equal(got[layer], points)
+    assert np.array_equal(got["B-2d"], [(0, 0, 0), (1, 1, 0), (2, 0, 0)])
+    assert source.declared_units == (None if version == "R12" else "m")  # R12 has no $INSUNITS
+    assert source.mesh is not None and len(source.mesh.faces) == 1
 
 
-def add_curve(model, curve, layer: int, name: str = "") -> None:
-    attributes = rhino3dm.ObjectAttributes()
-    attributes.LayerIndex = layer
-    if name:
-        attributes.Name = name
-    model.Objects.AddCurve(curve, attributes)
-
-
-def polyline(points) -> "rhino3dm.PolylineCurve":
-    point_list = rhino3dm.Point3dList()
-    for x, y, z in points:
-        point_list.Add(float(x), float(y), float(z))
-    return rhino3dm.PolylineCurve(point_list)
-
-
-def rhino_mesh(mesh: trimesh.Trimesh) -> "rhino3dm.Mesh":
-    result = rhino3dm.Mesh()
-    for x, y, z in mesh.vertices.tolist():
-        result.Vertices.Add(x, y, z)
-    for a, b, c in mesh.faces.tolist():
-        result.Faces.AddFace(a, b, c)
-    return result
-
-
-def test_3dm_nurbs_arc_and_polylines_with_a_mesh_in_the_file(tmp_path):
-    model = rhino_model(rhino3dm.UnitSystem.Meters)
-    layer_a, layer_b = add_layer(model, "A"), add_layer(model, "B")
-    add_curve(model, rhino3dm.NurbsCurve.CreateFromArc(rhino3dm.Arc(rhino3dm.Point3d(0, 0, 0), RADIUS, np.pi)),
-              layer_b, "B-arc")
-    for k, h in enumerate(HEIGHTS):
-        add_curve(model, polyline([(-1, h, 0), (0, h, 0), (1, h, 0)]), layer_a, f"A-{k}")
-    model.Objects.AddMesh(rhino_mesh(plane_mesh()))
-    model.Write(str(tmp_path / "arc.3dm"), 7)
-    network, report = import_model(tmp_path / "arc.3dm")
-    assert network.units == "m" and report.format == "3dm"
-    assert sorted(lam.id for lam in network.lamellas) == ["A-0", "A-1", "B-arc"]
-    assert_semicircle_nodes(network)
-
-
-def test_3dm_hypar_round_trip_in_millimetres_with_a_separate_surface(tmp_path):
-    network = hypar_network(count=4).in_mm()
-    model = rhino_model(rhino3dm.UnitSystem.Millimeters)
-    layers = {"A": add_layer(model, "Lamellas A"), "B": add_layer(model, "Lamellas B")}
-    for lam in network.lamellas:  # names by object name, families by layer
-        add_curve(model, polyline(lam.curve), layers[lam.family], lam.id)
-    model.Write(str(tmp_path / "curves.3dm"), 7)
-    mesh = hypar_mesh(count=41)
-    mesh.vertices = mesh.vertices * 1000
-    surface = rhino_model(rhino3dm.UnitSystem.Millimeters)
-    surface.Objects.AddMesh(rhino_mesh(mesh))
-    surface.Write(str(tmp_path / "surface.3dm"), 7)
-    imported, report = import_model(tmp_path / "curves.3dm", surface=tmp_path / "surface.3dm")
-    assert imported.units == "mm"
-    assert_same_network(network, imported)
-
-
-def test_3dm_surface_in_other_units_is_refused(tmp_path):
+def test_dxf_with_windows_line_breaks_reads_the_same(tmp_path):
     network = hypar_network(count=3)
-    model = rhino_model(rhino3dm.UnitSystem.Meters)
-    layer_a, layer_b = add_layer(model, "A"), add_layer(model, "B")
-    for lam in network.lamellas:
-        add_curve(model, polyline(lam.curve), layer_a if lam.family == "A" else layer_b, lam.id)
-    model.Write(str(tmp_path / "curves.3dm"), 7)
-    surface = rhino_model(rhino3dm.UnitSystem.Millimeters)
-    surface.Objects.AddMesh(rhino_mesh(hypar_mesh(count=11)))
-    surface.Write(str(tmp_path / "surface.3dm"), 7)
-    with pytest.raises(FablineError, match=r"mixed units: .*curves.3dm is in m but .*surface.3dm is in mm"):
-        import_model(tmp_path / "curves.3dm", surface=tmp_path / "surface.3dm")
-
-
-def test_3dm_garbage_is_named(tmp_path):
-    (tmp_path / "bad.3dm").write_bytes(b"not a rhino file at all")
-    with pytest.raises(FablineError, match="bad.3dm: not a readable Rhino .3dm file"):
-        import_model(tmp_path / "bad.3dm")
+    write_dxf(network, tmp_path / "unix.dxf")
+    text = (tmp_path / "unix.dxf").read_bytes()
+    (tmp_path / "windows.dxf").write_bytes(text.replace(b"\n", b"\r\n"))
+    assert len(_bulk_3d_polylines(str(tmp_path / "windows.dxf")).polylines) == len(network.lamellas)
+    unix, windows = read_dxf(tmp_path / "unix.dxf"), read_dxf(tmp_path / "windows.dxf")
+    assert [c.id for c in windows.curves] == [c.id for c in unix.curves] == [lam.id for lam in network.lamellas]
+    for a, b in zip(unix.curves, windows.curves):
+        assert np.array_equal(a.points, b.points)

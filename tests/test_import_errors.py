@@ -6,7 +6,7 @@ import ezdxf
 import numpy as np
 import pytest
 
-from fabline.model import load_network
+from fabline.model import load_network, save_network
 from fabline.model.writers import write_dxf, write_obj
 from test_import_roundtrip import hypar_mesh, hypar_network
 
@@ -144,6 +144,14 @@ def bad_input(case: str, tmp_path, surface):
         path = _write(tmp_path, "empty.obj", "v 0 0 0\nv 1 0 0\n")
         write_obj(hypar_network(count=3), tmp_path / "curves.obj")
         return [tmp_path / "curves.obj", "--surface", path], f"{path}: no mesh faces found"
+    if case == "mixed units: JSON":
+        path = tmp_path / "m.network.json"
+        save_network(hypar_network(count=3), path)
+        return [path, "--units", "mm"], f"mixed units: {path} declares m but --units mm was given"
+    if case == "zero tolerance":
+        write_obj(hypar_network(count=3), tmp_path / "curves.obj")
+        return [tmp_path / "curves.obj", "--surface", surface, "--tolerance", "0"], \
+            "--tolerance 0.0: must be a positive number of millimetres"
     if case == "malformed JSON":
         path = _write(tmp_path, "m.json", '{\n "schema": "fabline.network/1",\n "units": "m",,\n}\n')
         return [path], f"{path}:3:"
@@ -154,7 +162,7 @@ CASES = ["malformed OBJ vertex", "malformed OBJ reference", "malformed DXF", "Na
          "self-overlapping curve", "curves that never cross", "a lamella that crosses nothing", "only one family",
          "duplicate lamella id", "four lamellas at one point", "missing normals", "mixed units: declared",
          "mixed units: surface scale", "mixed units: DXF surface", "unknown file type", "missing file",
-         "surface without faces", "malformed JSON"]
+         "surface without faces", "mixed units: JSON", "zero tolerance", "malformed JSON"]
 
 
 @pytest.mark.parametrize("case", CASES)

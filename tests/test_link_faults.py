@@ -58,6 +58,11 @@ def sim_url(job):
     close_simulator(name)
 
 
+def speed_up(url: str, time_scale: float = 200) -> None:
+    """Run the rest of a job fast once the fault under test has played out at a realistic pace."""
+    get_simulator(url[6:].split("?")[0]).time_scale = time_scale
+
+
 def expected_lines(program: Path) -> list[int]:
     return [line.file_line for line in load_program(program).lines]
 
@@ -104,10 +109,11 @@ def test_reconnect_after_usb_drop_is_detected_and_continued(job, sim_url):
 
 def test_injected_error_stops_with_line_and_words_then_resumes(job, sim_url):
     program, log = job
-    bad = expected_lines(program)[150]
-    url = sim_url(error_line=bad, error_code=33)
+    bad = expected_lines(program)[45]
+    url = sim_url(error_line=bad, error_code=33, time_scale=10)  # real-time-like: the planner holds seconds of work
     with pytest.raises(StreamInterrupted) as stopped:
         Streamer(url, status_interval=0.05).run(program)
+    speed_up(url)
     assert stopped.value.reason == "error"
     assert f"sheet.gcode:{bad}:" in str(stopped.value) and "error:33 (the motion command has an invalid target" in str(stopped.value)
     executed = executed_file_lines(log)
@@ -133,9 +139,10 @@ def test_alarm_mid_job_needs_unlock_then_resumes(job, sim_url):
 
 def test_corrupted_byte_and_stall_are_survived(job, sim_url):
     program, log = job
-    url = sim_url(corrupt_at="3000", stall_at="1500", stall_seconds=0.5)
+    url = sim_url(corrupt_at="1500", stall_at="800", stall_seconds=0.5, time_scale=10)
     with pytest.raises(StreamInterrupted) as stopped:
         Streamer(url, status_interval=0.05).run(program)
+    speed_up(url)
     assert stopped.value.reason == "error"
     assert Streamer(url, status_interval=0.05).run(program, resume=True).completed
     assert executed_file_lines(log) == expected_lines(program)
@@ -153,8 +160,15 @@ def test_abort_from_another_thread_then_resume(job, sim_url):
     result = streamer.run(program, on_progress=on_progress)
     assert not result.completed and result.reason == "aborted"
     assert executed_file_lines(log) == expected_lines(program)[: result.executed]
+    before = len(log.read_text().splitlines())
     assert Streamer(url, status_interval=0.05).run(program, resume=True).completed
     assert executed_file_lines(log) == expected_lines(program)
+    preamble = [text for text in log.read_text().splitlines()[before:] if not text.startswith("N")]
+    assert preamble[0] == "G21G90G17G94M5"  # laser off before any move
+    moves = [text for text in preamble if text.startswith(("G0X", "G0Z"))]
+    if moves:  # none when the machine already stands at the restart point
+        assert all("M4" not in text for text in preamble[: preamble.index(moves[-1]) + 1])
+    assert any(text.startswith("F2400S800M") for text in preamble), preamble  # feed and power restored
 
 
 def acknowledged(journal: Path) -> int:
@@ -185,3 +199,14 @@ def test_host_killed_mid_job_then_resume_in_new_process(tmp_path):
         assert finished.returncode == 0, finished.stderr
     assert executed_file_lines(log) == expected_lines(program)
     assert read_journal(journal).finished
+
+
+def test_a_controller_that_falls_silent_is_treated_as_a_lost_connection(job, sim_url):
+    program, log = job
+    url = sim_url(stall_at="2000", stall_seconds=2.0)
+    with pytest.raises(StreamInterrupted) as stopped:
+        Streamer(url, status_interval=0.05, silence_timeout=0.5).run(program)
+    assert stopped.value.reason == "connection" and "sent nothing for 0.5 s" in str(stopped.value)
+    time.sleep(1.6)
+    assert Streamer(url, status_interval=0.05).run(program, resume=True).completed
+    assert executed_file_lines(log) == expected_lines(program)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sqlite3
 import threading
+import time
 from collections import Counter
 
 import pytest
@@ -151,3 +152,42 @@ def test_hundred_jobs_on_four_simulated_machines_none_lost_or_run_twice(tmp_path
         executed = executed_program_lines(log)
         mine = sorted((j for j in jobs if j.machine == name), key=lambda j: queue.sheets(j.id)[0].started)
         assert executed == [line for j in mine for line in expected[j.id]], f"machine {name}"
+
+
+def test_pause_resume_and_cancel_a_sheet_being_cut(tmp_path):
+    db = tmp_path / "q.sqlite"
+    queue = JobQueue(db)
+    first = square_program(tmp_path / "first.gcode", 10, 10, squares=8)
+    second = square_program(tmp_path / "second.gcode", 10, 60, squares=8)
+    job_a = queue.submit("a", programs=[("S1", str(first), "")])
+    log = tmp_path / "m1.log"
+    runner = Runner(db, [MachineConfig("m1", f"sim://pause-m1?time_scale=4&log={log}")], auto_confirm=True, poll=0.05,
+                    prepare=False)
+    runner.start()
+
+    def wait(condition, timeout=30.0):
+        deadline = time.monotonic() + timeout
+        while not condition():
+            assert time.monotonic() < deadline, "timed out"
+            time.sleep(0.05)
+
+    try:
+        wait(lambda: queue.sheets(job_a)[0].done_lines >= 5)
+        queue.request(job_a, "pause")
+        wait(lambda: queue.job(job_a).state == "paused")
+        time.sleep(0.5)  # the feed hold decelerates; then the machine stands still
+        held = queue.machines()[0]["position"], len(executed_program_lines(log))
+        time.sleep(1.0)
+        assert (queue.machines()[0]["position"], len(executed_program_lines(log))) == held, "feed hold: no motion"
+        queue.request(job_a, "resume")
+        wait(lambda: queue.job(job_a).state == "done")
+        assert executed_program_lines(log) == wire_lines(first)
+        job_b = queue.submit("b", programs=[("S1", str(second), "")])
+        wait(lambda: queue.sheets(job_b)[0].done_lines >= 5)
+        queue.request(job_b, "cancel")
+        wait(lambda: queue.job(job_b).state == "cancelled")
+    finally:
+        runner.stop()
+    executed = executed_program_lines(log)[len(wire_lines(first)):]
+    assert 0 < len(executed) < len(wire_lines(second))
+    assert executed == wire_lines(second)[:len(executed)], "a cancelled sheet stops; nothing out of order"

@@ -39,7 +39,7 @@ def progress(queue: JobQueue, job_id: int) -> tuple[str, int]:
 
 def test_twenty_sigkills_during_a_three_sheet_job(tmp_path):
     (tmp_path / "jobs").mkdir()
-    sheets = [square_program(tmp_path / "gcode" / f"sheet{k + 1}.gcode", 20, 20 + 30 * k, squares=16) for k in range(3)]
+    sheets = [square_program(tmp_path / "gcode" / f"sheet{k + 1}.gcode", 20, 20 + 30 * k, squares=14) for k in range(3)]
     expected = [line for sheet in sheets for line in wire_lines(sheet)]
     db = tmp_path / "runner.sqlite"
     queue = JobQueue(db)
@@ -47,15 +47,17 @@ def test_twenty_sigkills_during_a_three_sheet_job(tmp_path):
     log = tmp_path / "executed.log"
     rng = random.Random(20171)
     kills_during_cutting = 0
-    with SimulatorServer(log=log, time_scale=2.0) as simulator:
+    with SimulatorServer(log=log, time_scale=5.0) as simulator:
         for kill in range(KILLS):
             runner = start_runner(tmp_path, db, simulator.url)
             _, before = progress(queue, job_id)
-            deadline = time.monotonic() + 30
-            while progress(queue, job_id)[1] <= before and runner.poll() is None and time.monotonic() < deadline:
-                time.sleep(0.02)  # wait until this runner streams, then kill it at a random moment
+            # a random moment while this runner streams: after 1 to 4 more lines are done, plus up to 0.2 s
+            target = before + rng.randint(1, 4)
+            deadline = time.monotonic() + 60
+            while progress(queue, job_id)[1] < target and runner.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.01)
             assert runner.poll() is None, f"runner {kill + 1} exited: {runner.stderr.read()[-2000:]}"
-            time.sleep(rng.uniform(0.0, 0.6))
+            time.sleep(rng.uniform(0.0, 0.2))
             state, _ = progress(queue, job_id)
             assert state != "done", f"the job finished before kill {kill + 1}; make the sheets longer"
             kills_during_cutting += state == "cutting"

@@ -148,3 +148,14 @@ def test_tag_map_naming_a_node_the_model_lacks(tmp_path, network, photo_set):
     with pytest.raises(FablineError, match=r"tag 3 is mapped to node ghost, which the model does not define"):
         measure_survey(list_photos(out / "photos"), network, load_camera(out / "camera.json"), tagmap_from_dict(data), tmp_path)
     assert not (tmp_path / "survey.json").exists()
+
+
+def test_photos_that_do_not_overlap_are_reported(tmp_path, network, photo_set):
+    """Two photos that share no tag cannot both join; with too few nodes left the error says why."""
+    out, truth = photo_set
+    visible = [set(p["visible"]) for p in truth["photos"]]
+    pair = next((a, b) for a in range(len(visible)) for b in range(a + 1, len(visible))
+                if visible[a] and visible[b] and not visible[a] & visible[b])
+    photos = [out / truth["photos"][k]["file"] for k in pair]
+    with pytest.raises(FablineError, match=r"only \d tagged node\(s\) were seen in 2 or more photos .* share too few tags"):
+        measure_survey(photos, network, load_camera(out / "camera.json"), load_tag_map(out / "tagmap.json"), tmp_path)

@@ -11,7 +11,7 @@ import pytest
 from scipy.integrate import quad
 
 from fabline.model import Lamella, Network, Node
-from fabline.unroll import PartSet, Profile, UnrollOptions, flatten_contour, unroll_network
+from fabline.unroll import PartSet, UnrollOptions, flatten_contour, unroll_network
 
 PER_METRE = 0.05e-3  # 0.05 mm per metre
 
@@ -217,3 +217,15 @@ def test_twist_compensation_and_helix_edge_lengths():
     assert row["helix_top_edge_extension_mm"] == pytest.approx(helix, abs=2e-3)
     assert row["helix_bottom_edge_extension_mm"] == pytest.approx(helix, abs=2e-3)
     assert compensated.report["strips"][0]["twist_compensation_mm"] == pytest.approx(-centre_strain * length, rel=1e-3)
+
+
+def test_straight_outline_shortcut_equals_the_general_construction():
+    from fabline.unroll.flat import FlatCentreline, Notches, strip_outline
+
+    centre = FlatCentreline.build(np.array([10.0, 500.0]), np.zeros(2), 0.01)
+    top, bottom = Notches(np.array([100.0, 300.0]), 3.0, 51.0), Notches(np.array([200.0]), 3.0, 51.0)
+    fast = strip_outline(centre, 10.0, 500.0, 100.0, top, bottom)
+    centre.straight = False  # the general (curved) construction on the same straight centreline
+    general = strip_outline(centre, 10.0, 500.0, 100.0, top, bottom)
+    assert fast.shape == general.shape == (17, 3)
+    assert np.array_equal(fast, general)

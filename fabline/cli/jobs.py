@@ -20,6 +20,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     run.add_argument("-y", "--yes", action="store_true",
                      help="do not ask before each sheet on a real machine (the sheets are already loaded)")
     run.add_argument("-q", "--quiet", action="store_true", help="print only where the report is")
+    run.add_argument("--resume", action="store_true",
+                     help="continue an interrupted run from the sheets' journals instead of cutting every sheet afresh")
     run.set_defaults(func=run_job_command)
 
     runner = subparsers.add_parser("runner", help="the shop-floor runner: a persistent job queue with a web page")
@@ -72,7 +74,7 @@ def run_job_command(args: argparse.Namespace) -> int:
 
     spec = load_job_file(args.job)
     interactive = not spec.machine["port"].startswith("sim://") and not args.yes and sys.stdin.isatty()
-    result = run_job(spec, say, confirm if interactive else None)
+    result = run_job(spec, say, confirm if interactive else None, resume=args.resume)
     total = sum(result.timings.values())
     if result.report_path:
         print(f"report: {result.report_path} (JSON: {result.report_path.with_suffix('.json')}); {total:.1f} s")

@@ -49,6 +49,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--log", help="executed-line log (append-only)")
     sim.add_argument("--time-scale", type=float, default=1.0, help="run motion this many times faster")
     sim.add_argument("--baud", type=int, help="pace bytes like a serial line at this rate")
+    sim.add_argument("--adapter-latency", type=float, default=0.0,
+                     help="batch answers like a USB-serial bridge flushing every this many seconds (Uno: 0.004)")
     sim.add_argument("--fault", action="append", default=[], metavar="KEY=VALUE",
                      help="inject a fault: drop_at=BYTES, corrupt_at=BYTES, error_line=N, alarm_line=N, stall_at=BYTES ...")
     sim.set_defaults(func=_grbl_sim)
@@ -147,7 +149,7 @@ def _grbl_sim(args: argparse.Namespace) -> int:
             raise FablineError(f"--fault {fault!r}: expected KEY=VALUE")
         options[key] = value
     try:
-        serve(args.transport, urllib.parse.urlencode(options), args.baud, args.listen_port)
+        serve(args.transport, urllib.parse.urlencode(options), args.baud, args.listen_port, args.adapter_latency)
     except ValueError as exc:
         raise FablineError(f"grbl-sim: {exc}") from None
     except OSError as exc:

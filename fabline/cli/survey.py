@@ -50,6 +50,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     simulate.add_argument("--blur", type=float, default=0.7, help="blur sigma, px")
     simulate.add_argument("--tag-size", type=float, default=65.0, help="tag black-square edge, mm")
     simulate.add_argument("--every", type=int, default=1, help="tag every N-th node (supports always)")
+    simulate.add_argument("--coverage", type=float, default=0.45,
+                          help="fraction of the model's plan span one photo covers (default 0.45)")
     simulate.add_argument("--seed", type=int, default=1)
     simulate.set_defaults(func=_simulate)
 
@@ -151,9 +153,11 @@ def _simulate(args: argparse.Namespace) -> int:
         raise FablineError(f"--size {args.size!r}: expected WxH in pixels, e.g. 6000x4000") from None
     if width < 64 or height < 64 or args.photos < 2:
         raise FablineError("--size must be at least 64x64 and --photos at least 2")
+    if not 0 < args.coverage <= 2:
+        raise FablineError(f"--coverage must be in (0, 2], got {args.coverage}")
     spec = SyntheticSpec(photos=args.photos, width=width, height=height, focal_px=args.focal or width * 5 / 6,
                          sag_mm=args.sag, noise_sigma=args.noise, blur_sigma=args.blur, tag_size_mm=args.tag_size,
-                         every=args.every, seed=args.seed)
+                         every=args.every, coverage=args.coverage, seed=args.seed)
     truth = simulate_survey(load_network(args.model), args.output, spec)
     visible = sum(len(p["visible"]) for p in truth["photos"])
     print(f"{len(truth['photos'])} photos, {visible} tag views written to {args.output}")

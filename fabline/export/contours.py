@@ -74,8 +74,9 @@ def rotate_start(contour: np.ndarray, index: int) -> np.ndarray:
     if index % (len(contour) - 1) == 0:
         return contour
     body = contour[:-1]
-    rolled = np.vstack([body[index:], body[:index]])
-    return np.vstack([rolled, rolled[:1]])
+    rolled = np.vstack([body[index:], body[:index], body[index:index + 1]])
+    rolled[-1, 2:] = 0.0
+    return rolled
 
 
 def sub_path(contour: np.ndarray, start: float, end: float) -> np.ndarray:

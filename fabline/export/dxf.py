@@ -44,16 +44,33 @@ def add_sheet(doc: ezdxf.document.Drawing, sheet: Sheet, parts: dict[str, Part],
     msp = doc.modelspace()
     msp.add_lwpolyline([(dx, 0), (dx + sheet.width, 0), (dx + sheet.width, sheet.height), (dx, sheet.height)],
                        close=True, dxfattribs={"layer": "SHEET"})
+    shapes: dict[str, tuple[np.ndarray, list[tuple[str, bool, int, int]]]] = {}
     for placement in sheet.placements:
         part = parts[placement.part]
-        shapes = ([(part.outline, "CUT-OUTER")] + [(c, "CUT-INNER") for c in inner_contours(part)]
-                  + [(m, "ENGRAVE-MARK") for m in part.marks] + [(t, "ENGRAVE-TEXT") for t in part.text])
-        for contour, layer in shapes:
-            placed = with_bulges(place(with_bulges(contour), placement))
-            placed[:, 0] += dx
-            closed = is_closed(placed)
-            rows = placed[:-1] if closed else placed
-            msp.add_lwpolyline(np.round(rows, 6).tolist(), format="xyb", close=closed, dxfattribs={"layer": layer})
+        if part.id not in shapes:
+            shapes[part.id] = _part_shapes(part)
+        rows, pieces = shapes[part.id]
+        placed = place(rows, placement)
+        placed[:, 0] += dx
+        values = np.round(placed, 6).tolist()
+        for layer, closed, start, end in pieces:
+            msp.add_lwpolyline(values[start:end], format="xyb", close=closed, dxfattribs={"layer": layer})
+
+
+def _part_shapes(part: Part) -> tuple[np.ndarray, list[tuple[str, bool, int, int]]]:
+    """All contours of a part stacked into one [x, y, bulge] array (closed ones without the repeated last vertex),
+    and (layer, closed, first row, end row) for each, so a placement transforms the whole part at once."""
+    shapes = ([(part.outline, "CUT-OUTER")] + [(c, "CUT-INNER") for c in inner_contours(part)]
+              + [(m, "ENGRAVE-MARK") for m in part.marks] + [(t, "ENGRAVE-TEXT") for t in part.text])
+    blocks, pieces, row = [], [], 0
+    for contour, layer in shapes:
+        contour = with_bulges(contour)
+        closed = is_closed(contour)
+        block = contour[:-1] if closed else contour
+        blocks.append(block)
+        pieces.append((layer, closed, row, row + len(block)))
+        row += len(block)
+    return np.vstack(blocks), pieces
 
 
 def write_drawing(doc: ezdxf.document.Drawing, path: str | os.PathLike) -> None:

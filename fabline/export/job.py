@@ -16,6 +16,7 @@ import numpy as np
 
 from fabline.errors import FablineError
 from fabline.export import dxf
+from fabline.export.contours import arc_centres
 from fabline.export.gcode import header_block, sheet_program
 from fabline.export.machine import MachineProfile
 from fabline.export.motion import MotionSummary, summarise
@@ -23,7 +24,7 @@ from fabline.export.toolpath import Toolpath, ToolpathOptions, sheet_toolpaths
 from fabline.fileio import atomic_output
 from fabline.nest.layout import Nesting, load_nesting, parts_path
 from fabline.progress import progress
-from fabline.unroll.parts import Part, flatten_contour, load_parts
+from fabline.unroll.parts import Part, load_parts
 
 
 @dataclass
@@ -106,16 +107,37 @@ def export_nesting(nesting_path: str | os.PathLike, profile: MachineProfile, opt
 
 
 def _check_bed(paths: list[Toolpath], profile: MachineProfile, where: str) -> None:
-    """Every toolpath (arcs included) must stay on the machine's bed."""
-    for path in paths:
-        points = flatten_contour(path.contour, 0.01) if np.any(path.contour[:, 2]) else path.contour[:, :2]
-        if path.lead_in is not None:
-            points = np.vstack([points, path.lead_in])
-        low, high = points.min(axis=0), points.max(axis=0)
-        if low[0] < 0 or low[1] < 0 or high[0] > profile.bed_width or high[1] > profile.bed_height:
-            raise FablineError(f"{where}: part {path.part}: {path.operation} toolpath spans x {low[0]:.3f}..{high[0]:.3f}, "
-                               f"y {low[1]:.3f}..{high[1]:.3f} mm, outside the bed of machine {profile.name} "
-                               f"(0..{profile.bed_width:g} x 0..{profile.bed_height:g} mm)")
+    """Every toolpath (arcs through their extreme points, lead-ins too) must stay on the machine's bed."""
+    if not paths:
+        return
+    rows = np.vstack([p.contour for p in paths])
+    sizes = [len(p.contour) for p in paths]
+    rows[np.cumsum(sizes) - 1, 2] = 0.0               # no arc joins one path to the next
+    centre, radius, sweep = arc_centres(rows)
+    low, high = rows[:, :2].copy(), rows[:, :2].copy()
+    arcs = np.flatnonzero(sweep != 0)
+    if len(arcs):
+        start = np.arctan2(rows[arcs, 1] - centre[arcs, 1], rows[arcs, 0] - centre[arcs, 0])
+        for axis, angle, sign in ((0, 0.0, 1), (1, np.pi / 2, 1), (0, np.pi, -1), (1, -np.pi / 2, -1)):
+            passed = np.where(sweep[arcs] > 0, (angle - start) % (2 * np.pi), (start - angle) % (2 * np.pi)) <= np.abs(sweep[arcs])
+            extreme = centre[arcs, axis] + sign * radius[arcs]
+            hit = arcs[passed]
+            if sign > 0:
+                high[hit, axis] = np.maximum(high[hit, axis], extreme[passed])
+            else:
+                low[hit, axis] = np.minimum(low[hit, axis], extreme[passed])
+    outside = ((low < 0) | (high > [profile.bed_width, profile.bed_height])).any(axis=1)
+    lead_ins = [k for k, p in enumerate(paths) if p.lead_in is not None
+                and not (0 <= p.lead_in[0] <= profile.bed_width and 0 <= p.lead_in[1] <= profile.bed_height)]
+    if not outside.any() and not lead_ins:
+        return
+    first = int(np.searchsorted(np.cumsum(sizes), np.argmax(outside), side="right")) if outside.any() else lead_ins[0]
+    path = paths[first]
+    span = slice(sum(sizes[:first]), sum(sizes[:first + 1]))
+    lo, hi = low[span].min(axis=0), high[span].max(axis=0)
+    raise FablineError(f"{where}: part {path.part}: {path.operation} toolpath spans x {lo[0]:.3f}..{hi[0]:.3f}, "
+                       f"y {lo[1]:.3f}..{hi[1]:.3f} mm, outside the bed of machine {profile.name} "
+                       f"(0..{profile.bed_width:g} x 0..{profile.bed_height:g} mm)")
 
 
 def _header(name, sheet, number, count, profile, options, summary) -> list[str]:

@@ -48,14 +48,17 @@ class Toolpath:
 
 @dataclass
 class ToolpathOptions:
-    """Choices that shape the toolpaths: kerf (mm), lead-in length (mm), tabs per outer contour and their width."""
+    """Choices that shape the toolpaths: kerf (mm), lead-in length (mm), tabs per outer contour and their width.
+
+    One options object serves one job: it remembers each part's offset contours by part id.
+    """
 
     kerf: float = 0.0
     lead_in: float = 0.0
     tabs: int = 0
     tab_width: float = 1.0
     optimise: bool = True
-    _offset_cache: dict = field(default_factory=dict, repr=False)
+    _cache: dict = field(default_factory=dict, repr=False)
 
 
 def sheet_toolpaths(sheet: Sheet, parts: dict[str, Part], options: ToolpathOptions, source: str = "nesting") -> list[Toolpath]:
@@ -98,17 +101,32 @@ def sheet_toolpaths(sheet: Sheet, parts: dict[str, Part], options: ToolpathOptio
 
 def _part_paths(part: Part, placement: Placement, options: ToolpathOptions):
     """(operation, toolpath) for every contour of a placed part; cut contours offset by half the kerf."""
+    key = ("part", part.id, options.kerf)
+    if key not in options._cache:
+        options._cache[key] = _part_contours(part, options)
+    rows, pieces = options._cache[key]
+    placed = place(rows, placement)
+    for operation, closed, start, end in pieces:
+        yield operation, Toolpath(operation, part.id, placed[start:end], closed)
+
+
+def _part_contours(part: Part, options: ToolpathOptions) -> tuple[np.ndarray, list[tuple[str, bool, int, int]]]:
+    """Every toolpath contour of a part in its own frame, stacked into one array so a placement moves them at once,
+    with (operation, closed, first row, end row) for each: marks and text as they are, cuts offset by half the kerf."""
     half = options.kerf / 2.0
-    for operation, polylines in (("engrave-mark", part.marks), ("engrave-text", part.text)):
-        for line in polylines:
-            contour = with_bulges(place(with_bulges(line), placement))
-            yield operation, Toolpath(operation, part.id, contour, is_closed(contour))
-    inner = inner_contours(part)
-    for contour, operation, distance in ([(c, "cut-inner", -half) for c in inner] + [(part.outline, "cut-outer", half)]):
-        moved = _cached_offset(contour, distance, options._offset_cache)
+    contours = [("engrave-mark", with_bulges(m)) for m in part.marks] + [("engrave-text", with_bulges(t)) for t in part.text]
+    for contour, operation, distance in ([(c, "cut-inner", -half) for c in inner_contours(part)]
+                                         + [(part.outline, "cut-outer", half)]):
+        moved = _cached_offset(contour, distance, options._cache)
         if moved is None:
             raise FablineError(f"part {part.id}: a contour vanishes when offset by half the kerf ({half} mm)")
-        yield operation, Toolpath(operation, part.id, place(moved, placement), True)
+        contours.append((operation, moved))
+    pieces, row = [], 0
+    for operation, contour in contours:
+        closed = operation.startswith("cut") or is_closed(contour)
+        pieces.append((operation, closed, row, row + len(contour)))
+        row += len(contour)
+    return np.vstack([c for _, c in contours]), pieces
 
 
 def inner_contours(part: Part) -> list[np.ndarray]:
@@ -223,28 +241,34 @@ def _rotate(vector: np.ndarray, angle: float) -> np.ndarray:
 
 def order_paths(paths: list[Toolpath], start: np.ndarray) -> list[Toolpath]:
     """Paths reordered (open ones possibly reversed, closed ones restarted) for short travel from `start`."""
-    if len(paths) < 2:
-        if paths and paths[0].closed:
-            paths = [_restart(paths[0], start, None)]
-        return paths
-    tour = _nearest_neighbour(paths, start)
-    tour = _two_opt(tour, start)
-    for _ in range(2):
-        for k, path in enumerate(tour):
-            if path.closed:
-                previous = tour[k - 1].exit if k > 0 else start
-                following = tour[k + 1].entry if k + 1 < len(tour) else None
-                tour[k] = _restart(path, previous, following)
+    if len(paths) > 1:
+        paths = _two_opt(_nearest_neighbour(paths, start), start)
+    return _restart(_restart(list(paths), start), start)
+
+
+def _restart(tour: list[Toolpath], start: np.ndarray) -> list[Toolpath]:
+    """Every closed path started at the vertex that minimises travel in from the path before and on to the next.
+
+    All closed paths are restarted at once against their neighbours' current ends (run it twice to settle).
+    """
+    closed = [k for k, path in enumerate(tour) if path.closed]
+    if not closed:
+        return tour
+    entries = np.array([p.entry for p in tour])
+    exits = np.array([p.exit for p in tour])
+    previous = np.vstack([start, exits[:-1]])[closed]
+    following = np.vstack([entries[1:], [np.nan, np.nan]])[closed]
+    counts = np.array([len(tour[k].contour) - 1 for k in closed])
+    owner = np.repeat(np.arange(len(closed)), counts)
+    vertices = np.vstack([tour[k].contour[:-1, :2] for k in closed])
+    cost = _distance(vertices, previous[owner]) + np.nan_to_num(_distance(vertices, following[owner]))
+    firsts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    best = np.lexsort((cost, owner))[firsts] - firsts          # cheapest vertex of each path, counted from its first
+    for k, at in zip(closed, best.tolist()):
+        if at:
+            path = tour[k]
+            tour[k] = Toolpath(path.operation, path.part, rotate_start(path.contour, at), True, path.lead_in)
     return tour
-
-
-def _restart(path: Toolpath, previous: np.ndarray, following: np.ndarray | None) -> Toolpath:
-    """The closed path started at the vertex that minimises travel in from `previous` and on to `following`."""
-    vertices = path.contour[:-1, :2]
-    cost = np.hypot(*(vertices - previous).T)
-    if following is not None:
-        cost = cost + np.hypot(*(vertices - following).T)
-    return Toolpath(path.operation, path.part, rotate_start(path.contour, int(np.argmin(cost))), True, path.lead_in)
 
 
 def _nearest_neighbour(paths: list[Toolpath], start: np.ndarray) -> list[Toolpath]:
@@ -256,41 +280,44 @@ def _nearest_neighbour(paths: list[Toolpath], start: np.ndarray) -> list[Toolpat
     for i, path in enumerate(paths):
         if path.closed:
             points.append(path.contour[:-1, :2])
-            owner.append(np.full(len(path.contour) - 1, i))
-            role.append(np.arange(len(path.contour) - 1))
+            owner.extend([i] * (len(path.contour) - 1))
+            role.extend(range(len(path.contour) - 1))
         else:
             points.append(path.contour[[0, -1], :2])
-            owner.append(np.array([i, i]))
-            role.append(np.array([0, -1]))
-    points_arr, owner_arr, role_arr = np.vstack(points), np.concatenate(owner), np.concatenate(role)
-    free = np.ones(len(paths), dtype=bool)
-    active = np.arange(len(points_arr))
+            owner.extend([i, i])
+            role.extend([0, -1])
+    points_arr = np.vstack(points)
+    free = [True] * len(paths)
+    active = list(range(len(points_arr)))          # tree index -> point index
     tree = cKDTree(points_arr)
-    position, tour = np.asarray(start, dtype=float), []
+    position, chosen = np.asarray(start, dtype=float), []
     for _ in range(len(paths)):
-        k = NN_CANDIDATES
-        while True:
+        k, best = NN_CANDIDATES, -1
+        while best < 0:
             _, found = tree.query(position, k=min(k, len(active)))
-            candidates = active[np.atleast_1d(found)]
-            usable = free[owner_arr[candidates]]
-            if usable.any():
-                best = int(candidates[np.argmax(usable)])
-                break
-            still_free = active[free[owner_arr[active]]]
-            if 2 * len(still_free) < len(active):
-                active, k = still_free, NN_CANDIDATES
-                tree = cKDTree(points_arr[active])
+            for f in np.atleast_1d(found).tolist():
+                if free[owner[active[f]]]:
+                    best = active[f]
+                    break
             else:
-                k *= 4
-        index = int(owner_arr[best])
+                still_free = [p for p in active if free[owner[p]]]
+                if 2 * len(still_free) < len(active):
+                    active, k = still_free, NN_CANDIDATES
+                    tree = cKDTree(points_arr[active])
+                else:
+                    k *= 4
+        index = owner[best]
         free[index] = False
         path = paths[index]
+        chosen.append((path, role[best]))
+        position = path.contour[role[best], :2] if path.closed else path.contour[-1 - role[best], :2]
+    tour = []
+    for path, at in chosen:
         if path.closed:
-            path = Toolpath(path.operation, path.part, rotate_start(path.contour, int(role_arr[best])), True)
-        elif role_arr[best] == -1:
+            path = Toolpath(path.operation, path.part, rotate_start(path.contour, at), True)
+        elif at == -1:
             path = Toolpath(path.operation, path.part, reverse(path.contour), False)
         tour.append(path)
-        position = path.exit
     return tour
 
 

@@ -35,13 +35,13 @@ def _points(xy: np.ndarray) -> str:
     return " ".join(f"{_fmt(x)},{_fmt(y)}" for x, y in xy)
 
 
-def model_svg(network: "Network", width: int = 720, azimuth: float = -35.0, elevation: float = 30.0) -> str:
+def model_svg(network: "Network", width: int = 520, azimuth: float = -35.0, elevation: float = 30.0) -> str:
     """The network's lamellas seen from above at an angle (azimuth/elevation in degrees), as an SVG string."""
     az, el = math.radians(azimuth), math.radians(elevation)
     right = np.array([math.cos(az), math.sin(az), 0.0])
     towards = np.array([-math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
     up = np.cross(towards, right)
-    curves = [lam.points for lam in network.lamellas]
+    curves = [lam.curve for lam in network.lamellas]
     every = np.vstack(curves)
     screen = [np.column_stack([c @ right, -(c @ up)]) for c in curves]
     depth = [float(np.mean(c @ towards)) for c in curves]
@@ -90,11 +90,12 @@ def sheet_svg(sheet: "Sheet", parts: dict[str, "Part"], width: int = 900) -> str
                           'fill="none" stroke="#8a5" stroke-width="0.5"/>')
         cx, cy = to_screen(outline[:-1].mean(axis=0, keepdims=True))[0]
         extent = np.ptp(outline, axis=0) * scale
-        size = max(6.0, min(14.0, 0.6 * min(extent.max() / max(len(part.id), 1), extent.min() if extent.min() > 8 else 14)))
+        along, across = (extent[1], extent[0]) if extent[1] > 2 * extent[0] else (extent[0], extent[1])
+        size = max(1.5, min(14.0, along / (0.62 * max(len(part.id), 1)), 0.8 * across))
         rotate = f' transform="rotate(-90 {_fmt(cx)} {_fmt(cy)})"' if extent[1] > 2 * extent[0] else ""
         labels.append(f'<text x="{_fmt(cx)}" y="{_fmt(cy)}" font-size="{_fmt(size)}" text-anchor="middle" '
                       f'dominant-baseline="middle" fill="#102a43"{rotate}>{html.escape(part.id)}</text>')
-    return (f'<svg xmlns="http://www.w3.org/2000/svg" class="sheet" viewBox="0 0 {_fmt(width)} {_fmt(height)}" '
+    return (f'<svg xmlns="http://www.w3.org/2000/svg" class="sheet" font-family="sans-serif" viewBox="0 0 {_fmt(width)} {_fmt(height)}" '
             f'width="{_fmt(width)}" height="{_fmt(height)}" data-sheet="{html.escape(sheet.id)}" '
             f'data-mm-per-unit="{1 / scale:.6g}">'
             f'<rect width="100%" height="100%" fill="#f7f7f2" stroke="#999"/>' + "".join(shapes) + "".join(labels)
@@ -123,12 +124,25 @@ def _program_paths(path: str, mtime: float) -> tuple[tuple[np.ndarray, bool], ..
 def progress_svg(program: str | os.PathLike, done_lines: int, background: str = "") -> str:
     """The program's cutting moves over the sheet picture `background` (an SVG file, may be empty): the first
     `done_lines` lines' moves red and thick (cut), the rest grey (to do)."""
-    moves = _program_paths(str(program), os.path.getmtime(program))
-    sheet = Path(background).read_text(encoding="utf-8") if background and Path(background).is_file() else ""
+    stamp = Path(background).stat().st_mtime if background and Path(background).is_file() else 0.0
+    head, inner, moves = _progress_layers(str(program), os.path.getmtime(program), background, stamp)
+    todo = "".join(f'<polyline points="{p}" fill="none" stroke="#bbb" stroke-width="0.8"/>'
+                   for n, p in moves if n >= done_lines)
+    done = "".join(f'<polyline points="{p}" fill="none" stroke="#d62828" stroke-width="1.8"/>'
+                   for n, p in moves if n < done_lines)
+    return f'{head} data-done="{done_lines}">{inner}<g class="progress">{todo}{done}</g></svg>'
+
+
+@lru_cache(maxsize=16)
+def _progress_layers(program: str, mtime: float, background: str, stamp: float) -> tuple[str, str, tuple]:
+    """The picture's opening tag, the background's content and each cutting move's screen polyline by line index;
+    cached per program and background file, so a progress picture is only a string join per request."""
+    moves = _program_paths(program, mtime)
+    sheet = Path(background).read_text(encoding="utf-8") if stamp else ""
     match = _VIEWBOX.search(sheet)
     cuts = [xy for xy, rapid in moves if not rapid and len(xy)]
     if match and "data-mm-per-unit" in sheet:
-        x0, y0, width, height = (float(v) for v in match.group(1).split())
+        _, _, width, height = (float(v) for v in match.group(1).split())
         mm_per_unit = float(re.search(r'data-mm-per-unit="([^"]+)"', sheet).group(1))
         origin, scale = np.array([0.0, height * mm_per_unit]), 1 / mm_per_unit
     else:
@@ -137,14 +151,13 @@ def progress_svg(program: str | os.PathLike, done_lines: int, background: str = 
         scale = 900 / max(hi[0] - lo[0], 1e-9)
         width, height = 900.0, (hi[1] - lo[1]) * scale
         origin = np.array([lo[0], hi[1]])
-    done, todo = [], []
+    polylines = []
     for n, (xy, rapid) in enumerate(moves):
         if rapid or not len(xy):
             continue
         screen = np.column_stack([(xy[:, 0] - origin[0]) * scale, (origin[1] - xy[:, 1]) * scale])
-        (done if n < done_lines else todo).append(_points(screen))
-    layer = "".join(f'<polyline points="{p}" fill="none" stroke="#bbb" stroke-width="0.8"/>' for p in todo)
-    layer += "".join(f'<polyline points="{p}" fill="none" stroke="#d62828" stroke-width="1.8"/>' for p in done)
+        polylines.append((n, _points(screen)))
     inner = re.sub(r"^<svg[^>]*>|</svg>\s*$", "", sheet.strip()) if sheet else '<rect width="100%" height="100%" fill="#f7f7f2"/>'
-    return (f'<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {_fmt(width)} {_fmt(height)}" '
-            f'data-done="{done_lines}" data-lines="{len(moves)}">{inner}<g class="progress">{layer}</g></svg>')
+    head = (f'<svg xmlns="http://www.w3.org/2000/svg" font-family="sans-serif" viewBox="0 0 {_fmt(width)} {_fmt(height)}" '
+            f'data-lines="{len(moves)}"')
+    return head, inner, tuple(polylines)

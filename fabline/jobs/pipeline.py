@@ -81,14 +81,15 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
 
 
 def run_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None,
-            confirm_sheet: Callable[[int, int, str], None] | None = None) -> JobResult:
+            confirm_sheet: Callable[[int, int, str], None] | None = None, resume: bool = False) -> JobResult:
     """The whole job: prepare, then stream every sheet (asking `confirm_sheet(k, n, sheet)` before each one
-    when given), then the report with the streaming log."""
+    when given), then the report with the streaming log. `resume` continues an interrupted run from the
+    sheets' journals (finished sheets are not cut again); otherwise every sheet is cut afresh."""
     spec = job if isinstance(job, JobSpec) else load_job_file(job)
     result = prepare_job(spec, say)
     if "stream" in spec.stages:
         _require(result.sheet_files, "stream", "export", spec)
-        _timed(result.timings, "stream", lambda: _stream_all(result, say, confirm_sheet))
+        _timed(result.timings, "stream", lambda: _stream_all(result, say, confirm_sheet, resume))
         if "report" in spec.stages:
             write_report(result)
     return result
@@ -132,23 +133,8 @@ def _unroll(result: JobResult) -> None:
                             sheet_length=sheet_length, sheet_margin=spec.nest["margin"])
     result.partset = unroll_network(result.network, options)
     save_parts(result.partset, spec.output("parts.json"))
-    result.structure = structure_rows(result.network, options)
-
-
-def structure_rows(network: Network, options: Any) -> list[dict]:
-    """The structural check of every lamella (domain.md section 6), one summary row each."""
-    from fabline.geometry import analyse
-    from fabline.unroll.structure import check_lamella
-
-    geometry = analyse(network)
-    rows = []
-    for geo in geometry.lamellas.values():
-        check = check_lamella(geo, options.material, options.profile)
-        row = check.summary(options.material, options.profile)
-        row.pop("intervals")
-        row["warnings"] = check.warnings
-        rows.append(row)
-    return rows
+    result.structure = [{k: v for k, v in row.items() if k != "intervals"}
+                        for row in result.partset.report.get("lamellas", [])]
 
 
 def _nest(result: JobResult) -> None:
@@ -196,7 +182,10 @@ def machine_port(spec: JobSpec) -> str:
     return port
 
 
-def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, str], None] | None) -> None:
+def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, str], None] | None,
+                resume: bool) -> None:
+    from fabline.link import default_journal_path
+
     from fabline.jobs.streaming import SheetStream
 
     port = machine_port(result.spec)
@@ -205,6 +194,8 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
     for k, sheet in enumerate(result.sheet_files):
         if confirm_sheet is not None:
             confirm_sheet(k, count, sheet["sheet"])
+        if not resume:
+            default_journal_path(sheet["gcode"]).unlink(missing_ok=True)
         started = time.perf_counter()
         stream = SheetStream(port, sheet["gcode"], lambda done, position: None)
         outcome = stream.run()

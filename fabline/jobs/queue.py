@@ -25,7 +25,7 @@ from fabline.errors import FablineError
 STATES = ("queued", "preparing", "ready", "cutting", "paused", "failed", "cancelled", "done")
 FINAL_STATES = frozenset({"failed", "cancelled", "done"})
 TRANSITIONS: dict[str, frozenset[str]] = {
-    "queued": frozenset({"preparing", "paused", "cancelled"}),
+    "queued": frozenset({"preparing", "paused", "cancelled", "failed"}),
     "preparing": frozenset({"queued", "ready", "failed", "paused", "cancelled"}),
     "ready": frozenset({"cutting", "paused", "cancelled", "failed"}),
     "cutting": frozenset({"ready", "done", "failed", "paused", "cancelled"}),
@@ -161,17 +161,19 @@ class JobQueue:
 
     # --- jobs -------------------------------------------------------------------------------------------
 
-    def submit(self, name: str, job_file: str | None = None, programs: list[tuple[str, str, str]] | None = None) -> int:
-        """Queue a job file (state queued, prepared by the runner) or ready programs [(sheet name, path, svg)]."""
+    def submit(self, name: str, job_file: str | None = None, programs: list[tuple[str, str, str]] | None = None,
+               error: str | None = None) -> int:
+        """Queue a job file (state queued, prepared by the runner) or ready programs [(sheet name, path, svg)];
+        with `error`, record a job file that cannot run as failed, so the operator sees why."""
         now = time.time()
         with self.transaction() as db:
-            state = "queued" if programs is None else "ready"
-            cursor = db.execute("INSERT INTO jobs (name, job_file, state, created, updated) VALUES (?, ?, ?, ?, ?)",
-                                (name, job_file, state, now, now))
+            state = "failed" if error else "queued" if programs is None else "ready"
+            cursor = db.execute("INSERT INTO jobs (name, job_file, state, error, created, updated) "
+                                "VALUES (?, ?, ?, ?, ?, ?)", (name, job_file, state, error, now, now))
             job_id = int(cursor.lastrowid)
             if programs is not None:
                 self._add_sheets(db, job_id, programs)
-            self._event(db, job_id, None, f"job {job_id} {name} submitted ({state})")
+            self._event(db, job_id, None, f"job {job_id} {name} submitted ({state}{': ' + error if error else ''})")
         return job_id
 
     def _add_sheets(self, db: sqlite3.Connection, job_id: int, programs: list[tuple[str, str, str]]) -> None:

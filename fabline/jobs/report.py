@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import html
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +48,7 @@ def report_data(result: Any) -> dict[str, Any]:
         "model": {"name": network.name, "units": network.units, "lamellas": len(network.lamellas),
                   "nodes": len(network.nodes), "meta": network.meta},
         "parts": ({"count": len(result.partset.parts),
-                   "by_kind": _count(p.kind for p in result.partset.parts)} if result.partset else None),
+                   "by_kind": dict(Counter(p.kind for p in result.partset.parts))} if result.partset else None),
         "structure": {"lamellas": structure, "max_utilisation": max((r["utilisation"] for r in structure), default=None),
                       "failing": failing, "passes": not failing},
         "nesting": ({"sheets": sheets, "summary": result.nesting.summary} if result.nesting else None),
@@ -58,13 +59,6 @@ def report_data(result: Any) -> dict[str, Any]:
         "survey": result.survey,
         "timings_s": result.timings,
     }
-
-
-def _count(values) -> dict[str, int]:
-    counts: dict[str, int] = {}
-    for value in values:
-        counts[value] = counts.get(value, 0) + 1
-    return counts
 
 
 def render_report(result: Any, data: dict[str, Any]) -> str:

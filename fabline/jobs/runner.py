@@ -84,7 +84,7 @@ class Runner:
                     spec = load_job_file(path)
                     queue.submit(spec.name, job_file=str(spec.path))
                 except FablineError as exc:
-                    queue.fail(queue.submit(path.stem, job_file=str(path.resolve())), str(exc))
+                    queue.submit(path.stem, job_file=str(path.resolve()), error=str(exc))
             if self._stop.wait(every):
                 break
         queue.close()
@@ -151,6 +151,14 @@ class Runner:
 
     def _next_sheet(self, queue: JobQueue, job: JobRow, machine: MachineConfig) -> SheetRow | None:
         """The sheet to cut now, or None while it waits for the operator (confirmation or resume)."""
+        if job.state == "paused" and job.paused_from == "cutting":
+            request = queue.take_request(job.id)  # no stream runs (the runner restarted): carry it out here
+            if request == "cancel":
+                queue.set_cutting_state(job.id, "cancelled")
+                return None
+            if request == "resume":
+                queue.set_cutting_state(job.id, "cutting")
+                return queue.start_sheet(job.id, machine.name)
         if job.state == "paused":
             queue.set_machine(machine.name, state="paused")
             return None

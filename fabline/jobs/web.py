@@ -19,6 +19,7 @@ from starlette.responses import HTMLResponse, JSONResponse, Response, StreamingR
 from starlette.routing import Route
 
 from fabline.errors import FablineError
+from fabline.jobs.jobfile import load_job_file
 from fabline.jobs.pictures import progress_svg
 from fabline.jobs.queue import JobQueue
 
@@ -85,8 +86,6 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25) -> Starlette
             return JSONResponse({"error": "forbidden: a valid token is required"}, status_code=403)
         try:
             body = await request.json()
-            from fabline.jobs.jobfile import load_job_file
-
             spec = load_job_file(body["job_file"])
             job_id = queue.submit(spec.name, job_file=str(spec.path))
         except (KeyError, TypeError, ValueError):

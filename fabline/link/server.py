@@ -4,18 +4,25 @@ A controller must outlive the host that drives it: tests and the job runner kill
 SIGKILL) and start a new one, and the simulator's executed-line log must stay the truth. Use
 `SimulatorServer` from Python, or `fabline grbl-sim` / `python -m fabline.link.server` from a shell;
 the server prints the URL to connect to (`socket://127.0.0.1:PORT` or a `/dev/pts/N` path) on its
-first line. With `baud`, bytes travel no faster than a serial line at that rate (10 bits per byte).
+first line. With `baud`, bytes travel no faster than a serial line at that rate (10 bits per byte);
+with `adapter_latency`, the controller's answers reach the host like through a USB-serial bridge, in
+packets sent when 64 bytes are buffered or the oldest byte has waited that long (the Arduino Uno's
+16U2 bridge flushes about every 4 ms; an FTDI chip's latency timer defaults to 16 ms).
 """
 
 from __future__ import annotations
 
 import argparse
+import fcntl
 import os
 import pty
+import select
 import signal
 import socket
+import struct
 import subprocess
 import sys
+import termios
 import threading
 import time
 import tty
@@ -27,41 +34,85 @@ from fabline.link.protocol_sim import simulator_from_options
 from fabline.link.simulator import ConnectionDropped, GrblSimulator
 
 
-class _Pacer:
-    """Token bucket for one direction of a serial line: at most baud/10 bytes per second."""
+class _Wire:
+    """One direction of a serial line at baud/10 bytes per second.
+
+    Time on the wire is credit: it accrues only while bytes are waiting to cross (an idle line earns
+    nothing), so over any stretch no more bytes arrive than the line could carry; a receiver that was
+    descheduled for a moment catches up like a UART's hardware buffer would, up to `BURST` bytes.
+    """
+
+    BURST = 128
 
     def __init__(self, baud: int | None):
         self.rate = baud / 10.0 if baud else None
-        self.allowance = 0.0
-        self.last = time.monotonic()
+        self.credit = 0.0
+        self.since = time.monotonic()
 
-    def budget(self, wanted: int) -> int:
-        """How many of `wanted` bytes may go now (waiting a little if none may)."""
+    def idle(self) -> None:
+        """Nothing is waiting: the line earns no credit until bytes appear."""
+        self.credit, self.since = 0.0, time.monotonic()
+
+    def take(self, waiting: int) -> int:
+        """Sleep until some of `waiting` bytes have crossed; return how many (all at once without a rate)."""
         if self.rate is None:
-            return wanted
+            return waiting
+        wanted = min(waiting, 16)
         while True:
             now = time.monotonic()
-            self.allowance = min(self.allowance + (now - self.last) * self.rate, 64.0)
-            self.last = now
-            if self.allowance >= 1:
-                allowed = min(wanted, int(self.allowance))
-                self.allowance -= allowed
-                return allowed
-            time.sleep((1 - self.allowance) / self.rate)
+            self.credit = min(self.credit + (now - self.since) * self.rate, self.BURST)
+            self.since = now
+            if self.credit >= wanted:
+                count = min(waiting, int(self.credit))
+                self.credit -= count
+                return count
+            time.sleep((wanted - self.credit) / self.rate)
 
 
-def _pump_out(simulator: GrblSimulator, write, stop: threading.Event, pacer: _Pacer) -> None:
-    """Copy the controller's output to the host, paced like the serial line."""
-    while not stop.is_set():
-        data = simulator.read(pacer.budget(4096) if pacer.rate else 4096, 0.05)
-        if data:
-            try:
-                write(data)
-            except OSError:
-                return
+USB_PACKET = 64
+"""Bytes per full-speed USB bulk packet: a bridge sends at once when this many are buffered."""
 
 
-def _serve_socket(simulator: GrblSimulator, baud: int | None, port: int) -> None:
+def _pump_out(simulator: GrblSimulator, write, stop: threading.Event, wire: _Wire, adapter_latency: float) -> None:
+    """Copy the controller's output to the host at line speed, then through a USB bridge if one is modelled."""
+    bridge, oldest = bytearray(), 0.0
+    try:
+        while not stop.is_set():
+            data = simulator.read(4096, 0.0005 if bridge else 0.02)
+            if not data:
+                wire.idle()
+            while data:
+                count = wire.take(len(data))
+                if not bridge:
+                    oldest = time.monotonic()
+                bridge += data[:count]
+                data = data[count:]
+                if adapter_latency <= 0 or len(bridge) >= USB_PACKET:
+                    write(bytes(bridge))
+                    bridge.clear()
+            if bridge and time.monotonic() - oldest >= adapter_latency:
+                write(bytes(bridge))
+                bridge.clear()
+    except OSError:
+        return
+
+
+def _pump_in(fileno: int, read, simulator: GrblSimulator, wire: _Wire) -> None:
+    """Deliver the host's bytes to the controller at line speed until the host closes its end."""
+    while True:
+        ready, _, _ = select.select([fileno], [], [], 0.05)
+        if not ready:
+            continue
+        waiting = struct.unpack("i", fcntl.ioctl(fileno, termios.FIONREAD, b"\0\0\0\0"))[0]
+        data = read(wire.take(max(waiting, 1)))
+        if not data:
+            return
+        simulator.receive(data)
+        if len(data) >= waiting:
+            wire.idle()  # drained: the line earns nothing until the host sends again
+
+
+def _serve_socket(simulator: GrblSimulator, baud: int | None, port: int, adapter_latency: float) -> None:
     listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     listener.bind(("127.0.0.1", port))
@@ -72,15 +123,11 @@ def _serve_socket(simulator: GrblSimulator, baud: int | None, port: int) -> None
         connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         number = simulator.attach()
         stop = threading.Event()
-        writer = threading.Thread(target=_pump_out, args=(simulator, connection.sendall, stop, _Pacer(baud)), daemon=True)
+        writer = threading.Thread(target=_pump_out, args=(simulator, connection.sendall, stop, _Wire(baud),
+                                                          adapter_latency), daemon=True)
         writer.start()
-        pacer = _Pacer(baud)
         try:
-            while True:
-                data = connection.recv(pacer.budget(4096))
-                if not data:
-                    break
-                simulator.receive(data)
+            _pump_in(connection.fileno(), connection.recv, simulator, _Wire(baud))
         except (ConnectionDropped, OSError):
             pass
         finally:
@@ -90,30 +137,28 @@ def _serve_socket(simulator: GrblSimulator, baud: int | None, port: int) -> None
             connection.close()
 
 
-def _serve_pty(simulator: GrblSimulator, baud: int | None) -> None:
+def _serve_pty(simulator: GrblSimulator, baud: int | None, adapter_latency: float) -> None:
     master, slave = pty.openpty()
     tty.setraw(slave)
     print(os.ttyname(slave), flush=True)
     simulator.attach()
-    stop = threading.Event()
-    threading.Thread(target=_pump_out, args=(simulator, lambda data: os.write(master, data), stop, _Pacer(baud)),
-                     daemon=True).start()
-    pacer = _Pacer(baud)
+    threading.Thread(target=_pump_out, args=(simulator, lambda data: os.write(master, data), threading.Event(),
+                                             _Wire(baud), adapter_latency), daemon=True).start()
+    wire = _Wire(baud)
     while True:
-        data = os.read(master, pacer.budget(4096))
         try:
-            simulator.receive(data)
+            _pump_in(master, lambda size: os.read(master, size), simulator, wire)
         except ConnectionDropped:
             continue
 
 
-def serve(transport: str, options: str, baud: int | None, port: int = 0) -> None:
+def serve(transport: str, options: str, baud: int | None, port: int = 0, adapter_latency: float = 0.0) -> None:
     """Run a simulator until killed; `options` as in a sim:// URL (time_scale, log, fault injection)."""
     simulator = simulator_from_options(options)
     if transport == "tcp":
-        _serve_socket(simulator, baud, port)
+        _serve_socket(simulator, baud, port, adapter_latency)
     elif transport == "pty":
-        _serve_pty(simulator, baud)
+        _serve_pty(simulator, baud, adapter_latency)
     else:
         raise ValueError(f"unknown transport {transport!r}")
 
@@ -122,11 +167,12 @@ class SimulatorServer:
     """A simulator process; `url` is what a Streamer (or `fabline stream --port`) connects to.
 
     `log` receives every executed line in order (see `executed_file_lines`); `time_scale` > 1 runs
-    motion faster; `baud` paces bytes like a serial line; `faults` are sim:// fault options.
+    motion faster; `baud` paces bytes like a serial line; `adapter_latency` (s) batches answers like a
+    USB-serial bridge; `faults` are sim:// fault options.
     """
 
     def __init__(self, *, log: str | os.PathLike | None = None, time_scale: float = 1.0, transport: str = "tcp",
-                 baud: int | None = None, faults: dict | None = None):
+                 baud: int | None = None, adapter_latency: float = 0.0, faults: dict | None = None):
         options = {"time_scale": time_scale, **(faults or {})}
         if log is not None:
             options["log"] = str(log)
@@ -134,6 +180,8 @@ class SimulatorServer:
                         "--options", urllib.parse.urlencode(options)]
         if baud:
             self.command += ["--baud", str(baud)]
+        if adapter_latency:
+            self.command += ["--adapter-latency", str(adapter_latency)]
         self.process: subprocess.Popen | None = None
         self.url: str | None = None
 
@@ -193,10 +241,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--options", default="", help="sim:// options, e.g. 'time_scale=100&log=run.log'")
     parser.add_argument("--baud", type=int, default=None, help="pace bytes like a serial line at this rate")
     parser.add_argument("--listen-port", type=int, default=0, help="TCP port on 127.0.0.1 (0: any free port)")
+    parser.add_argument("--adapter-latency", type=float, default=0.0, help="USB-serial bridge flush interval, s")
     args = parser.parse_args(argv)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     try:
-        serve(args.transport, args.options, args.baud, args.listen_port)
+        serve(args.transport, args.options, args.baud, args.listen_port, args.adapter_latency)
     except ValueError as exc:
         print(f"fabline.link.server: error: {exc}", file=sys.stderr)
         return 2

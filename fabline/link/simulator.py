@@ -104,6 +104,7 @@ class GrblSimulator:
         self._output_ready = threading.Condition(self._lock)
         self._connected = False
         self._tick = tick
+        self._input_arrived = threading.Event()
         self._stall_until = 0.0
         self._stopping = False
         self._power_on()
@@ -142,12 +143,16 @@ class GrblSimulator:
                     self.faults.corrupt_at.pop(0)
                     byte = ord("#")
                 self.received += 1
+                if byte == 0x3F and time.monotonic() < self._stall_until:
+                    continue  # a stalled controller answers nothing, not even status queries
                 if byte in (0x3F, 0x21, 0x7E, 0x18) or byte >= 0x80:
                     self._realtime(byte)
                 elif self._critical:
                     continue
                 elif len(self._rx) < RX_BUFFER_SIZE:
                     self._rx.append(byte)
+                    if byte == 0x0A:
+                        self._input_arrived.set()
                 else:
                     self.overflowed += 1
 
@@ -307,7 +312,8 @@ class GrblSimulator:
     def _run(self) -> None:
         last = time.monotonic()
         while not self._stopping:
-            time.sleep(self._tick)
+            self._input_arrived.wait(self._tick)  # GRBL's main loop picks a line up as soon as it is complete
+            self._input_arrived.clear()
             now = time.monotonic()
             with self._lock:
                 if now < self._stall_until:

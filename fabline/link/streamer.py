@@ -6,9 +6,10 @@ status, stops safely on `error:N`, alarms, an abort or a lost connection, and re
 line known to be executed after re-establishing the modal state. How it knows what was executed:
   * `ok` means parsed into the planner; a status report `Ln:N` means every line before N is done;
     Idle with nothing in flight means every acknowledged line is done.
-  * after a lost connection it waits for the controller to finish, discards any half-received line
-    (`#` + newline always fails to parse) and reads `$G`: its T word is the tag of the last line parsed,
-    which settles the lines that were sent but whose `ok` never arrived.
+  * after a lost connection or a killed host it waits for the controller to finish, discards any
+    half-received line (`#` + newline always fails to parse) and reads `$G`: its T word is the tag of
+    the last line parsed, looked up within the 255 lines after the last journaled `ok`, so lines whose
+    `ok` never arrived (or never reached the disk) are settled by the controller itself.
   * after an alarm or a halt (feed hold + reset) the planner is flushed; the interrupted line is the
     one whose path holds the stopped position, and it is run again from its start.
 """
@@ -30,7 +31,7 @@ from fabline.errors import FablineError
 from fabline.link.codes import explain_alarm, explain_error
 from fabline.link.gcode import Block, ModalState
 from fabline.link.journal import Journal, JournalState, default_journal_path, read_journal
-from fabline.link.program import Program, line_tag, load_program
+from fabline.link.program import TAG_CYCLE, Program, line_tag, load_program
 from fabline.link.protocol import (CYCLE_START, FEED_HOLD, RX_BUFFER_SIZE, SOFT_RESET, STATUS_QUERY,
                                    CharacterCounter, LineSplitter, Response, StatusReport, classify)
 
@@ -38,7 +39,11 @@ MODES = ("counting", "send-response")
 POSITION_TOLERANCE = 0.01
 """mm: status reports carry three decimals; a stopped position is matched to a path within this."""
 _FLUSH_LINE = b"#\n"
+COMMIT_INTERVAL = 0.05
+"""s between journal fsyncs while streaming (and at every stop): at 460 lines/s the journal lags the
+controller by far fewer than the 255 lines a `$G` tag can tell apart."""
 _TAG = re.compile(r"\bT(\d+)\b")
+_MOTION_WORD = re.compile(r"G0*[0-3](?![0-9.])")
 _OPTIONS = re.compile(r"^OPT:[^,]*,(\d+),(\d+)")
 
 
@@ -89,7 +94,7 @@ class Streamer:
 
     def __init__(self, port: str, *, baud: int = 115200, mode: str = "counting", status_interval: float = 0.2,
                  connect_timeout: float = 5.0, settle_timeout: float = 3600.0, reconnect_timeout: float = 0.0,
-                 exchange_log: str | os.PathLike | None = None):
+                 silence_timeout: float = 10.0, exchange_log: str | os.PathLike | None = None):
         if mode not in MODES:
             raise FablineError(f"unknown streaming mode {mode!r}; use one of {', '.join(MODES)}")
         self.url = port
@@ -99,6 +104,8 @@ class Streamer:
         self.connect_timeout = connect_timeout
         self.settle_timeout = settle_timeout
         self.reconnect_timeout = reconnect_timeout
+        self.silence_timeout = silence_timeout
+        self._last_heard = time.monotonic()
         self.exchange_log_path = exchange_log
         self.rx_buffer = RX_BUFFER_SIZE
         self.settings: dict[int, float] = {}
@@ -206,6 +213,7 @@ class Streamer:
             self.journal.record("resume", count=executed)
         self.journal.commit()
         self.first_index = self.done
+        self.started = time.monotonic()  # elapsed counts streaming, not the handshake
         while True:
             try:
                 return self._stream(preamble)
@@ -229,7 +237,8 @@ class Streamer:
         counter = CharacterCounter(self.rx_buffer, max_lines=1 if self.mode == "send-response" else None)
         self._counter, self._errors = counter, []
         self._status_after_last_ok = False
-        position, next_poll, next_report = 0, 0.0, 0.0
+        position, next_poll, next_report, last_commit = 0, 0.0, 0.0, time.monotonic()
+        self._last_heard = time.monotonic()
         while True:
             if self._abort.is_set():
                 return self._stop_on_abort(counter)
@@ -243,14 +252,18 @@ class Streamer:
                     self.sent = index + 1
                 batch.append(wire)
                 position += 1
-            if batch:
-                self.journal.commit()
-                self._write(b"".join(batch))
             now = time.monotonic()
+            if now - last_commit >= COMMIT_INTERVAL:
+                self.journal.commit()
+                last_commit = now
+            if batch:
+                self._write(b"".join(batch))
             if now >= next_poll:
                 self._write(STATUS_QUERY)
                 next_poll = now + self.status_interval
-            for response in self._read(0.005 if batch else 0.02):
+            if now - self._last_heard > self.silence_timeout:
+                raise _Lost(f"the controller sent nothing for {self.silence_timeout:g} s, not even status reports")
+            for response in self._read(0.01):
                 if response.kind == "alarm":
                     self._stop_on_alarm(response.code)
                 elif response.kind == "banner":
@@ -353,10 +366,8 @@ class Streamer:
             if time.monotonic() > deadline:
                 raise StreamInterrupted(f"{self.url}: the machine did not stop after a feed hold", "error", self.done)
             time.sleep(0.02)
-        planner_empty = status.state == "Idle"
-        executed = self._executed_from_position(status, planner_empty, rejected)
-        self._soft_reset()
-        return executed
+        self._soft_reset()  # first, so the machine is never left in a hold whatever the verdict
+        return self._executed_from_position(status, status.state == "Idle", rejected)
 
     def _executed_from_position(self, status: StatusReport, planner_empty: bool, rejected: int | None = None) -> int:
         """Lines executed when the machine stopped at `status`'s position with its planner flushed."""
@@ -364,7 +375,7 @@ class Streamer:
         if planner_empty:
             return rejected if rejected is not None else acked
         position = status.work_position(self._wco)
-        for index in range(self.done, acked):
+        for index in range(self.done, min(acked + TAG_CYCLE, len(self.blocks))):
             segment = self.blocks[index].segment
             if segment is None or segment.length <= POSITION_TOLERANCE:
                 continue
@@ -399,17 +410,15 @@ class Streamer:
             raise FablineError(f"{self.url}: the controller is in state {status.state}; it must be Idle to resume")
         if previous.stopped and previous.stopped.startswith(("error", "aborted", "ALARM")):
             return previous.done
-        if previous.sent <= previous.acked:
-            return previous.acked
         self._flush_partial_line()
         modes = self._command(b"$G\n")
         tag = next((int(match.group(1)) for text in modes if (match := _TAG.search(text))), None)
-        for index in range(previous.sent - 1, previous.acked - 2, -1):
+        for index in range(previous.acked - 1, min(previous.acked - 1 + TAG_CYCLE, len(self.program.lines))):
             if line_tag(index) == tag:
                 return index + 1
-        first, last = self._file_line(previous.acked), self._file_line(previous.sent - 1)
-        raise FablineError(f"{self.url}: cannot tell whether file lines {first}..{last} were executed (the controller "
-                           "was reset?); check the part and resume with --from-line")
+        raise FablineError(f"{self.url}: cannot tell how far the controller got after file line "
+                           f"{self._file_line(previous.acked - 1)} (it was reset: parser tag T{tag}); check the part "
+                           "and resume with --from-line")
 
     def _preamble(self, executed: int) -> list[bytes]:
         """Commands that restore the modal state after `executed` lines and move safely to the restart point."""
@@ -422,16 +431,26 @@ class Streamer:
         here = status.work_position(self._wco) or target
         if not all(math.isclose(a, b, abs_tol=1e-4) for a, b in zip(here, target)):
             top = max(here[2], target[2])
-            lines += [f"G0Z{top:.4f}", f"G0X{target[0]:.4f}Y{target[1]:.4f}", f"G0Z{target[2]:.4f}"]
+            lines += [f"G0Z{top:.4f}"] if top > here[2] else []
+            lines += [f"G0X{target[0]:.4f}Y{target[1]:.4f}"]
+            lines += [f"G0Z{target[2]:.4f}"] if top > target[2] else []
         lines += [f"{modal.plane}{modal.units}{modal.distance}{modal.feed_mode}{modal.coolant}",
                   f"F{modal.feed:g}S{modal.speed:g}{modal.spindle}"]
         if modal.motion == "G0" or (modal.motion == "G1" and modal.feed > 0):
             lines.append(modal.motion)
-        elif modal.motion in ("G2", "G3") and not re.search(r"G0*[0-3](?!\d)", self.program.lines[executed].command):
-            raise FablineError(f"{self.program.name}:{self.program.lines[executed].file_line}: cannot restart here: the "
-                               f"line relies on modal {modal.motion}; resume with --from-line at a line with its own G word")
+        elif modal.motion in ("G2", "G3"):
+            self._refuse_modal_arc(executed, modal.motion)
         lines.append(f"T{line_tag(executed - 1)}")
         return [f"{line}\n".encode("ascii") for line in lines]
+
+    def _refuse_modal_arc(self, executed: int, motion: str) -> None:
+        """An arc mode cannot be restored without a target: refuse if the next move relies on it."""
+        for line in self.program.lines[executed:]:
+            if _MOTION_WORD.search(line.command):
+                return
+            if re.search(r"[XYZ]", line.command):
+                raise FablineError(f"{self.program.name}:{line.file_line}: cannot restart before this line: it relies on "
+                                   f"modal {motion}; resume with --from-line at a line with its own G word")
 
     def _position_after(self, executed: int) -> tuple[float, float, float]:
         for block in reversed(self.blocks[:executed]):
@@ -571,12 +590,15 @@ class Streamer:
     def _read(self, timeout: float) -> list[Response]:
         """Classified lines that arrived within about `timeout` seconds."""
         try:
-            self._port.timeout = timeout
+            if self._port.timeout != timeout:  # setting it reconfigures a real tty: only when it changes
+                self._port.timeout = timeout
             data = self._port.read(max(1, self._port.in_waiting))
             if self._port.in_waiting:
                 data += self._port.read(self._port.in_waiting)
         except (serial.SerialException, OSError) as exc:
             raise _Lost(str(exc)) from None
+        if data:
+            self._last_heard = time.monotonic()
         responses = []
         for text in self._splitter.feed(data):
             response = classify(text)

@@ -68,7 +68,11 @@ class NestOptions:
 
 @dataclass
 class _OpenSheet:
-    """A sheet being filled: the layout sheet plus the geometry the raster canvas is rebuilt from."""
+    """A sheet being filled: the layout sheet plus the geometry the raster canvas is rebuilt from.
+
+    `misfits` holds the sorted extents of parts that found no room here: parts at least as large in both
+    directions are not tried again on this sheet.
+    """
 
     sheet: Sheet
     stock: StockItem
@@ -76,6 +80,7 @@ class _OpenSheet:
     polygons: list[Polygon] = field(default_factory=list)
     part_area: float = 0.0
     zone_area: float = 0.0
+    misfits: list[list[float]] = field(default_factory=list)
 
     def usable_area(self, margin: float) -> float:
         """Area inside the margins, mm²."""
@@ -317,11 +322,17 @@ def _place_irregular(shapes: list[NestShape], supply: _Supply, sheets: list[_Ope
         templates = _templates(representative, res, options)
         lattice = _lattice(templates) if len(members) >= LATTICE_MIN_COPIES else None
         remaining = list(members)
+        size = sorted(_extent(representative))
         for open_sheet in sheets:
             if not remaining:
                 break
-            if open_sheet.usable_area(options.margin) - open_sheet.zone_area >= representative.area:
-                remaining = _fill(open_sheet, remaining, templates, res, options, lattice)
+            if open_sheet.usable_area(options.margin) - open_sheet.zone_area < representative.area or \
+                    any(size[0] >= small and size[1] >= large for small, large in open_sheet.misfits):
+                continue
+            before = len(remaining)
+            remaining = _fill(open_sheet, remaining, templates, res, options, lattice)
+            if len(remaining) == before:
+                open_sheet.misfits.append(size)
         while remaining:
             item = next((s for s in supply.available() if _fits(representative, s, options)), None)
             if item is None:

@@ -198,16 +198,16 @@ def _lattice_points_within(a: np.ndarray, b: np.ndarray, shape: tuple[int, int])
 
 def lattice_spots(free: np.ndarray, lattice: Lattice) -> np.ndarray:
     """Cells (i, j) of the lattice coset with the most free positions, bottom row first."""
-    if not free.any():
+    i, j = np.nonzero(free)
+    if len(i) == 0:
         return np.zeros((0, 2), dtype=int)
+    i, j = i.astype(np.int64), j.astype(np.int64)
     (a0, a1), (b0, b1), det = lattice.a, lattice.b, lattice.cell_area
     # A cell's coordinates in the basis (a, b), times the determinant, are the integers below (the adjugate);
     # two cells are in the same coset exactly when both agree modulo the determinant.
-    i = np.arange(free.shape[0], dtype=np.int64)[:, None]
-    j = np.arange(free.shape[1], dtype=np.int64)[None, :]
     coset = ((b1 * i - b0 * j) % det) * det + (a0 * j - a1 * i) % det
-    best = np.bincount(coset[free], minlength=1).argmax()
-    return np.argwhere(free & (coset == best))
+    keep = coset == np.bincount(coset).argmax()
+    return np.column_stack([i[keep], j[keep]])
 
 
 def place_copies(canvas: Canvas, templates: list[Template], count: int,

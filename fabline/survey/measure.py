@@ -111,6 +111,10 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
     tag_ids = [t for t, k in zip(tag_ids, keep) if k]
     points, covariances, views = points[keep], covariances[keep], views[keep]
     node_ids = [tag_map.node_of_tag[t] for t in tag_ids]
+    if len(node_ids) < 3:
+        raise FablineError(f"only {len(node_ids)} tagged node(s) were seen in {options.min_views} or more photos that join "
+                           f"into one reconstruction ({len(reconstruction.unregistered_photos)} photo(s) share too few tags "
+                           f"with the rest); take more photos that overlap")
     design = np.array([model.nodes[n].xyz for n in node_ids]).reshape(-1, 3)
     reference = _reference_mask(options.reference, node_ids, model)
     rotation, translation, fit_rms = register(points, design, reference)

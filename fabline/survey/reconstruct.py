@@ -107,32 +107,38 @@ def initial_poses(observations: list[Observation], tag_size: float):
     cameras: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     tags: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     seen_by: dict[int, list[Observation]] = {}
+    single_view: set[int] = set()
     first = max(by_photo, key=lambda p: (len(by_photo[p]), -p))
     pending = set(by_photo)
+
+    def triangulate(tag: int) -> None:
+        views = [o for o in seen_by[tag] if o.photo in cameras]
+        corners = np.array([_triangulate([(*cameras[o.photo], o.normalised[c]) for o in views]) for c in range(4)])
+        tags[tag] = rigid_fit(model, corners)
+        single_view.discard(tag)
 
     def join(photo: int, rotation: np.ndarray, translation: np.ndarray) -> None:
         cameras[photo] = (rotation, translation)
         pending.discard(photo)
         for obs in by_photo[photo]:
             seen_by.setdefault(obs.tag, []).append(obs)
-        for obs in by_photo[photo]:
-            if obs.tag in tags:
-                continue
-            views = [o for o in seen_by[obs.tag] if o.photo in cameras]
-            if len(views) >= 2:
-                corners = np.array([_triangulate([(*cameras[o.photo], o.normalised[c]) for o in views]) for c in range(4)])
-                tags[obs.tag] = rigid_fit(model, corners)
-            else:
+            if obs.tag not in tags:
                 tag_rotation, tag_translation = single[photo, obs.tag]
                 tags[obs.tag] = (rotation.T @ tag_rotation, rotation.T @ (tag_translation - translation))
+                single_view.add(obs.tag)
+            elif obs.tag in single_view:
+                triangulate(obs.tag)  # a second view: replace the (possibly flipped) one-view square pose
 
     join(first, np.eye(3), np.zeros(3))
     while pending:
-        counts = {p: sum(o.tag in tags for o in by_photo[p]) for p in pending}
+        counts = {p: sum(o.tag in tags and o.tag not in single_view for o in by_photo[p]) + 0.5 * sum(o.tag in single_view for o in by_photo[p])
+                  for p in pending}
         photo = max(counts, key=lambda p: (counts[p], -p))
-        if counts[photo] < 2:
+        if counts[photo] < 1.5:
             break
-        known = [o for o in by_photo[photo] if o.tag in tags]
+        known = [o for o in by_photo[photo] if o.tag in tags and o.tag not in single_view]
+        if len(known) < 3:
+            known = [o for o in by_photo[photo] if o.tag in tags]
         world = np.concatenate([model @ tags[o.tag][0].T + tags[o.tag][1] for o in known])
         image = np.concatenate([o.normalised for o in known])
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(world, image.reshape(-1, 1, 2), np.eye(3), None,
@@ -143,6 +149,8 @@ def initial_poses(observations: list[Observation], tag_size: float):
         rvec, tvec = cv2.solvePnPRefineLM(world[inliers.ravel()], image[inliers.ravel()].reshape(-1, 1, 2),
                                           np.eye(3), None, rvec, tvec)
         join(photo, cv2.Rodrigues(rvec)[0], tvec.ravel())
+    for tag in [t for t in tags if len(seen_by[t]) >= 2]:
+        triangulate(tag)  # with every view that joined, not only those before the tag's second one
     unjoined = sorted(set(by_photo) - set(cameras))
     return first, cameras, tags, unjoined
 

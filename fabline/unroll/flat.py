@@ -36,8 +36,8 @@ class FlatCentreline:
         length = x[-1] - x[0]
         kappa = (kappa_at_x[1:] + kappa_at_x[:-1]) / 2.0
         line = cls(np.array([x[0], x[-1]]), np.zeros(1), np.zeros(2), np.array([[0.0, 0.0], [length, 0.0]]))
-        if not np.any(kappa):
-            return line
+        if np.abs(kappa).max() * length ** 2 / 8.0 < straight_tolerance:
+            return line  # no curve with |kappa| <= K strays more than K L^2 / 8 from its chord
         mean = float(np.sum(kappa * np.diff(x)) / length)
         if np.max(np.abs(kappa - mean)) * length ** 2 / 2.0 < straight_tolerance:
             x, kappa = np.array([x[0], x[-1]]), np.array([mean])
@@ -65,9 +65,12 @@ class FlatCentreline:
 
     def place(self, anchor: np.ndarray, dx: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Points at (dx, y) in the local frame at each station `anchor`."""
-        anchor, dx, y = np.broadcast_arrays(np.asarray(anchor, float), np.asarray(dx, float), np.asarray(y, float))
         if self.straight:
-            return np.column_stack([anchor - self.x[0] + dx, y])
+            x = np.asarray(anchor, dtype=float) - self.x[0] + dx
+            out = np.empty(np.broadcast(x, y).shape + (2,))
+            out[..., 0], out[..., 1] = x, y
+            return out
+        anchor, dx, y = np.broadcast_arrays(np.asarray(anchor, float), np.asarray(dx, float), np.asarray(y, float))
         origin, theta = self.at(anchor)
         c, s = np.cos(theta), np.sin(theta)
         return origin + np.column_stack([c * dx - s * y, s * dx + c * y])
@@ -115,6 +118,8 @@ def strip_outline(centre: FlatCentreline, start: float, end: float, height: floa
     Edge vertices sit at the notch corners and wherever the centreline's curvature changes; edge segments
     carry the bulge of their arc, notch sides are straight and notch ends half circles.
     """
+    if centre.straight:
+        return _straight_outline(end - start, height, top.centres - start, bottom.centres - start, top.width, top.depth)
     rows = []
     for edge_y, notches, forward in ((-height / 2.0, bottom, True), (height / 2.0, top, False)):
         breaks = centre.x[1:-1]
@@ -139,6 +144,23 @@ def strip_outline(centre: FlatCentreline, start: float, end: float, height: floa
     contour = np.vstack([contour, contour[:1]])
     contour[-1, 2] = 0.0
     return contour if np.any(contour[:, 2]) else contour[:, :2]
+
+
+def _straight_outline(length: float, height: float, top: np.ndarray, bottom: np.ndarray, width: float,
+                      depth: float) -> np.ndarray:
+    """`strip_outline` of a straight strip from x = 0 to `length`, built directly (the common, fast case)."""
+    half, y = width / 2.0, height / 2.0
+
+    def notches(centres: np.ndarray, sign: float) -> np.ndarray:
+        # sign -1: bottom edge, run towards +x; sign +1: top edge, run towards -x
+        rows = np.empty((len(centres), 4, 3))
+        rows[:, :, 0] = np.sort(centres)[::int(-sign)][:, None] + sign * half * np.array([1.0, 1.0, -1.0, -1.0])
+        rows[:, :, 1] = sign * np.array([y, y - depth + half, y - depth + half, y])
+        rows[:, :, 2] = [0.0, -1.0, 0.0, 0.0]
+        return rows.reshape(-1, 3)
+
+    return np.vstack([[[0.0, -y, 0.0]], notches(bottom, -1.0), [[length, -y, 0.0], [length, y, 0.0]],
+                      notches(top, 1.0), [[0.0, y, 0.0], [0.0, -y, 0.0]]])
 
 
 _QUARTERS = np.column_stack([np.cos(np.arange(5) * np.pi / 2.0), np.sin(np.arange(5) * np.pi / 2.0)])

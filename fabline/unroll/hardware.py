@@ -83,7 +83,8 @@ def washers(node: str, arm_angles_deg: list[float], sizes: HardwareSizes) -> lis
 
     Angles are taken relative to the first lamella and rounded to half a degree, the washer's tolerance.
     """
-    angles = tuple(sorted({round(((a - arm_angles_deg[0]) % 180.0) * 2.0) / 2.0 % 180.0 for a in arm_angles_deg}))
+    relative = ((np.asarray(arm_angles_deg, dtype=float) - arm_angles_deg[0]) % 180.0).tolist()
+    angles = tuple(sorted({round(a * 2.0) / 2.0 % 180.0 for a in relative}))
     outline = _star(angles, sizes.half_width, sizes.washer_reach)
     hole = _square(sizes.bolt_square, angles[1] / 2.0 if len(angles) > 1 else 0.0)
     name = "/".join(f"{a:g}" for a in angles[1:])
@@ -95,13 +96,23 @@ def washers(node: str, arm_angles_deg: list[float], sizes: HardwareSizes) -> lis
 def clamp(node: str, crossing_deg: float, sizes: HardwareSizes) -> Part:
     """The cross-shaped cable clamp of a node: arms along the two diagonals, a cable hole near each arm end."""
     angle = round(crossing_deg * 2.0) / 2.0
+    outline, holes = _clamp_shape(angle, sizes)
+    return Part(f"C-{node}", "clamp", outline, holes=list(holes), label=f"C {angle:g}",
+                meta={"node": node, "crossing_deg": angle})
+
+
+@lru_cache(maxsize=1024)
+def _clamp_shape(angle: float, sizes: HardwareSizes) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """Outline and holes of the clamp for one (rounded) crossing angle, shared by all clamps of that angle."""
     diagonals = [angle / 2.0, angle / 2.0 + 90.0]
     outline = _star(tuple(diagonals), sizes.half_width / 2.0, sizes.clamp_reach)
     holes = [_square(sizes.bolt_square, angle / 2.0)]
     for a in np.radians(diagonals + [d + 180.0 for d in diagonals]):
         centre = (sizes.clamp_reach - CABLE_HOLE) * np.array([np.cos(a), np.sin(a)])
-        holes.append(circle(centre, CABLE_HOLE / 2.0))
-    return Part(f"C-{node}", "clamp", outline, holes=holes, label=f"C {angle:g}", meta={"node": node, "crossing_deg": angle})
+        hole = circle(centre, CABLE_HOLE / 2.0)
+        hole.flags.writeable = False
+        holes.append(hole)
+    return outline, tuple(holes)
 
 
 def singularity_joints(node: str, arm_angles_deg: list[float], sizes: HardwareSizes) -> list[Part]:

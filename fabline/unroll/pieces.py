@@ -31,10 +31,9 @@ def segment_part(segment: Segment, options: UnrollOptions) -> Part:
     stations = np.concatenate([[a], xs[inside], [b]])
     centre = FlatCentreline.build(stations, np.interp(stations, xs, strip.geometry.k_n), options.straight_tolerance)
 
-    in_part = (strip.slot_x > a) & (strip.slot_x < b)
-    slot_x = strip.slot_x[in_part]
-    slot_nodes = [n for n, keep in zip(strip.slot_nodes, in_part) if keep]
-    slot_edges = [e for e, keep in zip(strip.slot_edges, in_part) if keep]
+    first, last = np.searchsorted(strip.slot_x, (a, b))  # slot_x is sorted
+    slot_x = strip.slot_x[first:last]
+    slot_nodes, slot_edges = strip.slot_nodes[first:last], strip.slot_edges[first:last]
     top = np.array([x for x, e in zip(slot_x, slot_edges) if e == "top"])
     bottom = np.array([x for x, e in zip(slot_x, slot_edges) if e == "bottom"])
     outline = strip_outline(centre, a, b, h, Notches(top, width, depth), Notches(bottom, width, depth))
@@ -44,7 +43,8 @@ def segment_part(segment: Segment, options: UnrollOptions) -> Part:
     sign = -1.0 if free_edge == "bottom" else 1.0           # which way from the centreline the free edge lies
     edge_y = sign * h / 2.0
     slot_end_y = sign * (h / 2.0 - options.free_height)     # where the other edge's slots end
-    in_nodes = [(n, float(x)) for n, x in zip(strip.node_ids, strip.node_x) if a < x < b]
+    first, last = np.searchsorted(strip.node_x, (a, b))  # node_x increases along the lamella
+    in_nodes = list(zip(strip.node_ids[first:last], strip.node_x[first:last].tolist()))
     slotted = set(slot_nodes)
     marks_at = np.array([x for _, x in in_nodes])
     mark_far = np.array([slot_end_y + sign * TEXT_GAP if n in slotted else -edge_y + sign * TEXT_GAP for n, _ in in_nodes])
@@ -53,11 +53,12 @@ def segment_part(segment: Segment, options: UnrollOptions) -> Part:
     height = options.engrave_height
     reach = node_text_reach(options, [n for n, _ in in_nodes]) if in_nodes else 0.0
     baseline = edge_y - sign * TEXT_GAP - (height if sign > 0 else 0.0)
-    items, blocked = [], [(a, a + options.overlap) if _is_seam(segment.start_join) else (a, a),
-                          (b - options.overlap, b) if _is_seam(segment.end_join) else (b, b)]
+    seams = [(a, a + options.overlap) if _is_seam(segment.start_join) else (a, a),
+             (b - options.overlap, b) if _is_seam(segment.end_join) else (b, b)]
+    items, blocked = [], list(seams)
     for nid, x in in_nodes:
         glyphs = layout(nid)
-        right = x + reach <= b - TEXT_GAP and not _inside_any(x + reach, blocked)
+        right = x + reach <= b - TEXT_GAP and not _inside_any(x + reach, seams)
         dx = TEXT_GAP if right else -TEXT_GAP - glyphs.width * height
         items.append((glyphs, x, dx, baseline, height))
         blocked.append((x - TEXT_GAP, x + reach) if right else (x - reach, x + TEXT_GAP))
@@ -200,5 +201,5 @@ def _seam_holes(centre: FlatCentreline, segment: Segment, options: UnrollOptions
     if not seams:
         return np.zeros((0, 2))
     x = (np.array(seams)[:, None] + SEAM_HOLE_COLUMNS[None, :] * options.overlap).ravel()
-    gx, gy = np.meshgrid(x, SEAM_HOLE_ROWS * options.profile.h)
-    return centre.place(gx.ravel(), np.zeros(gx.size), gy.ravel())
+    rows = SEAM_HOLE_ROWS * options.profile.h
+    return centre.place(np.tile(x, len(rows)), 0.0, np.repeat(rows, len(x)))

@@ -57,16 +57,18 @@ def _glyph(char: str) -> StrokeText:
 @lru_cache(maxsize=65536)
 def layout(text: str) -> StrokeText:
     """Lay out `text` on one line at cap height 1 (multiply by the wanted height)."""
-    points, starts, advance, count = [], [], 0.0, 0
-    for char in text:
-        glyph = _glyph(char)
-        points.append(glyph.points + (advance, 0.0))
-        starts.append(glyph.starts + count)
-        count += len(glyph.points)
-        advance += glyph.width
-    if not count:
+    glyphs = [_glyph(char) for char in text]
+    widths = [glyph.width for glyph in glyphs]
+    advance = sum(widths)
+    counts = [len(glyph.points) for glyph in glyphs]
+    if not sum(counts):
         return StrokeText(np.zeros((0, 2)), np.zeros(1, dtype=int), advance)
-    return StrokeText(np.concatenate(points), np.concatenate(starts), advance)
+    points = np.concatenate([glyph.points for glyph in glyphs])
+    points[:, 0] += np.repeat(np.cumsum([0.0] + widths[:-1]), counts)
+    first_row = np.cumsum([0] + counts[:-1])
+    starts = np.concatenate([glyph.starts for glyph in glyphs])
+    starts += np.repeat(first_row, [len(glyph.starts) for glyph in glyphs])
+    return StrokeText(points, starts, advance)
 
 
 def arrow(length: float, height: float) -> list[np.ndarray]:

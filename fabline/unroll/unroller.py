@@ -76,12 +76,9 @@ def hardware_parts(geometry: NetworkGeometry, options: UnrollOptions, sizes: Har
             neighbours.setdefault(b, []).append(a)
     clamped = checkerboard(sorted(neighbours), neighbours)
     singular = singular_nodes(geometry)
+    crossing = sorted(nid for nid, ts in tangents.items() if len(ts) >= 2)
     parts: list[Part] = []
-    for nid in sorted(tangents):
-        ts = tangents[nid]
-        if len(ts) < 2:
-            continue
-        angles = arm_angles(ts, geometry.network.nodes[nid].normal)
+    for nid, angles in zip(crossing, arm_angles(crossing, tangents, geometry.network)):
         if nid in singular and options.singularity == "joint":
             parts.extend(singularity_joints(nid, angles, sizes))
             continue
@@ -92,12 +89,19 @@ def hardware_parts(geometry: NetworkGeometry, options: UnrollOptions, sizes: Har
     return parts
 
 
-def arm_angles(tangents: list[np.ndarray], normal: np.ndarray) -> list[float]:
-    """Directions (degrees) of the lamellas at a node in its tangent plane, the first lamella at 0."""
-    first = tangents[0] - np.dot(tangents[0], normal) * normal
-    first /= np.linalg.norm(first)
-    second = np.cross(normal, first)
-    return [float(np.degrees(np.arctan2(np.dot(t, second), np.dot(t, first)))) for t in tangents]
+def arm_angles(nodes: list[str], tangents: dict[str, list[np.ndarray]], network: Network) -> list[list[float]]:
+    """Per node, the directions (degrees) of its lamellas in its tangent plane, the first lamella at 0."""
+    if not nodes:
+        return []
+    normals = np.array([network.nodes[nid].normal for nid in nodes], dtype=float)
+    first = np.array([tangents[nid][0] for nid in nodes])
+    first -= np.einsum("ij,ij->i", first, normals)[:, None] * normals
+    first /= np.linalg.norm(first, axis=1)[:, None]
+    second = np.cross(normals, first)
+    owner = np.repeat(np.arange(len(nodes)), [len(tangents[nid]) for nid in nodes])
+    all_t = np.array([t for nid in nodes for t in tangents[nid]])
+    angles = np.degrees(np.arctan2(np.einsum("ij,ij->i", all_t, second[owner]), np.einsum("ij,ij->i", all_t, first[owner])))
+    return np.split(angles, np.cumsum([len(tangents[nid]) for nid in nodes])[:-1])
 
 
 def _strip_row(strip: Strip, segments: list[Segment], options: UnrollOptions) -> dict:

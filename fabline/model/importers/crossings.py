@@ -1,6 +1,7 @@
 """Find a network's nodes in curves alone: where lamellas of family A cross lamellas of family B.
 
-Every polyline is cut into segments; a k-d tree over short pieces of them gives the candidate pairs,
+Every polyline is cut into segments; k-d trees over short pieces of them give the candidate pairs
+(family A pieces against family B pieces for crossings, all pieces for a curve touching itself), and
 the exact closest points of each candidate segment pair decide. A crossing is a closest approach
 within the tolerance; one between the tolerance and ten times it is reported as a near-miss. Three
 lamellas through one point make a singularity node. A curve that comes back to itself is refused.
@@ -140,7 +141,8 @@ class _Pieces:
 
     @classmethod
     def of(cls, segments: _Segments, reach: float) -> "_Pieces":
-        size = max(float(np.median(segments.length)), reach / NEAR_MISS_FACTOR)
+        # most segments whole (fewer pieces), a few long ones cut (a bounded search radius)
+        size = max(float(np.percentile(segments.length, 90)), reach / NEAR_MISS_FACTOR)
         count = np.ceil(segments.length / size).astype(np.int64)
         owner = np.repeat(np.arange(len(count)), count)
         offset = np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count)

@@ -4,7 +4,8 @@ Units come from the header's $INSUNITS. A curve's family comes from its layer na
 "FAMILY-A"); its id from fabline's XDATA (written by `fabline.model.writers`), else from a layer that
 holds that one curve only and names more than the family, else it is numbered. Splines, arcs and
 bulged polylines are flattened to polylines within 0.01 mm. MESH, POLYFACE and 3DFACE entities, if
-any, form the surface.
+any, form the surface. Model-space 3D polylines, the bulk of a large network, are read straight from
+the group codes with numpy; ezdxf reads everything else.
 """
 
 from __future__ import annotations
@@ -102,38 +103,41 @@ def _bulk_3d_polylines(path: str) -> _BulkPolylines | None:
     """Read every model-space 3D POLYLINE's vertices from the group codes with numpy, or None to leave all to ezdxf.
 
     ezdxf builds a Python object per VERTEX (~0.1 ms each), so a 20,000-node network of 200,000 curve
-    samples would take half a minute; here the file's (code, value) pairs are sliced as arrays and ezdxf
-    reads only what is left. Anything unusual (binary DXF, odd structure) returns None: the slow path.
+    samples would take half a minute; here the file's lines are located and its group codes parsed as
+    byte arrays, only the values needed are converted, and ezdxf reads what is left. Anything unusual
+    (binary DXF, a group code that is not a number, odd structure) returns None: the slow path.
     """
     try:
         if is_binary_dxf_file(path):
             return None
-        text = Path(path).read_text(encoding=dxf_file_info(path).encoding, errors="strict")
-    except (OSError, UnicodeDecodeError, LookupError, ezdxf.DXFError):
+        encoding = dxf_file_info(path).encoding
+        "".encode(encoding)  # an encoding Python does not know raises LookupError here
+        raw = Path(path).read_bytes()
+    except (OSError, LookupError, ezdxf.DXFError):
         return None
-    lines = text.splitlines()
-    if len(lines) % 2:
+    tags = _tag_lines(raw)
+    if tags is None:
         return None
-    values = lines[1::2]
-    try:  # few distinct group codes: convert each once
-        number = {code: int(code) for code in set(lines[0::2])}
-    except ValueError:
-        return None
-    codes = np.fromiter(map(number.__getitem__, lines[0::2]), dtype=np.int64, count=len(values))
+    codes, value_begin, value_end, next_begin = tags
+
+    def values(at: np.ndarray) -> list[bytes]:
+        return [raw[b:e] for b, e in zip(value_begin[at].tolist(), value_end[at].tolist())]
+
     starts = np.flatnonzero(codes == 0)
-    names = np.array([values[k] for k in starts.tolist()], dtype=object)
-    section = [i for i in np.flatnonzero(names == "SECTION").tolist()
-               if starts[i] + 1 < len(values) and values[starts[i] + 1] == "ENTITIES"]
+    names = np.array(values(starts), dtype=object)
+    section = [i for i in np.flatnonzero(names == b"SECTION").tolist()
+               if starts[i] + 1 < len(codes) and values(starts[i:i + 1] + 1) == [b"ENTITIES"]]
     if len(section) != 1:
         return None
     first = section[0] + 1
-    end = first + int(np.argmax(names[first:] == "ENDSEC"))
-    if names[end] != "ENDSEC" or end == first:
+    end = first + int(np.argmax(names[first:] == b"ENDSEC"))
+    if names[end] != b"ENDSEC" or end == first:
         return None
     entity_start, kind = starts[first:end], names[first:end]
     entity_stop = starts[first + 1:end + 1]
     # each VERTEX and SEQEND belongs to the POLYLINE before it; any other entity ends that run
-    marker = np.where(kind == "POLYLINE", np.arange(len(kind)), np.where(np.isin(kind, ["VERTEX", "SEQEND"]), -2, -1))
+    polyline = kind == b"POLYLINE"
+    marker = np.where(polyline, np.arange(len(kind)), np.where(np.isin(kind, [b"VERTEX", b"SEQEND"]), -2, -1))
     if marker[0] == -2:
         return None
     owner = marker[np.maximum.accumulate(np.where(marker != -2, np.arange(len(kind)), 0))]
@@ -141,43 +145,39 @@ def _bulk_3d_polylines(path: str) -> _BulkPolylines | None:
     tag_entity = np.repeat(np.arange(len(kind)), entity_stop - entity_start)
     tag_code = codes[offset:entity_stop[-1]]
 
-    def pick(at: np.ndarray) -> list[str]:
-        return [values[k] for k in (at + offset).tolist()]
-
-    def value_of(code: int, default: str, among: np.ndarray) -> np.ndarray:
+    def value_of(code: int, default: bytes, among: np.ndarray) -> np.ndarray:
         """The first value for `code` of each entity `among` marks, or `default`."""
         result = np.full(len(kind), default, dtype=object)
         at = np.flatnonzero((tag_code == code) & among[tag_entity])
         entity, first_at = np.unique(tag_entity[at], return_index=True)
-        result[entity] = pick(at[first_at])
+        result[entity] = values(at[first_at] + offset)
         return result
 
-    polyline = kind == "POLYLINE"
     try:
-        flags = value_of(70, "0", polyline | (kind == "VERTEX")).astype(np.int64)
-        paperspace = value_of(67, "0", polyline).astype(np.int64)
+        flags = np.array([int(v) for v in value_of(70, b"0", polyline | (kind == b"VERTEX"))], dtype=np.int64)
+        paperspace = np.array([int(v) for v in value_of(67, b"0", polyline)], dtype=np.int64)
     except ValueError:
         return None
     is_3d = polyline & ((flags & 8) != 0) & ((flags & (16 | 64)) == 0) & (paperspace == 0)
     taken = is_3d[np.maximum(owner, 0)] & (owner >= 0)
-    vertex = taken & (kind == "VERTEX") & ((flags & 16) == 0)  # 16: a spline frame control point, not on the curve
+    vertex = taken & (kind == b"VERTEX") & ((flags & 16) == 0)  # 16: a spline frame control point, not on the curve
     coordinates = []
     for code in (10, 20, 30):
         at = np.flatnonzero((tag_code == code) & vertex[tag_entity])
         if not np.array_equal(tag_entity[at], np.flatnonzero(vertex)):
             return None
         try:
-            coordinates.append(np.array(pick(at), dtype=float))
+            coordinates.append(np.array([float(v) for v in values(at + offset)]))
         except ValueError:
             return None
-    points = np.stack(coordinates, axis=1)
-    handle, layer = value_of(5, "?", is_3d), value_of(8, "0", is_3d)
+    points = np.stack(coordinates, axis=1).reshape(-1, 3)
+    handle, layer = value_of(5, b"?", is_3d), value_of(8, b"0", is_3d)
     xdata = {}  # entity -> lamella id from fabline's XDATA: 1001 FABLINE, then 1000 id
     for at in np.flatnonzero(tag_code == 1001).tolist():
         entity = int(tag_entity[at])
-        if (is_3d[entity] and values[at + offset] == XDATA_APP and at + 1 < len(tag_code)
-                and tag_code[at + 1] == 1000 and tag_entity[at + 1] == entity):
-            xdata[entity] = values[at + 1 + offset]
+        if (is_3d[entity] and at + 1 < len(tag_code) and tag_code[at + 1] == 1000 and tag_entity[at + 1] == entity
+                and values(np.array([at + offset])) == [XDATA_APP.encode()]):
+            xdata[entity] = values(np.array([at + 1 + offset]))[0].decode(encoding, "replace").strip()
     polylines = []
     vertex_owner = owner[vertex]
     bounds = np.searchsorted(vertex_owner, np.flatnonzero(is_3d), side="left").tolist() + [len(vertex_owner)]
@@ -185,12 +185,50 @@ def _bulk_3d_polylines(path: str) -> _BulkPolylines | None:
         curve = points[lo:hi]
         if flags[k] & 1 and len(curve):
             curve = np.vstack([curve, curve[:1]])
-        polylines.append((str(handle[k]), str(layer[k]), xdata.get(int(k)), curve))
+        polylines.append((handle[k].decode(encoding, "replace").strip(), layer[k].decode(encoding, "replace").strip(),
+                          xdata.get(int(k)), curve))
+    # the file without the taken entities: runs of kept tags, each copied as one slice of bytes
     keep = np.ones(len(codes), dtype=bool)
     keep[offset:entity_stop[-1]] = ~taken[tag_entity]
-    kept = np.flatnonzero(keep)
-    rest = "\n".join(line for k in kept.tolist() for line in (lines[2 * k], lines[2 * k + 1])) + "\n"
+    edges = np.flatnonzero(np.diff(np.r_[False, keep, False].astype(np.int8)))
+    line_begin = np.r_[0, next_begin[:-1]]
+    pieces = [raw[line_begin[lo]:next_begin[hi - 1]] for lo, hi in zip(edges[0::2].tolist(), edges[1::2].tolist())]
+    try:
+        rest = b"".join(pieces).decode(encoding)
+    except UnicodeDecodeError:
+        return None
     return _BulkPolylines(polylines, rest)
+
+
+def _tag_lines(raw: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Per (code, value) line pair of an ASCII DXF: the group code, where its value's text begins and ends
+    (without the line break), and where the next pair begins; None if a group code is not a number."""
+    data = np.frombuffer(raw, dtype=np.uint8)
+    breaks = np.flatnonzero(data == 10)
+    if len(raw) and raw[-1:] != b"\n":
+        breaks = np.r_[breaks, len(raw)]
+    if len(breaks) == 0 or len(breaks) % 2:
+        return None
+    begin = np.r_[0, breaks[:-1] + 1]
+    end = breaks - ((breaks > begin) & (data[np.maximum(breaks - 1, 0)] == 13))  # without a "\r"
+    code_begin, code_end = begin[0::2], end[0::2]
+    width = code_end - code_begin
+    if width.min() < 1 or width.max() > 6:
+        return None
+    # read right to left: digits, then only leading spaces ("  0", " 10", "1001")
+    codes = np.zeros(len(code_begin), dtype=np.int64)
+    in_number = np.ones(len(code_begin), dtype=bool)
+    for place in range(6):
+        present = place < width
+        char = np.where(present, data[np.maximum(code_end - 1 - place, 0)], 32)
+        digit = (char >= 48) & (char <= 57)
+        if np.any(present & ~digit & (char != 32)) or np.any(digit & ~in_number):
+            return None
+        in_number &= digit
+        codes += np.where(digit, (char.astype(np.int64) - 48) * 10 ** place, 0)
+        if place == 0 and not in_number.all():
+            return None
+    return codes, begin[1::2], end[1::2], np.minimum(breaks[1::2] + 1, len(raw))
 
 
 def _declared_units(doc, path: str) -> str | None:

@@ -107,7 +107,7 @@ def _curve_points(curve, sagitta: float, path: str, where: str) -> np.ndarray:
         return points
     knots = list(nurbs.Knots)
     spline = BSpline(points, order=nurbs.Degree + 1, knots=[knots[0], *knots, knots[-1]],
-                     weights=weights if nurbs.IsRational else None)
+                     weights=weights.tolist() if nurbs.IsRational else None)
     return np.asarray(list(spline.flattening(sagitta)), dtype=float)
 
 

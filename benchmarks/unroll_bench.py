@@ -1,0 +1,48 @@
+"""Unroll speed: the pavilion-sized Enneper network and a 20,000-node one (same 0.35 m spacing, 6.2 times the span).
+
+Run `python benchmarks/unroll_bench.py [--quick]`; prints wall and CPU seconds for the geometry (fabline.geometry)
+and the unroll proper (strips, seams, parts, hardware, structural check). The goal is under 2 s for the
+unroll of the 20,000-node model. CPU time is shown beside wall time because the machine may be shared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from fabline.geometry import analyse
+from fabline.model.designs import enneper_network
+from fabline.unroll import UnrollOptions, unroll_network
+
+MODELS = {
+    "pavilion 9x12 m": dict(size=(9.0, 12.0), spacing=0.35, k_max=1.1),
+    "20k nodes 56x74 m": dict(size=(56.0, 74.0), spacing=0.35, k_max=1.1 / 6.2),
+}
+
+
+def timed(function, *args, **kwargs):
+    """Result, wall seconds and CPU seconds of one call."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    result = function(*args, **kwargs)
+    return result, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--quick", action="store_true", help="only the pavilion-sized model")
+    args = parser.parse_args()
+    models = dict(list(MODELS.items())[:1]) if args.quick else MODELS
+    print(f"{'model':<20}{'nodes':>7}{'lamellas':>9}{'step':<22}{'parts':>7}{'wall s':>9}{'cpu s':>9}")
+    for name, spec in models.items():
+        network = enneper_network(**spec)
+        geometry, wall, cpu = timed(analyse, network)
+        head = f"{name:<20}{len(network.nodes):>7}{len(network.lamellas):>9}"
+        print(f"{head}{'  geometry':<22}{'':>7}{wall:>9.2f}{cpu:>9.2f}")
+        for label, options in (("  unroll, strips only", UnrollOptions(hardware=False)),
+                               ("  unroll, + hardware", UnrollOptions())):
+            parts, wall, cpu = timed(unroll_network, network, options, geometry)
+            print(f"{'':<36}{label:<22}{len(parts.parts):>7}{wall:>9.2f}{cpu:>9.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,108 @@
+"""The runner's web page: 403 without the token, and in headless Chromium: load, confirm sheets, watch it finish."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import threading
+import time
+
+import httpx
+import pytest
+import uvicorn
+
+from fabline.jobs.queue import JobQueue
+from fabline.jobs.runner import MachineConfig, Runner
+from fabline.jobs.web import TOKEN_HEADER, create_app
+from runner_helpers import executed_program_lines, square_program, wire_lines
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+TOKEN = "s3cret-token"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def served(tmp_path):
+    """A queue with one 2-sheet job, a runner on one simulated machine, and the web server on 127.0.0.1."""
+    db = tmp_path / "runner.sqlite"
+    queue = JobQueue(db)
+    sheets = [square_program(tmp_path / f"sheet{k + 1}.gcode", 30, 30 + 40 * k, squares=6) for k in range(2)]
+    job_id = queue.submit("web-job", programs=[(p.stem, str(p), "") for p in sheets])
+    log = tmp_path / "executed.log"
+    runner = Runner(db, [MachineConfig("m1", f"sim://web-m1?time_scale=20&log={log}")], poll=0.05, prepare=False)
+    runner.start()
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(create_app(db, TOKEN, poll=0.1), host="127.0.0.1", port=port,
+                                           log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not server.started and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert server.started
+    yield {"url": f"http://127.0.0.1:{port}", "queue": queue, "job": job_id, "sheets": sheets, "log": log}
+    server.should_exit = True
+    thread.join(10)
+    runner.stop()
+
+
+def test_state_changes_need_the_token(served):
+    url, job = served["url"], served["job"]
+    with httpx.Client(base_url=url, timeout=10) as client:
+        assert client.get("/api/state").status_code == 200
+        assert client.post(f"/api/jobs/{job}/confirm").status_code == 403
+        assert client.post(f"/api/jobs/{job}/cancel", headers={TOKEN_HEADER: "wrong"}).status_code == 403
+        assert client.post("/api/jobs", json={"job_file": "x.toml"}).status_code == 403
+        assert served["queue"].job(job).confirmed == -1, "a refused request changes nothing"
+        answer = client.post(f"/api/jobs/{job}/frobnicate", headers={TOKEN_HEADER: TOKEN})
+        assert answer.status_code == 404
+        answer = client.post(f"/api/jobs/{job}/resume", headers={TOKEN_HEADER: TOKEN})
+        assert answer.status_code == 409 and "not paused" in answer.json()["error"]
+        assert client.post("/api/jobs/77/confirm", headers={TOKEN_HEADER: TOKEN}).status_code == 409
+        picture = client.get(f"/api/jobs/{job}/sheets/0.svg")
+        assert picture.status_code == 200 and picture.text.startswith("<svg")
+        assert client.get(f"/api/jobs/{job}/sheets/5.svg").status_code == 404
+
+
+def test_the_server_binds_to_localhost_only_by_default():
+    from fabline.cli import build_parser
+
+    args = build_parser().parse_args(["runner", "serve"])
+    assert args.host == "127.0.0.1"
+
+
+def test_page_in_headless_chromium_confirm_sheets_and_watch_progress_reach_done(served):
+    if not os.path.exists(CHROMIUM):
+        pytest.skip(f"{CHROMIUM} is missing (CI installs it: apt-get install -y chromium)")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright for Python is missing (pip install playwright)")
+    job, queue = served["job"], served["queue"]
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=shutil.which(CHROMIUM) or CHROMIUM, args=CHROMIUM_ARGS)
+        page = browser.new_page()
+        page.goto(f"{served['url']}/?token={TOKEN}")
+        row = page.locator(f"#queue tr[data-job='{job}']")
+        sync_api.expect(row).to_have_attribute("data-state", "ready")
+        for k in range(2):
+            confirm = page.locator(f".machine button.confirm[data-job='{job}']")
+            sync_api.expect(confirm).to_be_visible(timeout=20000)
+            sync_api.expect(confirm).to_contain_text(f"sheet{k + 1}")
+            confirm.click()
+            progress = page.locator(".machine .sheet-progress")
+            sync_api.expect(progress).to_contain_text(f"cutting sheet {k + 1} of 2", timeout=20000)
+            picture = page.locator(".machine img")
+            sync_api.expect(picture).to_be_visible()
+            assert page.evaluate("() => document.querySelector('.machine img').complete")
+        sync_api.expect(row).to_have_attribute("data-state", "done", timeout=60000)
+        sync_api.expect(row.locator(".state")).to_have_text("done")
+        browser.close()
+    assert queue.job(job).state == "done"
+    expected = [line for sheet in served["sheets"] for line in wire_lines(sheet)]
+    assert executed_program_lines(served["log"]) == expected
