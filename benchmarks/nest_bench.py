@@ -132,7 +132,8 @@ def _figures(partset: PartSet, sheets: list[Sheet], options: NestOptions, area: 
     return used, area / (used * SHEET[0] * SHEET[1]), verdict
 
 
-def run_instance(name: str, partset: PartSet, options: NestOptions, peers: list[str], spyrrow_time: int) -> list[dict]:
+def run_instance(name: str, partset: PartSet, options: NestOptions, peers: list[str], spyrrow_time: int,
+                 spyrrow_max_parts: int) -> list[dict]:
     """Every method on one instance; rows for the table."""
     rows = []
     started = time.perf_counter()
@@ -151,6 +152,10 @@ def run_instance(name: str, partset: PartSet, options: NestOptions, peers: list[
             elif peer == "rectpack":
                 sheets = rectpack_maxrects(shapes, options)
             elif peer == "spyrrow":
+                if len(shapes) > spyrrow_max_parts:
+                    rows.append({"method": "spyrrow*", "sheets": None, "utilisation": None, "seconds": None,
+                                 "valid": f"skipped: over --spyrrow-max-parts {spyrrow_max_parts}"})
+                    continue
                 length = spyrrow_strip(shapes, options, spyrrow_time)
                 seconds = time.perf_counter() - started
                 count = length / (SHEET[0] - 2 * options.margin)
@@ -180,26 +185,26 @@ def main() -> None:
     parser.add_argument("--scale", type=int, action="append", help="instance sizes to run (default 1 and 10)")
     parser.add_argument("--peers", default="ffd,rectpack,spyrrow", help="comma-separated peers to run")
     parser.add_argument("--spyrrow-time", type=int, default=60, help="seconds for spyrrow per instance (default 60)")
+    parser.add_argument("--spyrrow-max-parts", type=int, default=5000,
+                        help="skip spyrrow on larger instances (it needs far more than its time budget there)")
     parser.add_argument("--time-limit", type=float, default=10.0, help="fabline's strip solver time limit")
     args = parser.parse_args()
     options = NestOptions(kerf=0.2, gap=3.0, margin=10.0, time_limit=args.time_limit)
     peers = [p for p in args.peers.split(",") if p]
-    rows = []
-    for scale in args.scale or [1, 10]:
-        partset = replicate(load_parts(args.parts), scale) if args.parts else pavilion_parts(scale)
-        rows += run_instance(f"{Path(args.parts).stem if args.parts else 'pavilion'} x{scale}", partset, options,
-                             peers, args.spyrrow_time)
     print(f"sheet {SHEET[0]:g} x {SHEET[1]:g} mm, margin {options.margin:g}, gap {options.gap:g}, kerf {options.kerf:g}\n")
     header = (f"{'instance':<14}{'parts':>7}  {'method':<10}{'sheets':>7}{'util %':>8}{'LB area':>9}{'LB clear':>9}"
               f"{'LB strip':>9}{'time s':>8}  check")
     print(header)
-    print("-" * len(header))
-    for r in rows:
-        sheets = "-" if r["sheets"] is None else str(r["sheets"])
-        util = "-" if r["utilisation"] is None else f"{100 * r['utilisation']:.1f}"
-        secs = "-" if r["seconds"] is None else f"{r['seconds']:.1f}"
-        print(f"{r['instance']:<14}{r['parts']:>7}  {r['method']:<10}{sheets:>7}{util:>8}{r['lb_area']:>9}"
-              f"{r['lb_clearance']:>9}{r['lb_strip_lp']:>9}{secs:>8}  {r['valid']}")
+    print("-" * len(header), flush=True)
+    for scale in args.scale or [1, 10]:
+        partset = replicate(load_parts(args.parts), scale) if args.parts else pavilion_parts(scale)
+        for r in run_instance(f"{Path(args.parts).stem if args.parts else 'pavilion'} x{scale}", partset, options,
+                              peers, args.spyrrow_time, args.spyrrow_max_parts):
+            sheets = "-" if r["sheets"] is None else str(r["sheets"])
+            util = "-" if r["utilisation"] is None else f"{100 * r['utilisation']:.1f}"
+            secs = "-" if r["seconds"] is None else f"{r['seconds']:.1f}"
+            print(f"{r['instance']:<14}{r['parts']:>7}  {r['method']:<10}{sheets:>7}{util:>8}{r['lb_area']:>9}"
+                  f"{r['lb_clearance']:>9}{r['lb_strip_lp']:>9}{secs:>8}  {r['valid']}", flush=True)
     print("\n* spyrrow packs one strip of the sheet's usable height; its sheet count is the strip length over the "
           "usable sheet length, rounded up (parts may straddle sheet edges), so it is optimistic.")
 

@@ -114,6 +114,7 @@ def test_sheet_larger_than_the_bed(cli, job):
     (lambda t: t.replace("power = 1000", "power = 1200", 1), "operations.cut-inner.power: 1200"),
     (lambda t: t.replace('tool_on = ["M4 S{power}"]', 'tool_on = ["M3 S{power}"]'), "tool_on: M3 is not in the profile's words"),
     (lambda t: t.replace("passes = 1", "passes = 0", 1), "operations.engrave-mark.passes"),
+    (lambda t: t.replace('"G2", "G3", ', ""), "words: must include G2"),
 ])
 def test_bad_machine_profiles_name_the_file_and_the_field(cli, job, edit, field):
     folder, _, _ = job

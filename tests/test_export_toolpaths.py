@@ -128,3 +128,19 @@ def test_tabs_leave_bridges_and_lead_ins_start_on_the_scrap_side():
             assert not body.contains(first) and body.exterior.distance(first) > 2.0
         elif run["comment"] == "cut-inner P":
             assert shapely.Point(200, 150).distance(first) < 10.0 - 2.0
+
+
+def test_a_profile_without_arcs_gets_lines_within_tolerance(tmp_path):
+    (tmp_path / "no-arcs.toml").write_text('extends = "grbl-laser"\nname = "no-arcs"\narcs = false\n'
+                                           'words = ["G0", "G1", "G4", "G17", "G21", "G90", "G94", "M2", "M4", "M5"]\n')
+    nesting, partset = every_kind_nesting(), every_kind_partset()
+    result = export_job(nesting, {p.id: p for p in partset.parts}, load_machine(str(tmp_path / "no-arcs.toml")),
+                        ToolpathOptions(kerf=0.2))
+    gcode = result.sheets[0].gcode
+    assert not [line for line in gcode.splitlines() if line.startswith(("G2 ", "G3 "))]
+    cuts = [run for run in read_toolpaths(gcode) if run["comment"].startswith("cut")]
+    for part_id, role, contour in placed_contours(nesting, partset):
+        expected = truth_ring(contour, 0.1, role).exterior
+        best = min(shapely.LinearRing(c["points"]).hausdorff_distance(expected)
+                   for c in cuts if c["comment"] == f"cut-{role} {part_id}")
+        assert best < 0.01, (part_id, role, best)

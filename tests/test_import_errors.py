@@ -112,6 +112,9 @@ def bad_input(case: str, tmp_path, surface):
         path = _write(tmp_path, "four.obj", obj_text({**CROSS, "A-2": line((-1, -1, 0), (1, 1, 0)),
                                                       "B-2": line((-1, 1, 0), (1, -1, 0))}))
         return [path, "--surface", surface], "4 lamellas meet at (0, 0, 0)"
+    if case == "a curve drawn twice":
+        path = _write(tmp_path, "twice.obj", obj_text({**CROSS, "A-2": CROSS["A-1"]}))
+        return [path, "--surface", surface], f"{path}: lamellas A-1 and A-2 (both family A) run together"
     if case == "missing normals":
         path = _write(tmp_path, "bare.obj", obj_text(CROSS))
         return [path], f"{path}: missing normals: give --surface"
@@ -160,7 +163,7 @@ def bad_input(case: str, tmp_path, surface):
 
 CASES = ["malformed OBJ vertex", "malformed OBJ reference", "malformed DXF", "NaN coordinate", "zero-length curve",
          "self-overlapping curve", "curves that never cross", "a lamella that crosses nothing", "only one family",
-         "duplicate lamella id", "four lamellas at one point", "missing normals", "mixed units: declared",
+         "duplicate lamella id", "four lamellas at one point", "a curve drawn twice", "missing normals", "mixed units: declared",
          "mixed units: surface scale", "mixed units: DXF surface", "unknown file type", "missing file",
          "surface without faces", "mixed units: JSON", "zero tolerance", "malformed JSON"]
 

@@ -33,13 +33,14 @@ def test_example_job_parses_with_defaults_filled_in():
     spec = load_job_file(REPO / "jobs" / "pavilion.toml")
     assert spec.name == "pavilion"
     assert spec.model == {"design": "enneper", "options": {"size": (9.0, 12.0), "spacing": 0.35, "k_max": 1.1}}
-    assert spec.machine["port"] == "sim://grbl"
+    assert spec.machine["ports"] == [f"sim://grbl-{k}" for k in range(1, 7)]
     assert spec.stages == ("unroll", "nest", "export", "stream", "report")
     assert spec.output_folder == (REPO / "out" / "pavilion").resolve()
 
 
 def test_defaults_and_relative_paths(tmp_path):
     spec = load_job_file(write(tmp_path, GOOD))
+    assert spec.machine["ports"] == ["sim://grbl"]
     assert spec.stages == DEFAULT_STAGES
     assert spec.lamella == {"material": "stainless", "profile": "100x1.5", "materials_file": None}
     assert spec.output_folder == (tmp_path / "out").resolve()
@@ -59,6 +60,10 @@ def test_required_keys(tmp_path):
     ("colour = 3", "job.toml: colour: unknown key"),
     ("[machine]\nspeed = 3", "job.toml: machine.speed: unknown key"),
     ("[machine]\nport = 7", "job.toml: machine.port: expected a string, got integer 7"),
+    ("[machine]\nports = [\"sim://a\", 3]", "job.toml: machine.ports[1]: expected a string, got integer 3"),
+    ("[machine]\nports = []", "job.toml: machine.ports: give at least one port"),
+    ("[machine]\nports = [\"sim://a\", \"sim://a\"]", "job.toml: machine.ports: a port is listed twice"),
+    ("[machine]\nport = \"sim://a\"\nports = [\"sim://b\"]", "job.toml: machine: give machine.port or machine.ports"),
     ("[machine]\ntime_scale = \"fast\"", "job.toml: machine.time_scale: expected a number, got string 'fast'"),
     ("[machine]\ntime_scale = -1.0", "job.toml: machine.time_scale: must be positive"),
     ("[machine]\nprofile = \"laser9000\"", "job.toml: machine.profile: unknown machine 'laser9000'"),

@@ -16,7 +16,7 @@ from fabline.link import load_program
 from fabline.model import load_network
 from fabline.nest import load_nesting
 from fabline.unroll import get_material, load_parts, parse_profile
-from runner_helpers import executed_program_lines
+from test_runner_support import executed_program_lines
 
 JOB = """
 name = "tiny"
@@ -26,9 +26,11 @@ design = "enneper"
 [model.options]
 size = [1.5, 1.5]
 spacing = 0.5
+[stock]
+sheet = "1200x500"
 [machine]
 time_scale = 1000.0
-port = "sim://pipeline-test?log={log}"
+ports = ["sim://pipeline-1?log={log}1", "sim://pipeline-2?log={log}2"]
 [output]
 folder = "out"
 """
@@ -79,17 +81,26 @@ def test_run_prints_where_the_report_is(run):
 
 def test_every_output_stays_inside_the_output_folder(run):
     outside = [p for p in run["folder"].rglob("*") if p.is_file() and run["dir"] not in p.parents]
-    assert sorted(p.name for p in outside) == ["executed.log", "tiny.toml"]
+    assert sorted(p.name for p in outside) == ["executed.log1", "executed.log2", "tiny.toml"]
 
 
-def test_the_simulator_executed_every_program_line_once_in_order(run):
+def test_the_two_simulators_executed_every_program_line_once_in_order(run):
+    """Each sheet is cut whole on one machine, in order; together the machines cut every sheet exactly once."""
     nesting = load_nesting(run["dir"] / "nesting.json")
     programs = sorted((run["dir"] / "gcode").glob("*.gcode"))
-    assert len(programs) == len(nesting.sheets) >= 1
-    expected = [line.wire.decode().strip() for p in programs for line in load_program(p).lines]
-    assert executed_program_lines(run["log"]) == expected
+    assert len(programs) == len(nesting.sheets) >= 3
+    wires = {p.name: [line.wire.decode().strip() for line in load_program(p).lines] for p in programs}
     data = json.loads((run["dir"] / "report.json").read_text())
-    assert data["stream"]["finished"] and data["stream"]["executed"] == data["stream"]["lines"] == len(expected)
+    cut_on = {Path(s["program"]).name: s["port"] for s in data["stream"]["sheets"]}
+    assert sorted(cut_on) == sorted(wires)
+    for k in (1, 2):
+        log = Path(f"{run['log']}{k}")
+        mine = [name for name in sorted(wires) if cut_on[name].startswith(f"sim://pipeline-{k}")]
+        assert mine, f"machine {k} cut no sheet"
+        # machines take the sheets in order, so a log is its machine's programs back to back in sheet order
+        assert executed_program_lines(log) == [line for name in mine for line in wires[name]]
+    assert data["stream"]["finished"]
+    assert data["stream"]["executed"] == data["stream"]["lines"] == sum(len(w) for w in wires.values())
 
 
 def test_every_part_is_nested_once_and_labelled_on_its_sheet_picture(run):
@@ -109,7 +120,7 @@ def test_pictures_come_first_and_the_page_is_self_contained(run):
     nesting = load_nesting(run["dir"] / "nesting.json")
     assert page.tags.count("svg") == 1 + len(nesting.sheets)
     assert page.tags.index("svg") < page.tags.index("table"), "pictures before tables"
-    assert not re.search(r'(src|href)="(?!#)', html), "no external resources"
+    assert not re.search(r'(src|href)="(?!#|data:)', html), "no external resources"
     assert "<script" not in html
 
 
@@ -134,3 +145,26 @@ def test_missing_model_file_is_one_line_exit_2_nothing_written(tmp_path, cli):
     assert code == 2
     assert err.startswith("fabline run: error: bad.toml: model.file: file not found:") and err.count("\n") == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_report_shows_a_survey_result_with_its_deviation_map(tmp_path):
+    import base64
+
+    import cv2
+    import numpy as np
+
+    survey = {"schema": "fabline.survey/1", "summary": {"nodes": 9, "measured": 8, "rms_deviation_mm": 3.25}}
+    (tmp_path / "survey").mkdir()
+    (tmp_path / "survey" / "survey.json").write_text(json.dumps(survey), encoding="utf-8")
+    ok, png = cv2.imencode(".png", np.full((8, 8, 3), 200, np.uint8))
+    (tmp_path / "survey" / "deviation_map.png").write_bytes(png.tobytes())
+    job = tmp_path / "built.toml"
+    job.write_text('name = "built"\nstages = ["report"]\n[model]\ndesign = "enneper"\n[model.options]\n'
+                   'size = [1.5, 1.5]\nspacing = 0.5\n[survey]\nresult = "survey/survey.json"\n[output]\nfolder = "out"\n',
+                   encoding="utf-8")
+    assert main(["run", str(job), "--quiet"]) == 0
+    data = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert data["survey"] == survey and data["stream"]["sheets"] == []
+    html = (tmp_path / "out" / "report.html").read_text()
+    assert "<td>rms_deviation_mm</td><td>3.25</td>" in html
+    assert f'src="data:image/png;base64,{base64.b64encode(png.tobytes()).decode()}"' in html

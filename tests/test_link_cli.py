@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import os
 import pty
+import sys
+import termios
+import time
 import uuid
 
 import pytest
@@ -103,3 +106,57 @@ def test_resume_without_a_journal(cli, gcode, simulator):
 def test_grbl_sim_rejects_unknown_fault(cli):
     code, _, err = cli("grbl-sim", "--fault", "explode=1")
     assert code == 2 and "unknown simulator option(s) ['explode']" in err
+
+
+def test_keyboard_pauses_resumes_and_aborts_on_a_terminal(monkeypatch):
+    from fabline.cli.link import _keyboard
+
+    class Recorder:
+        paused = False
+        calls: list[str] = []
+
+        def pause(self):
+            self.paused = True
+            self.calls.append("pause")
+
+        def resume(self):
+            self.paused = False
+            self.calls.append("resume")
+
+        def abort(self):
+            self.calls.append("abort")
+
+    master, slave = pty.openpty()
+    terminal = os.fdopen(slave, "r")
+    monkeypatch.setattr(sys, "stdin", terminal)
+    saved = termios.tcgetattr(slave)
+    recorder = Recorder()
+    try:
+        with _keyboard(recorder, interactive=True):
+            for key, count in ((b"p", 1), (b" ", 2), (b"x", 2), (b"q", 3)):
+                os.write(master, key)
+                deadline = time.monotonic() + 5
+                while len(recorder.calls) < count and time.monotonic() < deadline:
+                    time.sleep(0.01)
+            time.sleep(0.2)
+        assert recorder.calls == ["pause", "resume", "abort"]
+        assert termios.tcgetattr(slave) == saved  # the terminal is left as it was
+    finally:
+        terminal.close()
+        os.close(master)
+
+
+def test_controller_left_in_check_mode_is_taken_out_of_it(cli, gcode, simulator):
+    from fabline.link.protocol_sim import get_simulator
+
+    url, log = simulator
+    port = serial.serial_for_url(url())  # a host that turns check mode on, then vanishes
+    port.write(b"$C\n")
+    port.close()
+    name = url().split("?")[0][len("sim://"):]
+    deadline = time.monotonic() + 5
+    while get_simulator(name).state != "Check" and time.monotonic() < deadline:
+        time.sleep(0.01)
+    code, _, err = cli("stream", gcode, "--port", url())
+    assert code == 0, err
+    assert executed_file_lines(log) == list(range(1, 65))

@@ -210,3 +210,21 @@ def test_a_controller_that_falls_silent_is_treated_as_a_lost_connection(job, sim
     time.sleep(1.6)
     assert Streamer(url, status_interval=0.05).run(program, resume=True).completed
     assert executed_file_lines(log) == expected_lines(program)
+
+
+def test_resume_when_the_host_died_during_a_feed_hold(job, sim_url):
+    program, log = job
+    url = sim_url(time_scale=10)
+    streamer = Streamer(url, status_interval=0.05)
+
+    def pause_then_die(progress):
+        if progress.acked > 60 and not streamer.paused:
+            streamer.pause()
+        elif streamer.paused and progress.state == "Hold":
+            raise KeyboardInterrupt  # the host goes away with the machine held mid-cut
+
+    with pytest.raises(KeyboardInterrupt):
+        streamer.run(program, on_progress=pause_then_die)
+    speed_up(url)
+    assert Streamer(url, status_interval=0.05).run(program, resume=True).completed
+    assert executed_file_lines(log) == expected_lines(program)

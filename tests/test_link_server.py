@@ -34,3 +34,16 @@ def test_wire_never_exceeds_the_byte_rate():
 def test_server_reports_a_bad_option():
     with pytest.raises(Exception, match="unknown simulator option"):
         SimulatorServer(faults={"explode": 1}).start()
+
+
+def test_dropped_tcp_connection_is_reconnected_and_the_job_finishes(tmp_path):
+    program = tmp_path / "job.gcode"
+    program.write_text("G21\nG90\nM4 S500\n" + "".join(f"G1 X{i % 9}.25 Y{i % 4}.5 F3000\n" for i in range(200))
+                       + "M5\n", encoding="ascii")
+    log = tmp_path / "executed.log"
+    with SimulatorServer(log=log, time_scale=200, faults={"drop_at": "1500,4000"}) as server:
+        result = Streamer(server.url, status_interval=0.05, reconnect_timeout=10).run(program)
+    assert result.completed
+    assert executed_file_lines(log) == [line.file_line for line in load_program(program).lines]
+    journal = (tmp_path / "job.gcode.journal").read_text()
+    assert journal.count('"event":"resume"') == 2 and journal.count("connection lost") == 2

@@ -142,3 +142,15 @@ def test_executed_log_records_lines_in_order(tmp_path):
         assert re.match(r"<Idle\|MPos:5\.000,5\.000,0\.000", host.status())
     finally:
         simulator.close()
+
+
+def test_jog_cancel_stops_a_jog_and_keeps_the_position(host):
+    from fabline.link.protocol import JOG_CANCEL
+
+    host.simulator.receive(b"$J=G91X50F600\n")
+    assert host.read(1) == ["ok"]
+    time.sleep(0.3)
+    assert host.status().startswith("<Jog|")
+    host.simulator.receive(JOG_CANCEL)
+    report = classify(host.status()).status
+    assert report.state == "Idle" and 0 < report.mpos[0] < 50

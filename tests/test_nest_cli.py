@@ -131,3 +131,20 @@ def test_sheet_size_and_options_are_checked(cli, small_parts, tmp_path):
     code, _, err = cli("nest", small_parts)
     assert code == 2 and "-o" in err
     assert not (tmp_path / "n.json").exists()
+
+
+@pytest.mark.parametrize("fill_holes", [False, True])
+def test_small_parts_go_into_large_holes_only_when_allowed(fill_holes, cli, tmp_path):
+    parts = pavilion_like_parts(strip_metres=0, curved=0, washers=6, clamps=4, joints=2, seed=5)
+    save_parts(parts, tmp_path / "parts.json")
+    args = ["--fill-holes"] if fill_holes else []
+    code, _, err = cli("nest", tmp_path / "parts.json", "-o", tmp_path / "n.json", "--sheet", "1000x600", *args)
+    assert code == 0, err
+    nesting = load_nesting(tmp_path / "n.json")
+    placements = {p.part: p for s in nesting.sheets for p in s.placements}
+    joints = [p for pid, p in placements.items() if pid.startswith("J")]
+    small = [p for pid, p in placements.items() if pid[0] in "WC"]
+    # The joint's round hole has radius 70 mm about the joint's origin.
+    inside = [s.part for j in joints for s in small if np.hypot(s.x - j.x, s.y - j.y) < 70]
+    assert (len(inside) == len(joints)) if fill_holes else not inside
+    assert validate_nesting(nesting, parts) == []

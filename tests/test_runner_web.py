@@ -15,7 +15,7 @@ import uvicorn
 from fabline.jobs.queue import JobQueue
 from fabline.jobs.runner import MachineConfig, Runner
 from fabline.jobs.web import TOKEN_HEADER, create_app
-from runner_helpers import executed_program_lines, square_program, wire_lines
+from test_runner_support import executed_program_lines, square_program, wire_lines
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -106,3 +106,40 @@ def test_page_in_headless_chromium_confirm_sheets_and_watch_progress_reach_done(
     assert queue.job(job).state == "done"
     expected = [line for sheet in served["sheets"] for line in wire_lines(sheet)]
     assert executed_program_lines(served["log"]) == expected
+
+
+def test_serve_prints_a_fresh_token_and_binds_to_localhost(tmp_path):
+    import signal
+    import subprocess
+
+    from test_runner_support import JOBS_CLI
+
+    (tmp_path / "jobs").mkdir()
+    port = free_port()
+    server = subprocess.Popen([*JOBS_CLI, "runner", "serve", "--jobs", str(tmp_path / "jobs"), "--port", str(port)],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        lines = [server.stdout.readline() for _ in range(3)]
+        token = next(line.split()[1] for line in lines if line.startswith("token: "))
+        assert len(token) >= 20 and f"open http://127.0.0.1:{port}/?token={token}" in "".join(lines)
+        deadline = time.monotonic() + 30
+        while True:
+            try:
+                state = httpx.get(f"http://127.0.0.1:{port}/api/state", timeout=5)
+                break
+            except httpx.ConnectError:
+                assert time.monotonic() < deadline and server.poll() is None, server.stderr.read()
+                time.sleep(0.2)
+        assert [m["name"] for m in state.json()["machines"]] == ["sim1"]
+        assert httpx.post(f"http://127.0.0.1:{port}/api/jobs/1/cancel", timeout=5).status_code == 403
+        answer = httpx.post(f"http://127.0.0.1:{port}/api/jobs/1/cancel", headers={TOKEN_HEADER: token}, timeout=5)
+        assert answer.status_code == 409 and answer.json()["error"] == "job 1: no such job"
+        address = socket.gethostbyname(socket.gethostname())
+        if not address.startswith("127."):  # not reachable on this host's network address
+            with socket.socket() as probe:
+                assert probe.connect_ex((address, port)) != 0
+    finally:
+        server.send_signal(signal.SIGTERM)
+        server.wait(timeout=30)
+        server.stdout.close()
+        server.stderr.close()

@@ -164,3 +164,34 @@ def test_singularity_joint_mode_ends_strips_at_a_hexagonal_joint():
         assert centre not in {n["id"] for n in part.nodes} and not any(s.node == centre for s in part.slots)
         ends = [part.meta["joins"]["start"], part.meta["joins"]["end"]]
         assert {"kind": "joint", "node": centre} in ends and f"J {centre}" in part.label
+
+
+def same_parts(reference, batched) -> None:
+    """Two lists of parts with the same ids, kinds, contours (to 1e-9 mm), nodes, labels and meta."""
+    def close(x, y):
+        return np.shape(x) == np.shape(y) and np.allclose(x, y, rtol=0.0, atol=1e-9)
+
+    assert [p.id for p in reference] == [p.id for p in batched]
+    for r, q in zip(reference, batched):
+        assert (r.kind, r.label, r.nodes, r.meta, r.grain, r.lamella) == (q.kind, q.label, q.nodes, q.meta, q.grain, q.lamella)
+        assert close(r.outline, q.outline), r.id
+        for name in ("holes", "marks", "text"):
+            a, b = getattr(r, name), getattr(q, name)
+            assert len(a) == len(b) and all(close(x, y) for x, y in zip(a, b)), (r.id, name)
+        assert [(s.node, s.edge) for s in r.slots] == [(s.node, s.edge) for s in q.slots]
+        assert all(close(s.outline, t.outline) for s, t in zip(r.slots, q.slots)), r.id
+
+
+@pytest.mark.parametrize("case", ["pavilion", "star-joint"])
+def test_batched_straight_strips_equal_the_one_by_one_construction(case, enneper):
+    from fabline.geometry import analyse
+    from fabline.unroll.batch import is_straight, straight_parts
+    from fabline.unroll.pieces import segment_part
+    from fabline.unroll.seams import split_strip
+    from fabline.unroll.stations import strip_stations
+
+    network, opts = (enneper, UnrollOptions()) if case == "pavilion" else (star_network(), UnrollOptions())
+    segments = [s for strip in strip_stations(analyse(network), opts) for s in split_strip(strip, opts, 20.0)]
+    straight = [s for s in segments if is_straight(s, opts)]
+    assert len(straight) > 0.8 * len(segments)
+    same_parts([segment_part(s, opts) for s in straight], straight_parts(straight, opts))

@@ -73,7 +73,8 @@ def run_job_command(args: argparse.Namespace) -> int:
     from fabline.jobs.jobfile import load_job_file
 
     spec = load_job_file(args.job)
-    interactive = not spec.machine["port"].startswith("sim://") and not args.yes and sys.stdin.isatty()
+    real_machine = any(not port.startswith("sim://") for port in spec.machine["ports"])
+    interactive = real_machine and not args.yes and sys.stdin.isatty()
     result = run_job(spec, say, confirm if interactive else None, resume=args.resume)
     total = sum(result.timings.values())
     if result.report_path:

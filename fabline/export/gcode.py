@@ -7,13 +7,14 @@ nothing that varies between runs, so the same input gives the same bytes.
 
 from __future__ import annotations
 
+import math
 import re
 from functools import lru_cache
 
 import numpy as np
 
 from fabline.errors import FablineError
-from fabline.export.contours import arc_centres, reverse
+from fabline.export.contours import reverse
 from fabline.export.machine import MachineProfile, strip_comment
 from fabline.export.motion import MoveLog
 from fabline.export.toolpath import Toolpath
@@ -44,10 +45,6 @@ class GcodeWriter:
         self.tool_on = False
         self.stop_pending = True
         self.dwell_pending = 0.0
-        needed = {"G0", "G1"} | ({"G2", "G3"} if profile.arcs else set())
-        missing = sorted(needed - profile.words)
-        if missing:
-            raise FablineError(f"{profile.source}: words: the program needs {missing[0]}, which the profile does not list")
 
     def fmt(self, value: float) -> str:
         """A coordinate in the profile's fixed precision, never "-0.000"."""
@@ -55,7 +52,7 @@ class GcodeWriter:
 
     def rounded(self, point) -> tuple[float, float]:
         """A point as it will read back from the file."""
-        return (round(float(point[0]), self.decimals) + 0.0, round(float(point[1]), self.decimals) + 0.0)
+        return (round(point[0], self.decimals) + 0.0, round(point[1], self.decimals) + 0.0)
 
     def comment(self, text: str) -> None:
         """A `;` comment line, ASCII only, cut to the line limit."""
@@ -81,7 +78,7 @@ class GcodeWriter:
         target = self.rounded(point)
         if target == self.position:
             return
-        self.lines.append(f"G0 X{self.fmt(target[0])} Y{self.fmt(target[1])}")
+        self.lines.append(f"G0 {self.xy_format.format(*target)}")
         self._record(target, None, False, rapid=True)
 
     def line_to(self, point, feed: float) -> None:
@@ -89,48 +86,38 @@ class GcodeWriter:
         target = self.rounded(point)
         if target == self.position:
             return
-        self.lines.append(f"G1 X{self.fmt(target[0])} Y{self.fmt(target[1])}{self._feed_word(feed)}")
+        self.lines.append(f"G1 {self.xy_format.format(*target)}{self._feed_word(feed)}")
         self._record(target, None, False, rapid=False, feed=feed)
 
     def contour(self, contour: np.ndarray, feed: float) -> None:
-        """Feed moves along a contour from its first vertex (where the tool already is): G1 lines and G2/G3 arcs."""
-        if not np.any(contour[:, 2]):
-            self._polyline(contour[1:, :2], feed)
-            return
-        centres, radii, sweeps = arc_centres(contour)
-        points = contour[:, :2].tolist()
-        sagitta = radii * (1 - np.cos(sweeps / 2))
-        for i, sweep in enumerate(sweeps.tolist()):
-            if sweep == 0:
-                self.line_to(points[i + 1], feed)
-            elif not (self.profile.arcs and sagitta[i] >= MIN_SAGITTA and self._arc(points[i + 1], centres[i], sweep < 0, feed)):
-                for point in flatten_contour(contour[i:i + 2], ARC_FLATTEN_TOLERANCE)[1:]:
-                    self.line_to(point, feed)
+        """Feed moves along a contour from its first vertex (where the tool already is): G1 lines and G2/G3 arcs.
 
-    def _polyline(self, points: np.ndarray, feed: float) -> None:
-        """Straight feed moves through `points`, formatted in one go (the common case: contours without arcs)."""
-        rounded = np.round(points, self.decimals) + 0.0
-        previous = np.vstack([self.position, rounded[:-1]])
-        rounded = rounded[np.any(rounded != previous, axis=1)]
-        if len(rounded) == 0:
-            return
-        xy = [(self.xy_format.format(x, y), (x, y)) for x, y in rounded.tolist()]
-        self.lines.append(f"G1 {xy[0][0]}{self._feed_word(feed)}")
-        self._record(xy[0][1], None, False, rapid=False, feed=feed)
-        self.lines.extend(f"G1 {text}" for text, _ in xy[1:])
-        self.moves.add_run([point for _, point in xy], feed, self.tool_on, self.mark)
-        self.position = xy[-1][1]
+        Plain Python per vertex: contours are short (a hole has four arcs), where numpy's per-call cost dominates.
+        """
+        rows = contour.tolist()
+        for (x0, y0, bulge), (x1, y1, _) in zip(rows[:-1], rows[1:]):
+            if bulge == 0:
+                self.line_to((x1, y1), feed)
+                continue
+            sweep = 4.0 * math.atan(bulge)
+            chord = math.hypot(x1 - x0, y1 - y0)
+            radius = chord / (2.0 * abs(math.sin(sweep / 2.0)))
+            if (self.profile.arcs and chord > 0 and radius * (1 - math.cos(sweep / 2)) >= MIN_SAGITTA
+                    and self._arc((x1, y1), _bulge_centre(x0, y0, x1, y1, sweep, chord), sweep < 0, feed)):
+                continue
+            for point in flatten_contour(np.array([[x0, y0, bulge], [x1, y1, 0.0]]), ARC_FLATTEN_TOLERANCE)[1:].tolist():
+                self.line_to(point, feed)
 
     def _arc(self, end, centre, clockwise: bool, feed: float) -> bool:
         """Write one arc if it survives rounding within ARC_RADIUS_TOLERANCE; False to have it written as lines."""
         start, target = self.position, self.rounded(end)
         offset = self.rounded((centre[0] - start[0], centre[1] - start[1]))
         rounded_centre = (start[0] + offset[0], start[1] + offset[1])
-        r_start = np.hypot(*offset)
-        r_end = np.hypot(target[0] - rounded_centre[0], target[1] - rounded_centre[1])
+        r_start = math.hypot(*offset)
+        r_end = math.hypot(target[0] - rounded_centre[0], target[1] - rounded_centre[1])
         if abs(r_start - r_end) > ARC_RADIUS_TOLERANCE or target == start:
             return False
-        self.lines.append(f"{'G2' if clockwise else 'G3'} X{self.fmt(target[0])} Y{self.fmt(target[1])} "
+        self.lines.append(f"{'G2' if clockwise else 'G3'} {self.xy_format.format(*target)} "
                           f"I{self.fmt(offset[0])} J{self.fmt(offset[1])}{self._feed_word(feed)}")
         self._record(target, rounded_centre, clockwise, rapid=False, feed=feed)
         return True
@@ -158,6 +145,12 @@ class GcodeWriter:
             raise FablineError(f"{self.profile.source}: max_line_length: a G-code line would be {len(longest)} characters "
                                f"(limit {self.profile.max_line_length}): {longest[:40]}...")
         return "\n".join(self.lines) + "\n"
+
+
+def _bulge_centre(x0: float, y0: float, x1: float, y1: float, sweep: float, chord: float) -> tuple[float, float]:
+    """Centre of the arc of signed `sweep` (radians) from (x0, y0) to (x1, y1): off the chord's middle to its left."""
+    along = chord / (2.0 * math.tan(sweep / 2.0))
+    return ((x0 + x1) / 2.0 - (y1 - y0) / chord * along, (y0 + y1) / 2.0 + (x1 - x0) / chord * along)
 
 
 @lru_cache(maxsize=256)

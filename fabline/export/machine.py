@@ -171,6 +171,12 @@ class _Fields:
             raise FablineError(f"{self.source}: {dotted}: must be text, got {value!r}")
         return value
 
+    def flag(self, dotted: str, default: bool) -> bool:
+        value = self.table.get(dotted, default)
+        if not isinstance(value, bool):
+            raise FablineError(f"{self.source}: {dotted}: must be true or false, got {value!r}")
+        return value
+
     def lines(self, dotted: str) -> tuple[str, ...]:
         value = self.get(dotted)
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
@@ -206,7 +212,7 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
         name=fields.text("name"), source=source, description=fields.text("description", ""),
         controller=fields.text("controller", ""), mode=mode,
         kerf=fields.number("kerf", 0, 20), decimals=fields.integer("decimals", 3, 4),
-        max_line_length=fields.integer("max_line_length", 40, 256), arcs=bool(table.get("arcs", True)),
+        max_line_length=fields.integer("max_line_length", 40, 256), arcs=fields.flag("arcs", True),
         words=frozenset(_canonical(w) for w in words), program_start=fields.lines("program_start"),
         program_end=fields.lines("program_end"), tool_on=fields.lines("tool_on"), tool_off=fields.lines("tool_off"),
         requires=fields.text("requires", ""),
@@ -217,6 +223,11 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
         junction_deviation=fields.number("motion.junction_deviation", 0, 10),
         s_min=s_min, s_max=s_max, operations=operations, variables=variables,
     )
+    needed = {"G0", "G1"} | ({"G2", "G3"} if profile.arcs else set())
+    missing = sorted(needed - profile.words)
+    if missing:
+        raise FablineError(f"{source}: words: must include {missing[0]}, which every program needs"
+                           + (" (or set arcs = false)" if missing[0] in ("G2", "G3") else ""))
     for field_name in ("program_start", "program_end", "tool_on", "tool_off"):
         _check_templates(profile, field_name)
     return profile

@@ -33,11 +33,6 @@ class MoveLog:
         self.rows.append((start[0], start[1], end[0], end[1], cx, cy, clockwise, feed, rapid, tool_on, mark,
                           stop_before, dwell))
 
-    def add_run(self, points: list[tuple[float, float]], feed: float, tool_on: bool, mark: bool) -> None:
-        """Straight feed moves from each point to the next, without stops (a polyline already started at points[0])."""
-        self.rows.extend((x0, y0, x1, y1, math.nan, math.nan, False, feed, False, tool_on, mark, False, 0.0)
-                         for (x0, y0), (x1, y1) in zip(points[:-1], points[1:]))
-
     def table(self) -> np.ndarray:
         """The moves as a float array (N, 13), columns as named at the top of this module."""
         return np.array(self.rows, dtype=float).reshape(-1, 13)

@@ -288,6 +288,7 @@ def _nearest_neighbour(paths: list[Toolpath], start: np.ndarray) -> list[Toolpat
             role.extend([0, -1])
     points_arr = np.vstack(points)
     free = [True] * len(paths)
+    free_points = len(points_arr)
     active = list(range(len(points_arr)))          # tree index -> point index
     tree = cKDTree(points_arr)
     position, chosen = np.asarray(start, dtype=float), []
@@ -300,14 +301,14 @@ def _nearest_neighbour(paths: list[Toolpath], start: np.ndarray) -> list[Toolpat
                     best = active[f]
                     break
             else:
-                still_free = [p for p in active if free[owner[p]]]
-                if 2 * len(still_free) < len(active):
-                    active, k = still_free, NN_CANDIDATES
+                if 2 * free_points < len(active):
+                    active, k = [p for p in active if free[owner[p]]], NN_CANDIDATES
                     tree = cKDTree(points_arr[active])
                 else:
                     k *= 4
         index = owner[best]
         free[index] = False
+        free_points -= len(paths[index].contour) - 1 if paths[index].closed else 2
         path = paths[index]
         chosen.append((path, role[best]))
         position = path.contour[role[best], :2] if path.closed else path.contour[-1 - role[best], :2]

@@ -50,7 +50,7 @@ SCHEMA: dict[str, Any] = {
     "stock": {"sheet": Key(str, default="4000x2000"), "count": Key(int), "file": Key(str)},
     "nest": {"kerf": Key(float, default=0.2), "gap": Key(float, default=3.0), "margin": Key(float, default=10.0),
              "rotations": Key(int, default=4), "time_limit": Key(float, default=10.0)},
-    "machine": {"profile": Key(str, default="grbl-laser"), "port": Key(str, default=DEFAULT_PORT),
+    "machine": {"profile": Key(str, default="grbl-laser"), "port": Key(str), "ports": Key(list),
                 "time_scale": Key(float, default=1.0)},
     "output": {"folder": Key(str, required=True), "report": Key(str, default="report.html")},
     "survey": {"result": Key(str)},
@@ -122,6 +122,7 @@ def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
     for section, key in (("lamella", "materials_file"), ("stock", "file"), ("survey", "result")):
         if data[section][key] is not None:
             data[section][key] = str(_existing(base, data[section][key], f"{where}: {section}.{key}"))
+    data["machine"]["ports"] = _check_ports(data["machine"], where)
     if data["machine"]["profile"].endswith(".toml"):
         data["machine"]["profile"] = str(_existing(base, data["machine"]["profile"], f"{where}: machine.profile"))
     _check_values(data, where)
@@ -183,6 +184,20 @@ def _check_stages(stages: list, where: str) -> tuple[str, ...]:
     if len(set(stages)) != len(stages):
         raise FablineError(f"{where}: stages: a stage is listed twice")
     return tuple(s for s in STAGES if s in stages)
+
+
+def _check_ports(machine: dict[str, Any], where: str) -> list[str]:
+    """machine.port (one machine) or machine.ports (several, cutting sheets in parallel); default the simulator."""
+    if machine["port"] is not None and machine["ports"] is not None:
+        raise FablineError(f"{where}: machine: give machine.port or machine.ports, not both")
+    if machine["ports"] is None:
+        return [machine["port"] or DEFAULT_PORT]
+    if not machine["ports"]:
+        raise FablineError(f"{where}: machine.ports: give at least one port")
+    ports = [_typed(port, str, where, f"machine.ports[{k}]") for k, port in enumerate(machine["ports"])]
+    if len(set(ports)) != len(ports):
+        raise FablineError(f"{where}: machine.ports: a port is listed twice")
+    return ports
 
 
 def _check_model(model: dict[str, Any], base: Path, where: str) -> dict[str, Any]:

@@ -8,15 +8,18 @@ rewrites the report with the streaming log. Each stage's files are written atomi
 from __future__ import annotations
 
 import os
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from fabline.errors import FablineError
 from fabline.fileio import atomic_output, read_json, write_json
 from fabline.jobs.jobfile import JobSpec, load_job_file
-from fabline.model import Network, load_network, save_network
+
+if TYPE_CHECKING:  # the model stage pulls in scipy; the runner imports this package and must start fast
+    from fabline.model import Network
 
 Say = Callable[[str], None]
 
@@ -26,7 +29,7 @@ class JobResult:
     """Everything a job made: the stage results, the files, the timings and the per-sheet streaming log."""
 
     spec: JobSpec
-    network: Network
+    network: "Network"
     partset: Any = None
     structure: list[dict] = field(default_factory=list)
     nesting: Any = None
@@ -42,8 +45,9 @@ class JobResult:
         return [(s["sheet"], s["gcode"], s["svg"]) for s in self.sheet_files]
 
 
-def build_network(spec: JobSpec) -> Network:
+def build_network(spec: JobSpec) -> "Network":
     """The job's network: the built-in design with its options, or the model file."""
+    from fabline.model import load_network
     from fabline.model.designs import DESIGNS
 
     if "file" in spec.model:
@@ -60,6 +64,8 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
     spec.output_folder.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
     result = JobResult(spec, network=_timed(timings, "model", lambda: build_network(spec)), timings=timings)
+    from fabline.model import save_network
+
     save_network(result.network, spec.output("network.json"))
     say(f"model: {result.network.name}, {len(result.network.lamellas)} lamellas, {len(result.network.nodes)} nodes")
     if "unroll" in spec.stages:
@@ -89,9 +95,11 @@ def run_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None,
     result = prepare_job(spec, say)
     if "stream" in spec.stages:
         _require(result.sheet_files, "stream", "export", spec)
-        _timed(result.timings, "stream", lambda: _stream_all(result, say, confirm_sheet, resume))
-        if "report" in spec.stages:
-            write_report(result)
+        try:
+            _timed(result.timings, "stream", lambda: _stream_all(result, say, confirm_sheet, resume))
+        finally:  # the report shows the streaming log, also of a run that stopped
+            if "report" in spec.stages:
+                write_report(result)
     return result
 
 
@@ -174,35 +182,60 @@ def _export(result: JobResult) -> None:
                                    "cut_length_mm": made.summary.cut_length, "time_s": made.summary.time})
 
 
-def machine_port(spec: JobSpec) -> str:
-    """The job's port; a simulator URL gets the job's time scale unless it names its own."""
-    port = spec.machine["port"]
-    if port.startswith("sim://") and "time_scale=" not in port:
-        port += ("&" if "?" in port else "?") + f"time_scale={spec.machine['time_scale']:g}"
-    return port
+def machine_ports(spec: JobSpec) -> list[str]:
+    """The job's ports; a simulator URL gets the job's time scale unless it names its own."""
+    ports = []
+    for port in spec.machine["ports"]:
+        if port.startswith("sim://") and "time_scale=" not in port:
+            port += ("&" if "?" in port else "?") + f"time_scale={spec.machine['time_scale']:g}"
+        ports.append(port)
+    return ports
 
 
 def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, str], None] | None,
                 resume: bool) -> None:
+    """Cut every sheet: each machine takes the next sheet when it is free (one sheet at a time per machine);
+    after a failure no new sheet starts, the ones running finish, and the first error is raised."""
     from fabline.link import default_journal_path
 
     from fabline.jobs.streaming import SheetStream
 
-    port = machine_port(result.spec)
-    result.stream = []
-    count = len(result.sheet_files)
-    for k, sheet in enumerate(result.sheet_files):
-        if confirm_sheet is not None:
-            confirm_sheet(k, count, sheet["sheet"])
-        if not resume:
-            default_journal_path(sheet["gcode"]).unlink(missing_ok=True)
-        started = time.perf_counter()
-        stream = SheetStream(port, sheet["gcode"], lambda done, position: None)
-        outcome = stream.run()
-        entry = {"sheet": sheet["sheet"], "program": sheet["gcode"], "outcome": outcome,
-                 "seconds": round(time.perf_counter() - started, 3), **stream.summary()}
-        result.stream.append(entry)
-        say(f"stream: sheet {k + 1} of {count} ({sheet['sheet']}): {entry['lines']} lines {outcome} "
-            f"in {entry['seconds']:.1f} s")
-        if outcome != "finished":
-            raise FablineError(f"stream: sheet {sheet['sheet']} stopped: {outcome}")
+    sheets = list(enumerate(result.sheet_files))
+    count = len(sheets)
+    entries: dict[int, dict] = {}
+    errors: list[FablineError] = []
+    lock = threading.Lock()
+
+    def machine(port: str) -> None:
+        while True:
+            with lock:
+                if not sheets or errors:
+                    return
+                k, sheet = sheets.pop(0)
+                if confirm_sheet is not None:
+                    confirm_sheet(k, count, sheet["sheet"])
+            if not resume:
+                default_journal_path(sheet["gcode"]).unlink(missing_ok=True)
+            started = time.perf_counter()
+            stream = SheetStream(port, sheet["gcode"], lambda done, position: None)
+            try:
+                outcome = stream.run()
+            except FablineError as exc:
+                outcome = f"stopped: {exc}"
+            entry = {"sheet": sheet["sheet"], "program": sheet["gcode"], "outcome": outcome,
+                     "seconds": round(time.perf_counter() - started, 3), **stream.summary()}
+            with lock:
+                entries[k] = entry
+                if outcome != "finished":
+                    errors.append(FablineError(f"stream: sheet {sheet['sheet']} on {port}: {outcome}"))
+            say(f"stream: sheet {k + 1} of {count} ({sheet['sheet']}) on {port}: {entry['lines']} lines {outcome} "
+                f"in {entry['seconds']:.1f} s")
+
+    threads = [threading.Thread(target=machine, args=(port,), daemon=True) for port in machine_ports(result.spec)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    result.stream = [entries[k] for k in sorted(entries)]
+    if errors:
+        raise errors[0]

@@ -22,7 +22,6 @@ from typing import Any, Iterator
 
 from fabline.errors import FablineError
 
-STATES = ("queued", "preparing", "ready", "cutting", "paused", "failed", "cancelled", "done")
 FINAL_STATES = frozenset({"failed", "cancelled", "done"})
 TRANSITIONS: dict[str, frozenset[str]] = {
     "queued": frozenset({"preparing", "paused", "cancelled", "failed"}),
@@ -406,11 +405,6 @@ class JobQueue:
     def _event(self, db: sqlite3.Connection, job_id: int | None, machine: str | None, message: str) -> None:
         db.execute("INSERT INTO events (time, job_id, machine, message) VALUES (?, ?, ?, ?)",
                    (time.time(), job_id, machine, message))
-
-    def log(self, message: str, job_id: int | None = None, machine: str | None = None) -> None:
-        """Add a line to the runner's event log."""
-        with self.transaction() as db:
-            self._event(db, job_id, machine, message)
 
     def events(self, after: int = 0, limit: int = 200) -> list[dict[str, Any]]:
         """Event log entries with id > after, oldest first (at most `limit`, the newest ones)."""

@@ -7,6 +7,7 @@ when there is one, and the stage timings. No external files, scripts or fonts: t
 
 from __future__ import annotations
 
+import base64
 import html
 import time
 from collections import Counter
@@ -81,7 +82,8 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
     parts.append("</div>")
     parts.append(_structure_table(data["structure"]))
     parts.append(_stream_table(data["stream"]))
-    parts.append(_survey_section(data["survey"]))
+    result_file = spec.survey.get("result")
+    parts.append(_survey_section(data["survey"], Path(result_file).with_name("deviation_map.png") if result_file else None))
     timings = ", ".join(f"{k} {v:.1f} s" for k, v in data["timings_s"].items())
     parts.append(f"<h2>Run</h2><p>Stages: {e(', '.join(spec.stages))}. Time per stage: {e(timings)}.</p>")
     if data["parts"]:
@@ -124,9 +126,14 @@ def _stream_table(stream: dict[str, Any]) -> str:
             f"{' - every sheet finished' if stream['finished'] else ''}.</p><table id=stream>{head}{body}</table>")
 
 
-def _survey_section(survey: dict[str, Any] | None) -> str:
+def _survey_section(survey: dict[str, Any] | None, picture: Path | None) -> str:
     if not survey:
         return ""
     summary = survey.get("summary", {})
     items = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>" for k, v in summary.items())
-    return f"<h2>Survey</h2><table id=survey>{items}</table>"
+    image = ""
+    if picture is not None and picture.is_file():
+        data = base64.b64encode(picture.read_bytes()).decode("ascii")
+        image = f'<figure><img alt="deviation map" src="data:image/png;base64,{data}" style="max-width:900px">' \
+                "<figcaption>Measured deviation from the design per node.</figcaption></figure>"
+    return f"<h2>Survey</h2>{image}<table id=survey>{items}</table>"

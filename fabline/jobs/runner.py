@@ -144,8 +144,9 @@ class Runner:
                 continue
             try:
                 self._cut(queue, job, sheet, machine)
-            except FablineError as exc:
-                queue.fail(job.id, f"sheet {sheet.k + 1} on {machine.name}: {exc}")
+            except Exception as exc:  # the job records why it stopped; the machine's worker carries on
+                reason = str(exc) if isinstance(exc, FablineError) else f"internal error: {type(exc).__name__}: {exc}"
+                queue.fail(job.id, f"sheet {sheet.k + 1} on {machine.name}: {reason}")
                 queue.set_machine(machine.name, state="idle")
         queue.close()
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -50,11 +51,19 @@ class JournalState:
 
 
 class Journal:
-    """Append-only job journal; `commit()` makes everything recorded so far durable (fsync)."""
+    """Append-only job journal; `commit()` makes everything recorded so far durable (fsync).
 
-    def __init__(self, path: str | os.PathLike):
+    With `sync_interval` a background thread also commits that often, so a streaming loop never
+    waits for the disk (an fsync can take longer than the controller's buffer lasts).
+    """
+
+    def __init__(self, path: str | os.PathLike, sync_interval: float | None = None):
         self.path = Path(path)
+        self.sync_interval = sync_interval
         self._handle = None
+        self._lock = threading.Lock()
+        self._closing = threading.Event()
+        self._syncer: threading.Thread | None = None
 
     def open(self) -> "Journal":
         """Open for appending (creating the file and its folder if needed)."""
@@ -63,20 +72,35 @@ class Journal:
             self._handle = open(self.path, "a", encoding="ascii", newline="\n")
         except OSError as exc:
             raise FablineError(f"{self.path}: cannot open journal: {exc.strerror}") from None
+        if self.sync_interval:
+            self._closing.clear()
+            self._syncer = threading.Thread(target=self._sync_periodically, name="journal-sync", daemon=True)
+            self._syncer.start()
         return self
 
     def record(self, event: str, **fields) -> None:
-        """Append one record (buffered until `commit`)."""
-        self._handle.write(json.dumps({"event": event, **fields}, separators=(",", ":")) + "\n")
+        """Append one record (buffered until the next commit)."""
+        text = json.dumps({"event": event, **fields}, separators=(",", ":")) + "\n"
+        with self._lock:
+            self._handle.write(text)
 
     def commit(self) -> None:
         """Flush and fsync: every record so far survives a crash."""
-        self._handle.flush()
+        with self._lock:
+            self._handle.flush()
         os.fsync(self._handle.fileno())
 
+    def _sync_periodically(self) -> None:
+        while not self._closing.wait(self.sync_interval):
+            self.commit()
+
     def close(self) -> None:
-        """Commit and close."""
+        """Stop the background commits, commit and close."""
         if self._handle is not None:
+            self._closing.set()
+            if self._syncer is not None:
+                self._syncer.join()
+                self._syncer = None
             self.commit()
             self._handle.close()
             self._handle = None

@@ -18,7 +18,6 @@ FEED_HOLD = b"!"
 CYCLE_START = b"~"
 SOFT_RESET = b"\x18"
 JOG_CANCEL = b"\x85"
-REALTIME_BYTES = frozenset(b"?!~\x18") | frozenset(range(0x80, 0x100))
 
 _BANNER = re.compile(r"^Grbl (\S+) \['\$' for help\]$")
 

@@ -19,15 +19,6 @@ _SIMULATORS: dict[str, GrblSimulator] = {}
 _REGISTRY_LOCK = threading.Lock()
 
 
-def register_simulator(name: str, simulator: GrblSimulator) -> None:
-    """Make `sim://name` reach `simulator` (replacing and closing any earlier one of that name)."""
-    with _REGISTRY_LOCK:
-        old = _SIMULATORS.pop(name, None)
-        _SIMULATORS[name] = simulator
-    if old is not None and old is not simulator:
-        old.close()
-
-
 def get_simulator(name: str) -> GrblSimulator | None:
     """The simulator `sim://name` reaches, if one exists."""
     with _REGISTRY_LOCK:

@@ -29,7 +29,7 @@ import serial
 
 from fabline.errors import FablineError
 from fabline.link.codes import explain_alarm, explain_error
-from fabline.link.gcode import Block, ModalState
+from fabline.link.gcode import ModalState
 from fabline.link.journal import Journal, JournalState, default_journal_path, read_journal
 from fabline.link.program import TAG_CYCLE, Program, line_tag, load_program
 from fabline.link.protocol import (CYCLE_START, FEED_HOLD, RX_BUFFER_SIZE, SOFT_RESET, STATUS_QUERY,
@@ -40,8 +40,8 @@ POSITION_TOLERANCE = 0.01
 """mm: status reports carry three decimals; a stopped position is matched to a path within this."""
 _FLUSH_LINE = b"#\n"
 COMMIT_INTERVAL = 0.05
-"""s between journal fsyncs while streaming (and at every stop): at 460 lines/s the journal lags the
-controller by far fewer than the 255 lines a `$G` tag can tell apart."""
+"""s between background journal fsyncs while streaming (stops commit at once): at 460 lines/s the journal
+lags the controller by far fewer than the 255 lines a `$G` tag can tell apart."""
 _TAG = re.compile(r"\bT(\d+)\b")
 _MOTION_WORD = re.compile(r"G0*[0-3](?![0-9.])")
 _OPTIONS = re.compile(r"^OPT:[^,]*,(\d+),(\d+)")
@@ -168,7 +168,7 @@ class Streamer:
         try:
             if check:
                 self._check_mode()
-            self.journal = Journal(self.journal_path).open()
+            self.journal = Journal(self.journal_path, sync_interval=COMMIT_INTERVAL).open()
             try:
                 return self._job(previous, unlock, start_line)
             finally:
@@ -192,41 +192,39 @@ class Streamer:
         return state
 
     def _job(self, previous: JournalState | None, unlock: bool, start_line: int | None) -> StreamResult:
+        """Start or resume the job, then stream it, reconnecting and recovering after a lost connection."""
         program = self.program
-        self.started = time.monotonic()
         self.bytes_sent = 0
         if previous is None:
             self._fresh_start(unlock)
-            self.journal.record("start", program=program.name, sha256=program.sha256, lines=len(program.lines),
-                                mode=self.mode)
-            self.acked = self.sent = self.done = 0
-            preamble = []
+            executed, preamble = 0, []
         else:
-            self.journal.record("start", program=program.name, sha256=program.sha256, lines=len(program.lines),
-                                mode=self.mode)
-            self.acked, self.sent, self.done = previous.acked, previous.sent, previous.done
+            self.acked, self.done = previous.acked, previous.done
             executed = self._recover(previous, unlock)
             if start_line is not None:
                 executed = self._index_of_file_line(start_line)
             preamble = self._preamble(executed)
-            self.acked = self.sent = self.done = executed
+        self.journal.record("start", program=program.name, sha256=program.sha256, lines=len(program.lines),
+                            mode=self.mode)
+        if previous is not None:
             self.journal.record("resume", count=executed)
         self.journal.commit()
-        self.first_index = self.done
+        self.acked = self.done = self.first_index = executed
         self.started = time.monotonic()  # elapsed counts streaming, not the handshake
         while True:
             try:
                 return self._stream(preamble)
             except _Lost as exc:
+                self._counter = None  # whatever was in flight is settled by the recovery, not by stray answers
                 self.journal.record("stopped", reason=f"connection lost: {exc}")
                 self.journal.commit()
                 if not self._reconnect():
                     raise StreamInterrupted(
                         f"{self.url}: connection lost ({exc}) after file line {self._file_line(self.acked - 1)}; "
                         "run again with --resume", "connection", self.done) from None
-                executed = self._recover(JournalState(acked=self.acked, sent=self.sent, done=self.done), unlock=False)
+                executed = self._recover(JournalState(acked=self.acked, done=self.done), unlock=False)
                 preamble = self._preamble(executed)
-                self.acked = self.sent = self.done = executed
+                self.acked = self.done = executed
                 self.journal.record("resume", count=executed)
                 self.journal.commit()
 
@@ -237,7 +235,7 @@ class Streamer:
         counter = CharacterCounter(self.rx_buffer, max_lines=1 if self.mode == "send-response" else None)
         self._counter, self._errors = counter, []
         self._status_after_last_ok = False
-        position, next_poll, next_report, last_commit = 0, 0.0, 0.0, time.monotonic()
+        position, next_poll, next_report = 0, 0.0, 0.0
         self._last_heard = time.monotonic()
         while True:
             if self._abort.is_set():
@@ -249,15 +247,11 @@ class Streamer:
                 counter.sent(index, len(wire))
                 if index is not None:
                     self.journal.record("sent", n=index, line=lines[index].file_line)
-                    self.sent = index + 1
                 batch.append(wire)
                 position += 1
-            now = time.monotonic()
-            if now - last_commit >= COMMIT_INTERVAL:
-                self.journal.commit()
-                last_commit = now
             if batch:
                 self._write(b"".join(batch))
+            now = time.monotonic()
             if now >= next_poll:
                 self._write(STATUS_QUERY)
                 next_poll = now + self.status_interval
@@ -406,6 +400,10 @@ class Streamer:
                 executed = self._executed_from_position(status, planner_empty=False)
             self._soft_reset(unlock=True)
             return executed
+        if status.state == "Hold":  # stopped in a feed hold (the host died pausing or halting): judge, reset
+            executed = self._executed_from_position(status, planner_empty=False)
+            self._soft_reset(unlock=True)
+            return executed
         if status.state != "Idle":
             raise FablineError(f"{self.url}: the controller is in state {status.state}; it must be Idle to resume")
         if previous.stopped and previous.stopped.startswith(("error", "aborted", "ALARM")):
@@ -496,6 +494,10 @@ class Streamer:
                         self.version = response.text
                     elif response.kind == "status":
                         self.status = response.status
+        if self.status.state == "Check":  # left by a host that died during --check: nothing ran, leave it
+            self._flush_partial_line()
+            self._command(b"$C\n", until_banner=True)
+            self.status = self._query_status()
         if self.status.state == "Idle":  # a critical alarm ignores everything but a reset
             self._flush_partial_line()
             self._read_build_info()
@@ -665,9 +667,7 @@ class Streamer:
         deadline = time.monotonic() + self.settle_timeout
         while True:
             status = self._query_status()
-            if status.state in ("Idle", "Alarm", "Check", "Hold") and not (status.state == "Hold" and status.substate):
-                if status.state == "Hold":
-                    raise FablineError(f"{self.url}: the controller is in feed hold; resume or reset it first")
+            if status.state in ("Idle", "Alarm", "Check") or (status.state == "Hold" and status.substate == 0):
                 if self._wco is None and status.wpos is None:
                     continue
                 return status

@@ -157,7 +157,8 @@ def _fits(shape: NestShape, item: StockItem, options: NestOptions) -> bool:
 
 
 def _check_fits(shapes: list[NestShape], stock: list[StockItem], options: NestOptions) -> None:
-    for shape in shapes:
+    """A part that fits no sheet kind in any allowed rotation is the user's error, named with its size."""
+    for shape in (members[0] for members in _groups(shapes).values()):
         if not any(_fits(shape, item, options) for item in stock):
             w, h = _extent(shape)
             raise FablineError(f"part {shape.id} ({w:.0f} x {h:.0f} mm) is larger than every sheet's usable area "
@@ -291,6 +292,8 @@ def _canvas(open_sheet: _OpenSheet, res: float, options: NestOptions, clearance:
         canvas.block_rectangle(xmin - half, ymin - half, xmax + half, ymax + half)
     for polygon in open_sheet.polygons:
         canvas.block_polygon(polygon, half)
+        if options.fill_holes:
+            canvas.mark_holes(polygon)
     return canvas
 
 

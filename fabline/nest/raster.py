@@ -68,6 +68,28 @@ class Canvas:
         self.cols = max(0, int(math.floor((width - 2 * margin) / res + 1e-9)))
         self.rows = max(0, int(math.floor((height - 2 * margin) / res + 1e-9)))
         self.grid = np.zeros((self.rows, self.cols), dtype=np.uint8)
+        self.holes = np.zeros((self.rows, self.cols), dtype=np.uint8)
+
+    def _fill(self, target: np.ndarray, rings: list, value: int = 1) -> None:
+        """Fill closed rings (sheet mm) into a grid, cell centres inside, with sub-cell precision."""
+        shift = 4
+        scale = (1 << shift) / self.res
+        contours = [np.round((np.asarray(r.coords)[:, :2] - (self.x0 + 0.5 * self.res, self.y0 + 0.5 * self.res))
+                             * scale).astype(np.int32) for r in rings]
+        cv2.fillPoly(target, contours, value, lineType=cv2.LINE_8, shift=shift)
+
+    def mark_holes(self, polygon: Polygon) -> None:
+        """Remember the holes of a placed part (sheet mm): small parts are tried there first."""
+        for ring in polygon.interiors:
+            self._fill(self.holes, [ring])
+
+    def hole_positions(self, template: Template) -> np.ndarray:
+        """Mask-corner cells that put the template's centre cell inside a remembered hole."""
+        rows, cols = template.shape
+        out = np.zeros((self.rows, self.cols), dtype=bool)
+        centre = self.holes[rows // 2:, cols // 2:].astype(bool)
+        out[:centre.shape[0], :centre.shape[1]] = centre
+        return out
 
     @property
     def occupied(self) -> np.ndarray:
@@ -88,13 +110,8 @@ class Canvas:
         zone = polygon.buffer(half_clearance + OBSTACLE_BUFFER_CELLS * self.res, quad_segs=8)
         if zone.is_empty:
             return
-        shift = 4
-        scale = (1 << shift) / self.res
         for part in getattr(zone, "geoms", [zone]):
-            rings = [part.exterior, *part.interiors]
-            contours = [np.round((np.asarray(r.coords)[:, :2] - (self.x0 + 0.5 * self.res, self.y0 + 0.5 * self.res))
-                                 * scale).astype(np.int32) for r in rings]
-            cv2.fillPoly(self.grid, contours, 1, lineType=cv2.LINE_8, shift=shift)
+            self._fill(self.grid, [part.exterior, *part.interiors])
 
     def stamp(self, template: Template, i: int, j: int) -> None:
         """Mark the cells of a template placed with its mask corner at cell (i, j)."""
@@ -215,6 +232,9 @@ def place_copies(canvas: Canvas, templates: list[Template], count: int,
     """Place up to `count` copies: first on the best-fitting repeat of `lattice` (when given), then bottom-left
     first in any rotation; each copy blocks the positions it overlaps for the next."""
     placed: list[tuple[Template, int, int]] = []
+    if canvas.holes.any():
+        placed = _greedy_copies(canvas, templates, count, in_holes=True)
+        count -= len(placed)
     if lattice is not None:
         for i, j in lattice_spots(canvas.free_positions(lattice.template), lattice)[:count]:
             placed.append((lattice.template, int(i), int(j)))
@@ -223,11 +243,13 @@ def place_copies(canvas: Canvas, templates: list[Template], count: int,
     return placed + _greedy_copies(canvas, templates, count)
 
 
-def _greedy_copies(canvas: Canvas, templates: list[Template], count: int) -> list[tuple[Template, int, int]]:
-    """Bottom-left greedy placement of up to `count` copies over all templates."""
+def _greedy_copies(canvas: Canvas, templates: list[Template], count: int,
+                   in_holes: bool = False) -> list[tuple[Template, int, int]]:
+    """Bottom-left greedy placement of up to `count` copies over all templates (only inside holes if asked)."""
     if count <= 0:
         return []
-    free = [canvas.free_positions(t) for t in templates]
+    free = [canvas.free_positions(t) & canvas.hole_positions(t) if in_holes else canvas.free_positions(t)
+            for t in templates]
     flat = [f.reshape(-1) for f in free]
     pointer = [0] * len(templates)
     blocked = {(a, b): blocked_offsets(templates[a], templates[b])

@@ -83,8 +83,7 @@ def washers(node: str, arm_angles_deg: list[float], sizes: HardwareSizes) -> lis
 
     Angles are taken relative to the first lamella and rounded to half a degree, the washer's tolerance.
     """
-    relative = ((np.asarray(arm_angles_deg, dtype=float) - arm_angles_deg[0]) % 180.0).tolist()
-    angles = tuple(sorted({round(a * 2.0) / 2.0 % 180.0 for a in relative}))
+    angles = tuple(sorted({round((a - arm_angles_deg[0]) % 180.0 * 2.0) / 2.0 % 180.0 for a in arm_angles_deg}))
     outline = _star(angles, sizes.half_width, sizes.washer_reach)
     hole = _square(sizes.bolt_square, angles[1] / 2.0 if len(angles) > 1 else 0.0)
     name = "/".join(f"{a:g}" for a in angles[1:])

@@ -1,5 +1,7 @@
 """One strip segment to one flat part: notched outline, slots, seam screw holes, node marks, ids and label.
 
+This is the reference construction, used for curved strips; `batch` builds straight ones the same way, faster.
+
 Layout across the strip (family A slotted from the top edge, B from the bottom): node marks run from the
 free edge to just short of the slot ends; node ids sit beside their marks along the free edge; the label
 (segment id, which segments it joins, an arrow pointing along the node order) sits once per part in the
@@ -20,6 +22,7 @@ from fabline.unroll.strokes import arrow, layout, split_rows
 SEAM_HOLE_COLUMNS = np.array([-1.0, 0.0, 1.0]) / 3.0  # of the overlap, about the seam
 SEAM_HOLE_ROWS = np.array([-0.25, 0.25])              # of the height, about the centreline
 MIN_LABEL_HEIGHT = 1.5
+ARROW_LENGTH = 3.0  # the label's orientation arrow, in cap heights
 
 
 def segment_part(segment: Segment, options: UnrollOptions) -> Part:
@@ -53,8 +56,8 @@ def segment_part(segment: Segment, options: UnrollOptions) -> Part:
     height = options.engrave_height
     reach = node_text_reach(options, [n for n, _ in in_nodes]) if in_nodes else 0.0
     baseline = edge_y - sign * TEXT_GAP - (height if sign > 0 else 0.0)
-    seams = [(a, a + options.overlap) if _is_seam(segment.start_join) else (a, a),
-             (b - options.overlap, b) if _is_seam(segment.end_join) else (b, b)]
+    seams = [(a, a + options.overlap) if is_seam(segment.start_join) else (a, a),
+             (b - options.overlap, b) if is_seam(segment.end_join) else (b, b)]
     items, blocked = [], list(seams)
     for nid, x in in_nodes:
         glyphs = layout(nid)
@@ -68,15 +71,21 @@ def segment_part(segment: Segment, options: UnrollOptions) -> Part:
 
     holes = circles(_seam_holes(centre, segment, options), options.screw_hole / 2.0)
     nodes = [{"id": nid, "s": round(x - a, 4)} for nid, x in in_nodes]
-    meta = {
-        "strip": strip.id, "family": strip.family, "side": strip.side, "offset_mm": strip.offset,
-        "segment": segment.index, "segments": segment.count, "strip_range_mm": [round(a, 3), round(b, 3)],
-        "length_mm": round(b - a, 3), "in_plane_radius_mm": _radius(centre),
-        "joins": {"start": _join_meta(segment, -1), "end": _join_meta(segment, +1)},
-    }
     kind = "strip" if centre.straight else "curved-strip"
     return Part(segment.id, kind, outline, lamella=strip.lamella, holes=holes, slots=slots, marks=marks, text=text,
-                nodes=nodes, label=label, grain=True, meta=meta)
+                nodes=nodes, label=label, grain=True, meta=segment_meta(segment, _radius(centre)))
+
+
+def segment_meta(segment: Segment, radius: float | None) -> dict:
+    """The part's `meta`: strip, side, offset, segment k of n, range along the strip, in-plane radius, joins."""
+    strip = segment.strip
+    return {
+        "strip": strip.id, "family": strip.family, "side": strip.side, "offset_mm": strip.offset,
+        "segment": segment.index, "segments": segment.count,
+        "strip_range_mm": [round(segment.start, 3), round(segment.end, 3)],
+        "length_mm": round(segment.end - segment.start, 3), "in_plane_radius_mm": radius,
+        "joins": {"start": join_meta(segment, -1), "end": join_meta(segment, +1)},
+    }
 
 
 def slot_contours(centre: FlatCentreline, x: np.ndarray, edges: list[str], options: UnrollOptions) -> list[np.ndarray]:
@@ -114,7 +123,8 @@ def segment_label(segment: Segment) -> str:
     return " ".join(parts)
 
 
-def _is_seam(join) -> bool:
+def is_seam(join) -> bool:
+    """True when a segment end is a seam (an overlap with the next segment of the strip)."""
     return join is not None and join.kind == "seam"
 
 
@@ -122,7 +132,8 @@ def _inside_any(x: float, spans: list[tuple[float, float]]) -> bool:
     return any(lo < x < hi for lo, hi in spans)
 
 
-def _join_meta(segment: Segment, step: int) -> dict | None:
+def join_meta(segment: Segment, step: int) -> dict | None:
+    """The part's record of what its start (step -1) or end (+1) joins: a seam's partner part, or a joint node."""
     join = segment.start_join if step < 0 else segment.end_join
     if join is None:
         return None
@@ -164,10 +175,12 @@ def _engrave(centre: FlatCentreline, items: list) -> list[np.ndarray]:
     return split_rows(points, splits)
 
 
-def _label(centre: FlatCentreline, label: str, a: float, b: float, blocked: list[tuple[float, float]],
-           sign: float, slot_end_y: float, edge_y: float, height: float) -> list[np.ndarray]:
-    """The label and an arrow along +x, centred in the widest free stretch of the free half, shrunk to fit."""
-    glyphs = layout(label)
+def label_spot(width: float, a: float, b: float, blocked: list[tuple[float, float]],
+               height: float) -> tuple[float, float] | None:
+    """Centre station and cap height of a label `width` cap heights wide (arrow included), or None if nothing fits.
+
+    The label goes in the middle of the widest stretch of [a, b] that no span in `blocked` takes, shrunk to fit.
+    """
     spans = sorted((max(a, lo), min(b, hi)) for lo, hi in blocked if hi > a and lo < b)
     free, cursor = [], a + TEXT_GAP
     for lo, hi in spans:
@@ -177,27 +190,33 @@ def _label(centre: FlatCentreline, label: str, a: float, b: float, blocked: list
     if b - TEXT_GAP > cursor:
         free.append((cursor, b - TEXT_GAP))
     if not free:
-        return []
+        return None
     lo, hi = max(free, key=lambda span: span[1] - span[0])
     room = hi - lo - 2.0 * TEXT_GAP
-    arrow_length = 3.0
-    size = min(height, room / (glyphs.width + arrow_length + 1.0)) if room > 0 else 0.0
-    if size < MIN_LABEL_HEIGHT:
+    size = min(height, room / (width + ARROW_LENGTH + 1.0)) if room > 0 else 0.0
+    return ((lo + hi) / 2.0, size) if size >= MIN_LABEL_HEIGHT else None
+
+
+def _label(centre: FlatCentreline, label: str, a: float, b: float, blocked: list[tuple[float, float]],
+           sign: float, slot_end_y: float, edge_y: float, height: float) -> list[np.ndarray]:
+    """The label and an arrow along +x, centred in the widest free stretch of the free half, shrunk to fit."""
+    glyphs = layout(label)
+    spot = label_spot(glyphs.width, a, b, blocked, height)
+    if spot is None:
         return []
-    total = (glyphs.width + 1.0 + arrow_length) * size
+    anchor, size = spot
     mid_y = (slot_end_y + edge_y) / 2.0
-    anchor = (lo + hi) / 2.0
-    start = -total / 2.0
+    start = -(glyphs.width + 1.0 + ARROW_LENGTH) * size / 2.0
     strokes = _engrave(centre, [(glyphs, anchor, start, mid_y - size / 2.0, size)])
     shaft_start = start + (glyphs.width + 1.0) * size
-    for line in arrow(arrow_length * size, size * 0.8):
+    for line in arrow(ARROW_LENGTH * size, size * 0.8):
         strokes.append(centre.place(np.full(len(line), anchor), shaft_start + line[:, 0], mid_y + line[:, 1]))
     return strokes
 
 
 def _seam_holes(centre: FlatCentreline, segment: Segment, options: UnrollOptions) -> np.ndarray:
     """Centres (M, 2) of the six screw holes at each seam end of the segment."""
-    seams = [join.x for join in (segment.start_join, segment.end_join) if _is_seam(join)]
+    seams = [join.x for join in (segment.start_join, segment.end_join) if is_seam(join)]
     if not seams:
         return np.zeros((0, 2))
     x = (np.array(seams)[:, None] + SEAM_HOLE_COLUMNS[None, :] * options.overlap).ravel()

@@ -16,7 +16,7 @@ import numpy as np
 from fabline.errors import FablineError
 from fabline.unroll.options import TEXT_GAP, UnrollOptions
 from fabline.unroll.stations import Strip
-from fabline.unroll.strokes import layout
+from fabline.unroll.strokes import text_width
 
 
 @dataclass
@@ -115,6 +115,6 @@ def seam_candidates(strip: Strip, options: UnrollOptions, start: float, end: flo
 
 def node_text_reach(options: UnrollOptions, node_ids: list[str]) -> float:
     """How far a node's engraved id reaches from its mark along the strip (mm): the longest id plus a gap."""
-    widest = max((layout(n).width for n in node_ids), default=0.0)
+    widest = max((text_width(n) for n in node_ids), default=0.0)
     return widest * options.engrave_height + 2.0 * TEXT_GAP
 

@@ -71,6 +71,44 @@ def layout(text: str) -> StrokeText:
     return StrokeText(points, starts, advance)
 
 
+def text_width(text: str) -> float:
+    """Advance width of `text` at cap height 1, without laying out its strokes."""
+    return sum(_glyph(char).width for char in text)
+
+
+@dataclass(frozen=True)
+class TextBlock:
+    """Many strings laid out together at cap height 1, each from x = 0: all vertices, whose string each vertex and
+    each stroke is, where strokes start, and each string's width."""
+
+    points: np.ndarray
+    owner: np.ndarray
+    starts: np.ndarray
+    stroke_owner: np.ndarray
+    widths: np.ndarray
+
+
+def layout_block(texts: list[str]) -> TextBlock:
+    """Lay out many strings at once (the same glyphs as `layout`, without a Python loop per string's arrays)."""
+    glyph_of = {char: _glyph(char) for char in set("".join(texts))}
+    glyphs = [glyph_of[char] for text in texts for char in text]
+    text_of_char = np.repeat(np.arange(len(texts)), [len(text) for text in texts])
+    char_width = np.array([g.width for g in glyphs])
+    widths = np.bincount(text_of_char, weights=char_width, minlength=len(texts))
+    advance = np.cumsum(char_width) - char_width                       # from the block's start ...
+    first_char = np.concatenate([[0], np.cumsum([len(text) for text in texts])[:-1]]).astype(int)
+    advance -= np.repeat(advance[first_char] if len(glyphs) else np.zeros(len(texts)), [len(t) for t in texts])
+    counts = np.array([len(g.points) for g in glyphs], dtype=int)     # ... made relative to each string's start
+    if not counts.sum():
+        return TextBlock(np.zeros((0, 2)), np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), widths)
+    points = np.concatenate([g.points for g in glyphs if len(g.points)])
+    points[:, 0] += np.repeat(advance, counts)
+    row = np.cumsum(counts) - counts
+    stroke_counts = [len(g.starts) if len(g.points) else 0 for g in glyphs]
+    starts = np.concatenate([g.starts for g in glyphs if len(g.points)]) + np.repeat(row, stroke_counts)
+    return TextBlock(points, np.repeat(text_of_char, counts), starts, np.repeat(text_of_char, stroke_counts), widths)
+
+
 def arrow(length: float, height: float) -> list[np.ndarray]:
     """An orientation arrow along +x: a shaft and an open head, as two polylines (origin at the shaft's start)."""
     head = min(height, length / 3.0)

@@ -15,6 +15,7 @@ from fabline.geometry.darboux import NetworkGeometry, analyse
 from fabline.geometry.offsets import OffsetCurve
 from fabline.model.network import Network
 from fabline.progress import progress
+from fabline.unroll.batch import is_straight, straight_parts
 from fabline.unroll.hardware import HardwareSizes, checkerboard, clamp, singularity_joints, washers
 from fabline.unroll.options import UnrollOptions
 from fabline.unroll.parts import Part, PartSet
@@ -35,15 +36,16 @@ def unroll_network(network: Network, options: UnrollOptions | None = None,
                                f"shorter than one {options.overlap:g} mm seam overlap")
     strips = strip_stations(geometry, options)
     sizes = HardwareSizes.of(options.profile, options.pair_spacing, options.bolt_square)
-    parts: list[Part] = []
+    segments: list[Segment] = []
     strip_rows = []
     partner_seams: dict[str, set[tuple[str, str]]] = {}
-    for strip in progress(strips, "unroll", total=len(strips)):
+    for strip in progress(strips, "seams", total=len(strips)):
         avoid = partner_seams.setdefault(strip.lamella, set())
-        segments = split_strip(strip, options, sizes.joint_setback, avoid)
-        avoid.update(s.end_join.interval for s in segments if s.end_join is not None and s.end_join.kind == "seam")
-        parts.extend(segment_part(segment, options) for segment in segments)
-        strip_rows.append(_strip_row(strip, segments, options))
+        pieces = split_strip(strip, options, sizes.joint_setback, avoid)
+        avoid.update(s.end_join.interval for s in pieces if s.end_join is not None and s.end_join.kind == "seam")
+        segments.extend(pieces)
+        strip_rows.append(_strip_row(strip, pieces, options))
+    parts = _segment_parts(segments, options)
     checks = [check_lamella(geo, options.material, options.profile) for geo in geometry.lamellas.values()]
     warnings = [line for check in checks for line in check.warnings]
     if options.strict and warnings:
@@ -62,6 +64,14 @@ def unroll_network(network: Network, options: UnrollOptions | None = None,
     }
     profile = {"h": options.profile.h, "t": options.profile.t, "name": str(options.profile)}
     return PartSet(parts, profile, options.material.name, network.name, report)
+
+
+def _segment_parts(segments: list[Segment], options: UnrollOptions) -> list[Part]:
+    """One part per segment, in order: straight ones built together (batch), curved ones one by one."""
+    straight = [is_straight(segment, options) for segment in segments]
+    batched = iter(straight_parts([s for s, flag in zip(segments, straight) if flag], options))
+    return [next(batched) if flag else segment_part(segment, options)
+            for segment, flag in zip(progress(segments, "parts", total=len(segments)), straight)]
 
 
 def hardware_parts(geometry: NetworkGeometry, options: UnrollOptions, sizes: HardwareSizes) -> list[Part]:
@@ -101,7 +111,9 @@ def arm_angles(nodes: list[str], tangents: dict[str, list[np.ndarray]], network:
     owner = np.repeat(np.arange(len(nodes)), [len(tangents[nid]) for nid in nodes])
     all_t = np.array([t for nid in nodes for t in tangents[nid]])
     angles = np.degrees(np.arctan2(np.einsum("ij,ij->i", all_t, second[owner]), np.einsum("ij,ij->i", all_t, first[owner])))
-    return np.split(angles, np.cumsum([len(tangents[nid]) for nid in nodes])[:-1])
+    bounds = np.cumsum([0] + [len(tangents[nid]) for nid in nodes]).tolist()
+    flat = angles.tolist()
+    return [flat[lo:hi] for lo, hi in zip(bounds[:-1], bounds[1:])]
 
 
 def _strip_row(strip: Strip, segments: list[Segment], options: UnrollOptions) -> dict:

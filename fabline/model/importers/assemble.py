@@ -102,6 +102,8 @@ def build_network(source: CurveSource, units: str, tolerance_mm: float, mesh: tr
     for k in order:
         members = found.members[k]
         kind = "singularity" if len(members) == 3 else "grid"
+        if kind == "singularity":
+            _refuse_running_together(curves, members, found.xyz[k], path)
         nodes[node_ids[k]] = Node(node_ids[k], found.xyz[k], node_normals[k], kind)
         for curve_index, arc in members:
             on_curve[curve_index].append((arc, node_ids[k]))
@@ -121,3 +123,23 @@ def build_network(source: CurveSource, units: str, tolerance_mm: float, mesh: tr
         report.notes.append(f"curves lie up to {max_distance:.3g} mm off the surface {surface_label}; "
                             "check that it is the right surface")
     return network, report
+
+
+def _refuse_running_together(curves: list, members: list[tuple[int, float]], xyz: np.ndarray, path: str) -> None:
+    """A singularity's two lamellas of one family must cross; running side by side means a curve drawn twice."""
+    same = [(i, arc) for i, arc in members if sum(curves[j].family == curves[i].family for j, _ in members) == 2]
+    (first, arc_first), (second, arc_second) = same
+    if abs(np.dot(_tangent(curves[first].points, arc_first), _tangent(curves[second].points, arc_second))) > np.cos(
+            np.radians(1.0)):
+        x, y, z = xyz
+        raise FablineError(f"{path}: lamellas {curves[first].id} and {curves[second].id} (both family "
+                           f"{curves[first].family}) run together at ({x:.6g}, {y:.6g}, {z:.6g}): a curve drawn twice?")
+
+
+def _tangent(points: np.ndarray, arc: float) -> np.ndarray:
+    """Unit direction of the polyline segment at arc length `arc`."""
+    along = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
+    k = int(np.clip(np.searchsorted(along, arc, side="right") - 1, 0, len(points) - 2))
+    step = points[k + 1] - points[k]
+    return step / np.linalg.norm(step)
+

@@ -1,4 +1,4 @@
-"""Helpers shared by the runner tests: small G-code sheet programs that the link stage's parser accepts."""
+"""Support for the jobs and runner tests (no tests here): small G-code sheet programs, executed-line logs, the CLI."""
 
 from __future__ import annotations
 
