@@ -9,7 +9,8 @@ of bounding boxes (written here), rectpack's MaxRects bin packing of bounding bo
 (sparrow strip packing of the true outlines) where installed. Every peer result that is a sheet
 nesting is checked with fabline's independent validator; spyrrow solves strip packing, so its figure
 is the strip length divided by the usable sheet length (parts may straddle sheet edges): an
-optimistic estimate, marked with '*'.
+optimistic estimate, marked with '*'. Wall-clock and CPU seconds are both printed, since the
+machine may be shared; fabline's time includes its own validation, the peers' does not.
 """
 
 from __future__ import annotations
@@ -134,44 +135,37 @@ def _figures(partset: PartSet, sheets: list[Sheet], options: NestOptions, area: 
 
 def run_instance(name: str, partset: PartSet, options: NestOptions, peers: list[str], spyrrow_time: int,
                  spyrrow_max_parts: int) -> list[dict]:
-    """Every method on one instance; rows for the table."""
-    rows = []
-    started = time.perf_counter()
+    """Every method on one instance; rows for the table (wall-clock and this process's CPU seconds)."""
+    wall, cpu = time.perf_counter(), time.process_time()
     result = nest(partset, [StockItem("sheet", *SHEET)], options)
-    seconds = time.perf_counter() - started
+    rows = [{"method": "fabline", "sheets": result.report["sheets_used"], "utilisation": result.report["utilisation"],
+             "seconds": time.perf_counter() - wall, "cpu": time.process_time() - cpu, "valid": "ok"}]
     bounds = result.report["lower_bound"]
-    rows.append({"method": "fabline", "sheets": result.report["sheets_used"],
-                 "utilisation": result.report["utilisation"], "seconds": seconds, "valid": "ok"})
     shapes = nest_shapes(partset.parts)
     area = sum(s.area for s in shapes)
     for peer in peers:
-        started = time.perf_counter()
+        row = {"method": peer, "sheets": None, "utilisation": None, "seconds": None, "cpu": None}
+        wall, cpu = time.perf_counter(), time.process_time()
         try:
-            if peer == "ffd":
-                sheets = ffd_shelves(shapes, options)
-            elif peer == "rectpack":
-                sheets = rectpack_maxrects(shapes, options)
+            if peer == "spyrrow" and len(shapes) > spyrrow_max_parts:
+                row.update(method="spyrrow*", valid=f"skipped: over --spyrrow-max-parts {spyrrow_max_parts}")
             elif peer == "spyrrow":
-                if len(shapes) > spyrrow_max_parts:
-                    rows.append({"method": "spyrrow*", "sheets": None, "utilisation": None, "seconds": None,
-                                 "valid": f"skipped: over --spyrrow-max-parts {spyrrow_max_parts}"})
-                    continue
                 length = spyrrow_strip(shapes, options, spyrrow_time)
-                seconds = time.perf_counter() - started
                 count = length / (SHEET[0] - 2 * options.margin)
-                rows.append({"method": "spyrrow*", "sheets": math.ceil(count - 1e-9),
-                             "utilisation": area / (count * SHEET[0] * SHEET[1]), "seconds": seconds,
-                             "valid": f"strip {length / 1000:.2f} m = {count:.2f} sheet lengths"})
-                continue
+                row.update(method="spyrrow*", sheets=math.ceil(count - 1e-9),
+                           utilisation=area / (count * SHEET[0] * SHEET[1]),
+                           valid=f"strip {length / 1000:.2f} m = {count:.2f} sheet lengths")
+            elif peer in ("ffd", "rectpack"):
+                sheets = ffd_shelves(shapes, options) if peer == "ffd" else rectpack_maxrects(shapes, options)
+                row.update(seconds=time.perf_counter() - wall, cpu=time.process_time() - cpu)
+                row["sheets"], row["utilisation"], row["valid"] = _figures(partset, sheets, options, area)
             else:
                 raise ValueError(f"unknown peer {peer}")
         except ImportError as exc:
-            rows.append({"method": peer, "sheets": None, "utilisation": None, "seconds": None,
-                         "valid": f"not installed ({exc.name})"})
-            continue
-        seconds = time.perf_counter() - started
-        used, utilisation, verdict = _figures(partset, sheets, options, area)
-        rows.append({"method": peer, "sheets": used, "utilisation": utilisation, "seconds": seconds, "valid": verdict})
+            row.update(valid=f"not installed ({exc.name})")
+        if row["seconds"] is None and row["sheets"] is not None:
+            row.update(seconds=time.perf_counter() - wall, cpu=time.process_time() - cpu)
+        rows.append(row)
     for row in rows:
         row.update(instance=name, parts=len(partset.parts), lb_area=bounds["area"],
                    lb_clearance=bounds["clearance_area"], lb_strip_lp=bounds["strip_lp"])
@@ -193,7 +187,7 @@ def main() -> None:
     peers = [p for p in args.peers.split(",") if p]
     print(f"sheet {SHEET[0]:g} x {SHEET[1]:g} mm, margin {options.margin:g}, gap {options.gap:g}, kerf {options.kerf:g}\n")
     header = (f"{'instance':<14}{'parts':>7}  {'method':<10}{'sheets':>7}{'util %':>8}{'LB area':>9}{'LB clear':>9}"
-              f"{'LB strip':>9}{'time s':>8}  check")
+              f"{'LB strip':>9}{'wall s':>8}{'cpu s':>8}  check")
     print(header)
     print("-" * len(header), flush=True)
     for scale in args.scale or [1, 10]:
@@ -203,8 +197,9 @@ def main() -> None:
             sheets = "-" if r["sheets"] is None else str(r["sheets"])
             util = "-" if r["utilisation"] is None else f"{100 * r['utilisation']:.1f}"
             secs = "-" if r["seconds"] is None else f"{r['seconds']:.1f}"
+            cpu = "-" if r["cpu"] is None else f"{r['cpu']:.1f}"
             print(f"{r['instance']:<14}{r['parts']:>7}  {r['method']:<10}{sheets:>7}{util:>8}{r['lb_area']:>9}"
-                  f"{r['lb_clearance']:>9}{r['lb_strip_lp']:>9}{secs:>8}  {r['valid']}", flush=True)
+                  f"{r['lb_clearance']:>9}{r['lb_strip_lp']:>9}{secs:>8}{cpu:>8}  {r['valid']}", flush=True)
     print("\n* spyrrow packs one strip of the sheet's usable height; its sheet count is the strip length over the "
           "usable sheet length, rounded up (parts may straddle sheet edges), so it is optimistic.")
 

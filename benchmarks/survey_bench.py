@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import subprocess
 import sys
 import tempfile
 import time
@@ -28,6 +29,30 @@ def pavilion_model() -> Network:
     from fabline.model.designs import enneper_network
 
     return enneper_network()
+
+
+PUPIL_SCRIPT = """
+import json, os, sys, time
+import cv2
+import pupil_apriltags
+detector = pupil_apriltags.Detector(families="tag36h11", quad_decimate=1.0)
+images = [cv2.imread(path, cv2.IMREAD_GRAYSCALE) for path in sys.argv[1:]]
+start = time.perf_counter()
+tags = [sorted(r.tag_id for r in detector.detect(image) if r.hamming == 0) for image in images]
+print(json.dumps([time.perf_counter() - start, tags]), flush=True)
+os._exit(0)  # the library's teardown can crash (pupil-labs/apriltags issue #39)
+"""
+
+
+def _pupil_apriltags(paths: list[Path]):
+    """Seconds and tag ids per photo from the AprilTag 3 reference detector, run in a child process; None if absent."""
+    try:
+        import pupil_apriltags  # noqa: F401
+    except ImportError:
+        return None
+    done = subprocess.run([sys.executable, "-c", PUPIL_SCRIPT, *map(str, paths)], capture_output=True, text=True, check=True)
+    seconds, tags = json.loads(done.stdout)
+    return seconds, [set(t) for t in tags]
 
 
 def main() -> int:
@@ -54,16 +79,15 @@ def main() -> int:
         detect_tags(read_gray(path))
     per_photo = (time.perf_counter() - start) / len(sample)
     rows.append(("detect, fabline", f"{per_photo:.2f} s/photo", "OpenCV quads + edge refinement"))
-    try:
-        import pupil_apriltags
-
-        detector = pupil_apriltags.Detector(families="tag36h11", quad_decimate=1.0)
-        start = time.perf_counter()
-        for path in sample:
-            detector.detect(read_gray(path))
-        rows.append(("detect, pupil-apriltags", f"{(time.perf_counter() - start) / len(sample):.2f} s/photo", "reference, quad_decimate 1"))
-    except ImportError:
+    reference = _pupil_apriltags(sample)
+    if reference is None:
         rows.append(("detect, pupil-apriltags", "n/a", "not installed (pip install fabline[bench])"))
+    else:
+        seconds, tags = reference
+        ours = [{d.tag_id for d in detect_tags(read_gray(path))} for path in sample]
+        missed = sum(len(theirs - mine) for theirs, mine in zip(tags, ours))
+        rows.append(("detect, pupil-apriltags", f"{seconds / len(sample):.2f} s/photo",
+                     f"reference, quad_decimate 1: {sum(map(len, tags))} tags, {missed} of them missed by fabline"))
 
     camera, tag_map = load_camera(out / "set" / "camera.json"), load_tag_map(out / "set" / "tagmap.json")
     start = time.perf_counter()

@@ -32,7 +32,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="only the pavilion-sized model")
     args = parser.parse_args()
     models = dict(list(MODELS.items())[:1]) if args.quick else MODELS
-    print(f"{'model':<20}{'nodes':>7}{'lamellas':>9}{'step':<22}{'parts':>7}{'wall s':>9}{'cpu s':>9}")
+    print(f"{'model':<20}{'nodes':>7}{'lamellas':>9}{'  step':<22}{'parts':>7}{'wall s':>9}{'cpu s':>9}")
     for name, spec in models.items():
         network = enneper_network(**spec)
         geometry, wall, cpu = timed(analyse, network)

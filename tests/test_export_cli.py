@@ -163,3 +163,8 @@ def test_every_builtin_profile_exports_programs_that_check_clean(cli, job, machi
     code, out, _ = cli("gcode-check", folder / machine / "nesting_S1.gcode", "--machine", machine)
     assert code == 0, out
     assert re.search(r"cut [1-9][\d.]+ mm, mark [1-9][\d.]+ mm", out)
+
+
+def test_gcode_check_of_a_missing_file_is_a_one_line_error(cli, tmp_path):
+    code, _, err = cli("gcode-check", tmp_path / "none.gcode", "--machine", "grbl-laser")
+    assert code == 2 and err == f"fabline gcode-check: error: {tmp_path / 'none.gcode'}: file not found\n"

@@ -77,6 +77,7 @@ def test_required_keys(tmp_path):
     ("[survey]\nresult = \"survey.json\"", "job.toml: survey.result: file not found"),
     ("stages = [\"unroll\", \"polish\"]", "job.toml: stages[1]: unknown stage 'polish'"),
     ("stages = \"unroll\"", "job.toml: stages: expected a list, got string 'unroll'"),
+    ("stages = [\"unroll\", \"export\"]", "job.toml: stages: 'export' needs 'nest' in the same job"),
     ("machine = 3", "job.toml: machine: expected a table, got integer"),
 ])
 def test_bad_keys_name_the_key_path(tmp_path, extra, message):
@@ -126,6 +127,13 @@ def test_bad_name_and_malformed_toml(tmp_path):
         load_job_file(write(tmp_path, GOOD + "\n[[[\n"))
     with pytest.raises(FablineError, match="nothere.toml: file not found"):
         load_job_file(tmp_path / "nothere.toml")
+
+
+def test_cli_bad_design_options_exit_2_and_write_nothing(tmp_path, cli):
+    path = write(tmp_path, GOOD.replace("size = [2.0, 2.5]", "size = [40.0, 60.0]"))
+    code, out, err = cli("run", path)
+    assert code == 2 and err.startswith("fabline run: error: job.toml: model: design enneper:")
+    assert not (tmp_path / "out").exists()
 
 
 def test_cli_bad_job_file_exits_2_with_one_line_and_writes_nothing(tmp_path, cli):

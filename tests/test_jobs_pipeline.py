@@ -16,7 +16,7 @@ from fabline.link import load_program
 from fabline.model import load_network
 from fabline.nest import load_nesting
 from fabline.unroll import get_material, load_parts, parse_profile
-from test_runner_support import executed_program_lines
+from runner_support import executed_program_lines
 
 JOB = """
 name = "tiny"

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from shapely.geometry import Polygon, box
 
 from fabline.nest import NestOptions, StockItem, nest, place, validate_nesting
+from fabline.nest.nester import lower_bounds
+from fabline.nest.shapes import nest_shapes
 from fabline.nest.synthetic import pavilion_like_parts
-from fabline.unroll import flatten_contour
+from fabline.unroll import Part, flatten_contour
 
 
 @pytest.fixture(scope="module")
@@ -53,3 +56,18 @@ def test_leftovers_become_remnants_clear_of_every_part(pavilion):
         for placement in sheet.placements:
             outline = Polygon(place(flatten_contour(by_id[placement.part].outline), placement)[:, :2])
             assert outline.distance(area) >= 3.2 - 1e-6, (remnant["id"], placement.part)
+
+
+def test_clearance_area_bound_closed_form():
+    # 53 plates of 390 x 190 mm, clearance 3.2 mm: grown plate (a + c)(b + c) - (4 - pi)(c / 2)^2,
+    # grown usable sheet (W - 2m + c)(H - 2m + c); the bound is the ceiling of their ratio.
+    a, b, c, count = 390.0, 190.0, 3.2, 53
+    plate = np.array([[0, 0], [a, 0], [a, b], [0, b], [0, 0]])
+    shapes = nest_shapes([Part(f"P{k}", "clamp", plate) for k in range(count)])
+    options = NestOptions(kerf=0.2, gap=3.0, margin=10.0)
+    bounds = lower_bounds(shapes, StockItem("s", 1000, 1000), options, {"row_lower_bound": None})
+    grown = (a + c) * (b + c) - (4 - math.pi) * (c / 2) ** 2
+    ratio = count * grown / ((1000 - 20 + c) ** 2)
+    assert bounds["clearance_area"] == math.ceil(ratio) == 5
+    assert bounds["area"] == math.ceil(count * a * b / 1e6) == 4
+    assert bounds["strip_lp"] == 0

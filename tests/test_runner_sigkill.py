@@ -13,7 +13,7 @@ from pathlib import Path
 
 from fabline.jobs.queue import JobQueue
 from fabline.link import SimulatorServer
-from test_runner_support import JOBS_CLI, executed_program_lines, square_program, wire_lines
+from runner_support import JOBS_CLI, executed_program_lines, square_program, wire_lines
 
 REPO = Path(__file__).resolve().parent.parent
 KILLS = 20

@@ -15,7 +15,7 @@ import uvicorn
 from fabline.jobs.queue import JobQueue
 from fabline.jobs.runner import MachineConfig, Runner
 from fabline.jobs.web import TOKEN_HEADER, create_app
-from test_runner_support import executed_program_lines, square_program, wire_lines
+from runner_support import executed_program_lines, square_program, wire_lines
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -34,10 +34,10 @@ def served(tmp_path):
     """A queue with one 2-sheet job, a runner on one simulated machine, and the web server on 127.0.0.1."""
     db = tmp_path / "runner.sqlite"
     queue = JobQueue(db)
-    sheets = [square_program(tmp_path / f"sheet{k + 1}.gcode", 30, 30 + 40 * k, squares=6) for k in range(2)]
+    sheets = [square_program(tmp_path / f"sheet{k + 1}.gcode", 30, 30 + 40 * k, squares=10) for k in range(2)]
     job_id = queue.submit("web-job", programs=[(p.stem, str(p), "") for p in sheets])
     log = tmp_path / "executed.log"
-    runner = Runner(db, [MachineConfig("m1", f"sim://web-m1?time_scale=20&log={log}")], poll=0.05, prepare=False)
+    runner = Runner(db, [MachineConfig("m1", f"sim://web-m1?time_scale=8&log={log}")], poll=0.05, prepare=False)
     runner.start()
     port = free_port()
     server = uvicorn.Server(uvicorn.Config(create_app(db, TOKEN, poll=0.1), host="127.0.0.1", port=port,
@@ -99,7 +99,13 @@ def test_page_in_headless_chromium_confirm_sheets_and_watch_progress_reach_done(
             sync_api.expect(progress).to_contain_text(f"cutting sheet {k + 1} of 2", timeout=20000)
             picture = page.locator(".machine img")
             sync_api.expect(picture).to_be_visible()
-            assert page.evaluate("() => document.querySelector('.machine img').complete")
+            page.wait_for_function("() => { const i = document.querySelector('.machine img');"
+                                   " return i && i.complete && i.naturalWidth > 0; }", timeout=20000)
+            if k == 1:  # the operator pauses the second sheet (feed hold) and resumes it from the page
+                row.locator("button[data-action='pause']").click()
+                sync_api.expect(row).to_have_attribute("data-state", "paused", timeout=20000)
+                row.locator("button[data-action='resume']").click()
+                sync_api.expect(row).to_have_attribute("data-state", "cutting", timeout=20000)
         sync_api.expect(row).to_have_attribute("data-state", "done", timeout=60000)
         sync_api.expect(row.locator(".state")).to_have_text("done")
         browser.close()
@@ -112,7 +118,7 @@ def test_serve_prints_a_fresh_token_and_binds_to_localhost(tmp_path):
     import signal
     import subprocess
 
-    from test_runner_support import JOBS_CLI
+    from runner_support import JOBS_CLI
 
     (tmp_path / "jobs").mkdir()
     port = free_port()

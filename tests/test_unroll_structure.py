@@ -84,3 +84,25 @@ def test_limits_command_rejects_bad_input(cli):
     assert code == 2 and "'nothing' is not known" in err
     code, _, err = cli("limits", "--profile", "1x100")
     assert code == 2 and "profile" in err
+
+
+def test_per_interval_check_of_a_circular_lamella(s235):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from fabline.geometry import analyse
+    from fabline.unroll import check_lamella
+    from test_unroll_geometry import polar_grid
+
+    radius = 1200.0
+    geometry = analyse(polar_grid(radius + 350.0 * np.arange(2), 0.25 * np.arange(5)))
+    circle = geometry.lamellas["A-000"]
+    check = check_lamella(circle, s235, Profile(100.0, 4.0))
+    row = check.summary(s235, Profile(100.0, 4.0))
+    assert len(row["intervals"]) == 4
+    expected = 210000 * 4.0 / (2 * radius) / 235.0  # sigma = E t k_g / 2 with k_g = 1/R; no twist in a plane
+    for interval in row["intervals"]:
+        assert interval["k_g_per_m"] == pytest.approx(1000.0 / radius, rel=1e-3)  # spline curvature
+        assert interval["bending"] == pytest.approx(expected, abs=1e-3) and interval["shear"] == 0.0
+    assert len(check.warnings) == 1 and "lamella A-000, nodes" in check.warnings[0] and "(and 3 more intervals)" in check.warnings[0]

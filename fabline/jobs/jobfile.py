@@ -183,6 +183,9 @@ def _check_stages(stages: list, where: str) -> tuple[str, ...]:
             raise FablineError(f"{where}: stages[{k}]: unknown stage {stage!r} (use some of {', '.join(STAGES)})")
     if len(set(stages)) != len(stages):
         raise FablineError(f"{where}: stages: a stage is listed twice")
+    for stage, needs in (("nest", "unroll"), ("export", "nest"), ("stream", "export")):
+        if stage in stages and needs not in stages:
+            raise FablineError(f"{where}: stages: '{stage}' needs '{needs}' in the same job")
     return tuple(s for s in STAGES if s in stages)
 
 

@@ -60,23 +60,20 @@ def build_network(spec: JobSpec) -> "Network":
 
 def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) -> JobResult:
     """Run the job's stages up to export and write the report; returns the result with the sheet programs."""
-    spec = job if isinstance(job, JobSpec) else load_job_file(job)
-    spec.output_folder.mkdir(parents=True, exist_ok=True)
-    timings: dict[str, float] = {}
-    result = JobResult(spec, network=_timed(timings, "model", lambda: build_network(spec)), timings=timings)
     from fabline.model import save_network
 
+    spec = job if isinstance(job, JobSpec) else load_job_file(job)
+    timings: dict[str, float] = {}
+    result = JobResult(spec, network=_timed(timings, "model", lambda: build_network(spec)), timings=timings)
     save_network(result.network, spec.output("network.json"))
     say(f"model: {result.network.name}, {len(result.network.lamellas)} lamellas, {len(result.network.nodes)} nodes")
     if "unroll" in spec.stages:
         _timed(result.timings, "unroll", lambda: _unroll(result))
         say(f"unroll: {len(result.partset.parts)} parts -> {spec.output('parts.json')}")
     if "nest" in spec.stages:
-        _require(result.partset, "nest", "unroll", spec)
         _timed(result.timings, "nest", lambda: _nest(result))
         say(f"nest: {len(result.nesting.sheets)} sheet(s) -> {spec.output('nesting.json')}")
     if "export" in spec.stages:
-        _require(result.nesting, "export", "nest", spec)
         _timed(result.timings, "export", lambda: _export(result))
         say(f"export: {len(result.sheet_files)} G-code program(s) -> {spec.output('gcode')}")
     if spec.survey.get("result"):
@@ -94,7 +91,6 @@ def run_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None,
     spec = job if isinstance(job, JobSpec) else load_job_file(job)
     result = prepare_job(spec, say)
     if "stream" in spec.stages:
-        _require(result.sheet_files, "stream", "export", spec)
         try:
             _timed(result.timings, "stream", lambda: _stream_all(result, say, confirm_sheet, resume))
         finally:  # the report shows the streaming log, also of a run that stopped
@@ -121,11 +117,6 @@ def _timed(timings: dict[str, float], name: str, work: Callable[[], Any]) -> Any
     value = work()
     timings[name] = round(time.perf_counter() - started, 3)
     return value
-
-
-def _require(value: Any, stage: str, needs: str, spec: JobSpec) -> None:
-    if not value:
-        raise FablineError(f"{spec.path.name}: stages: '{stage}' needs '{needs}' in the same job")
 
 
 def _unroll(result: JobResult) -> None:

@@ -3,8 +3,8 @@
 Straight strips are the bulk of a gridshell's steel. They are packed into rows along the sheet's
 length (1D cutting stock, `cutstock`), rows stacked on sheets fullest first. Curved strips, joints,
 clamps and washers then go into whatever space is left, largest first, on the sheets already open
-and on new ones as needed (`raster`); identical parts are placed as one group. The result is checked
-by the independent validator before it is returned.
+and on new ones as needed (`raster`); identical parts are placed as one group, on a repeating pattern
+when there are many. The result is checked by the independent validator before it is returned.
 """
 
 from __future__ import annotations
@@ -392,7 +392,8 @@ def lower_bounds(shapes: list[NestShape], main: StockItem, options: NestOptions,
     spacing = _spacing(options)
     half = spacing / 2
     grown_sheet = (main.width - 2 * options.margin + spacing) * (main.height - 2 * options.margin + spacing)
-    grown_area = sum(len(group) * float(group[0].solid.buffer(half, quad_segs=16).area)
+    grown_area = sum(len(group) * float((group[0].polygon if options.fill_holes else group[0].solid)
+                                        .buffer(half, quad_segs=16).area)
                      for group in _groups(shapes).values())
     clearance_bound = math.ceil(grown_area / grown_sheet - 1e-9)
     strips = [s for s in shapes if s.strip_like]

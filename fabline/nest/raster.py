@@ -3,9 +3,10 @@
 The sheet's usable area becomes a grid of cells; every part placed so far is rasterised
 conservatively (any cell its clearance zone touches is occupied), and so is the part to place.
 Correlating the two grids (FFT, only over the windows where the part could fit at all) gives every
-collision-free position at once. Copies of an identical part are then placed greedily bottom-left,
-each placement striking out the positions it blocks for the next copy (the part's discrete no-fit
-polygon with itself), which builds dense lattice-like patterns without testing pairs of polygons.
+collision-free position at once. Many copies of an identical part are first laid on the densest
+lattice found on the part's discrete no-fit polygon with itself, at the offset that fits most copies
+into the free space; the rest are placed greedily bottom-left, each placement striking out the
+positions it blocks for the next copy, so no pair of polygons is ever tested.
 """
 
 from __future__ import annotations

@@ -18,8 +18,9 @@ from shapely.validation import explain_validity
 from fabline.errors import FablineError
 from fabline.unroll.parts import Part, flatten_contour
 
-# Flattening tolerance for arcs (mm): far below any gap a laser leaves, so nesting loses nothing to it.
-ARC_TOLERANCE = 0.05
+# Flattening tolerance for arcs (mm): far below any gap a laser leaves, and finer than the validator's own
+# flattening, so a chord never hides more of an arc than the validator's tolerance allows.
+ARC_TOLERANCE = 0.005
 
 
 @dataclass

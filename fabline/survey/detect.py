@@ -45,33 +45,74 @@ def _detector(min_side_px: float, image_size: int) -> cv2.aruco.ArucoDetector:
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE
     params.minMarkerPerimeterRate = max(4 * min_side_px / image_size, 1e-3)
-    params.adaptiveThreshWinSizeMin = 5
-    params.adaptiveThreshWinSizeMax = 35
-    params.adaptiveThreshWinSizeStep = 10
     return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY), params)
 
 
 def detect_tags(gray: np.ndarray, min_side_px: float = 12.0) -> list[TagDetection]:
-    """Every 36h11 tag in a grayscale image, sorted by id, corners refined to sub-pixel precision."""
+    """Every 36h11 tag in a grayscale image, sorted by id, corners refined to sub-pixel precision.
+
+    Quads OpenCV decodes are refined; quads it finds but cannot decode (small, oblique or blurred
+    tags, where its bit sampling on the coarse quad fails) get a second chance: refined first, their
+    bits are then read on the refined quad and identified with the dictionary's own error correction.
+    """
     padded = cv2.copyMakeBorder(gray, BORDER_PAD_PX, BORDER_PAD_PX, BORDER_PAD_PX, BORDER_PAD_PX, cv2.BORDER_REPLICATE)
-    corners, ids, _ = _detector(min_side_px, max(padded.shape)).detectMarkers(padded)
-    if ids is None:
-        return []
-    found = {}
-    for quad, tag_id in zip(corners, ids.ravel()):
+    corners, ids, rejected = _detector(min_side_px, max(padded.shape)).detectMarkers(padded)
+    candidates = [(q, int(i)) for q, i in zip(corners, ids.ravel())] if ids is not None else []
+    candidates += [(q, None) for q in rejected]
+    found: dict[int, np.ndarray] = {}
+    for quad, tag_id in candidates:
         quad = quad.reshape(4, 2).astype(float) - BORDER_PAD_PX
         if np.any(quad < 0) or np.any(quad > [gray.shape[1] - 1, gray.shape[0] - 1]):
             continue  # cut by the image border: its corners cannot be measured
+        if tag_id is None and np.min(np.linalg.norm(quad - np.roll(quad, 1, axis=0), axis=1)) < min_side_px:
+            continue
         margin = 4 + 0.2 * np.ptp(quad, axis=0).max()
         x0, y0 = np.maximum(np.floor(quad.min(axis=0) - margin).astype(int), 0)
         x1, y1 = np.ceil(quad.max(axis=0) + margin).astype(int) + 1
         window = spline_filter(gray[y0:y1, x0:x1].astype(np.float64), order=3)
         refined = refine_corners(window, quad - [x0, y0])
-        refined = None if refined is None else refined + [x0, y0]
-        tag_id = int(tag_id)
-        if refined is not None and (tag_id not in found or _area(refined) > _area(found[tag_id])):
+        if refined is not None and tag_id is None:
+            tag_id, refined = _decode(window, refined)
+        if refined is None or tag_id is None:
+            continue
+        refined = refined + [x0, y0]
+        if tag_id not in found or _area(refined) > _area(found[tag_id]):
             found[tag_id] = refined
     return [TagDetection(tag_id, found[tag_id]) for tag_id in sorted(found)]
+
+
+def _decode(image: np.ndarray, quad: np.ndarray) -> tuple[int | None, np.ndarray]:
+    """Read a refined quad's cells (spline image) and identify it; returns the id (or None) and corners in tag order.
+
+    The black border must be dark and the quiet zone around it light; data cells are thresholded
+    halfway between the two and matched with OpenCV's dictionary (3 bits corrected, as its detector).
+    """
+    canonical = np.array([[0, 0], [TAG_CELLS, 0], [TAG_CELLS, TAG_CELLS], [0, TAG_CELLS]], dtype=np.float32)
+    to_image = cv2.getPerspectiveTransform(canonical, quad.astype(np.float32))
+    ticks = np.arange(-1, TAG_CELLS + 1) + 0.5
+    sub = np.array([-0.25, 0.0, 0.25])
+    xs = (ticks[None, :, None, None] + sub[None, None, None, :]).repeat(len(ticks), 0).repeat(3, 2)
+    ys = (ticks[:, None, None, None] + sub[None, None, :, None]).repeat(len(ticks), 1).repeat(3, 3)
+    points = cv2.perspectiveTransform(np.stack([xs, ys], axis=-1).reshape(1, -1, 2), to_image)[0]
+    h, w = image.shape
+    if points[:, 0].min() < 0 or points[:, 1].min() < 0 or points[:, 0].max() > w - 1 or points[:, 1].max() > h - 1:
+        return None, quad
+    values = map_coordinates(image, [points[:, 1], points[:, 0]], order=3, prefilter=False)
+    cells = values.reshape(len(ticks), len(ticks), 9).mean(axis=2)
+    ring = np.ones((TAG_CELLS + 2, TAG_CELLS + 2), dtype=bool)
+    ring[1:-1, 1:-1] = False
+    border = np.zeros_like(ring)
+    border[1:-1, 1:-1] = True
+    border[2:-2, 2:-2] = False
+    dark, light = cells[border], cells[ring]
+    threshold = 0.5 * (np.median(dark) + np.median(light))
+    if np.median(light) - np.median(dark) < 20 or np.sum(dark > threshold) > 2 or np.sum(light < threshold) > 4:
+        return None, quad
+    bits = (cells[2:-2, 2:-2] > threshold).astype(np.uint8)
+    ok, tag_id, rotation = cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY).identify(bits, 0.6)
+    if not ok:
+        return None, quad
+    return int(tag_id), np.roll(quad, int(rotation), axis=0)
 
 
 def _area(quad: np.ndarray) -> float:
@@ -86,56 +127,56 @@ def refine_corners(image: np.ndarray, quad: np.ndarray) -> np.ndarray | None:
     Returns None when an edge cannot be located (too small, cut by the image border, no contrast).
     """
     for _ in range(REFINE_PASSES):
-        lines = []
-        side = np.mean(np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1))
-        centre = quad.mean(axis=0)
-        for i in range(4):
-            a, b = quad[i], quad[(i + 1) % 4]
-            across = np.linalg.norm((a + b) / 2 - (quad[(i + 2) % 4] + quad[(i + 3) % 4]) / 2)
-            reach = float(np.clip(0.45 * across / TAG_CELLS, 0.75, 4.0))
-            line = _fit_edge(image, a, b, centre, reach)
-            if line is None:
-                return None
-            lines.append(line)
+        lines = _fit_edges(image, quad)
+        if lines is None:
+            return None
         new = np.array([_intersect(lines[i - 1], lines[i]) for i in range(4)])
+        side = np.mean(np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1))
         if not np.all(np.isfinite(new)) or np.max(np.linalg.norm(new - quad, axis=1)) > max(3.0, 0.2 * side):
             return None
         quad = new
     return quad
 
 
-def _fit_edge(image: np.ndarray, a: np.ndarray, b: np.ndarray, centre: np.ndarray, reach: float):
-    """The edge a-b as (point, direction), from the intensity-gradient peaks of profiles across it."""
-    direction = (b - a) / np.linalg.norm(b - a)
-    normal = np.array([-direction[1], direction[0]])
-    if np.dot(normal, (a + b) / 2 - centre) < 0:
-        normal = -normal  # point outward, from the black border to the white quiet zone
-    along = np.linspace(0.15, 0.85, EDGE_SAMPLES)
+def _fit_edges(image: np.ndarray, quad: np.ndarray):
+    """The four edges of `quad` as (point, direction), from the intensity-gradient peaks of profiles across them.
+
+    Each edge is sampled at EDGE_SAMPLES points; along each point's outward normal (black border to white
+    quiet zone) the profile's steepest rise, interpolated with a parabola, is the edge crossing.
+    """
+    starts, ends = quad, np.roll(quad, -1, axis=0)
+    directions = (ends - starts) / np.linalg.norm(ends - starts, axis=1)[:, None]
+    normals = np.column_stack([-directions[:, 1], directions[:, 0]])
+    outward = np.einsum("ij,ij->i", normals, (starts + ends) / 2 - quad.mean(axis=0))
+    normals *= np.where(outward < 0, -1.0, 1.0)[:, None]
+    across = np.linalg.norm((starts + ends) / 2 - (np.roll(quad, -2, axis=0) + np.roll(quad, -3, axis=0)) / 2, axis=1)
+    reach = float(np.clip(0.45 * across.min() / TAG_CELLS, 0.75, 4.0))
     offsets = np.linspace(-reach, reach, 2 * int(np.ceil(4 * reach)) + 1)
-    points = a[None, :] + along[:, None] * (b - a)[None, :]
-    grid = points[:, None, :] + offsets[None, :, None] * normal[None, None, :]
+    along = np.linspace(0.15, 0.85, EDGE_SAMPLES)
+    points = starts[:, None, :] + along[None, :, None] * (ends - starts)[:, None, :]  # (4, S, 2)
+    grid = points[:, :, None, :] + offsets[None, None, :, None] * normals[:, None, None, :]  # (4, S, K, 2)
     h, w = image.shape
     if grid[..., 0].min() < 0 or grid[..., 1].min() < 0 or grid[..., 0].max() > w - 1 or grid[..., 1].max() > h - 1:
         return None
     profiles = map_coordinates(image, [grid[..., 1].ravel(), grid[..., 0].ravel()], order=3,
-                               prefilter=False).reshape(grid.shape[:2])
-    slope = np.gradient(profiles, axis=1)
-    inner = slice(1, slope.shape[1] - 1)
-    peak = np.argmax(slope[:, inner], axis=1) + 1
-    rows = np.arange(len(slope))
-    before, at, after = slope[rows, peak - 1], slope[rows, peak], slope[rows, peak + 1]
-    contrast = profiles[:, -1] - profiles[:, 0]
+                               prefilter=False).reshape(grid.shape[:3])
+    slope = np.gradient(profiles, axis=2)
+    peak = np.argmax(slope[:, :, 1:-1], axis=2) + 1
+    before, at, after = (np.take_along_axis(slope, (peak + d)[..., None], axis=2)[..., 0] for d in (-1, 0, 1))
+    contrast = profiles[:, :, -1] - profiles[:, :, 0]
     curvature = before - 2 * at + after
-    good = (contrast > 0.25 * np.max(contrast)) & (curvature < 0)
+    good = (contrast > 0.25 * contrast.max(axis=1, keepdims=True)) & (curvature < 0)
     shift = np.where(good, 0.5 * (before - after) / np.where(curvature < 0, curvature, -1.0), 0.0)
-    step = offsets[1] - offsets[0]
-    crossings = list((points + (offsets[peak] + shift * step)[:, None] * normal[None, :])[good])
-    if len(crossings) < 4:
-        return None
-    pts = np.array(crossings)
-    mean = pts.mean(axis=0)
-    _, _, vt = np.linalg.svd(pts - mean)
-    return mean, vt[0]
+    crossings = points + ((offsets[peak] + shift * (offsets[1] - offsets[0]))[..., None] * normals[:, None, :])
+    lines = []
+    for edge in range(4):
+        pts = crossings[edge][good[edge]]
+        if len(pts) < 4:
+            return None
+        mean = pts.mean(axis=0)
+        _, _, vt = np.linalg.svd(pts - mean)
+        lines.append((mean, vt[0]))
+    return lines
 
 
 def _intersect(line1, line2) -> np.ndarray:

@@ -320,11 +320,11 @@ def _normal_blocks(derivatives, residual, cam_index, tag_index, n_free, n_tags):
     d_cam, d_tag = derivatives[..., :6], derivatives[..., 6:]
     free = cam_index > 0
     u = np.zeros((n_free + 1, 6, 6))
-    np.add.at(u, cam_index, np.einsum("mri,mrj->mij", d_cam, d_cam))
+    np.add.at(u, cam_index, d_cam.transpose(0, 2, 1) @ d_cam)
     v = np.zeros((n_tags, 6, 6))
-    np.add.at(v, tag_index, np.einsum("mri,mrj->mij", d_tag, d_tag))
+    np.add.at(v, tag_index, d_tag.transpose(0, 2, 1) @ d_tag)
     w = np.zeros((n_free + 1, n_tags, 6, 6))
-    np.add.at(w, (cam_index, tag_index), np.einsum("mri,mrj->mij", d_cam, d_tag))
+    np.add.at(w, (cam_index, tag_index), d_cam.transpose(0, 2, 1) @ d_tag)
     g_cam = np.zeros((n_free + 1, 6))
     np.add.at(g_cam, cam_index[free], np.einsum("mri,mr->mi", d_cam[free], residual[free]))
     g_tag = np.zeros((n_tags, 6))
@@ -342,19 +342,25 @@ def _schur_solve(blocks, damping: float) -> np.ndarray:
     u = u + damping * np.diag(np.diag(u))
     v = v + damping * np.einsum("tii->ti", v)[:, :, None] * np.eye(6)[None]
     v_inv = np.linalg.inv(v)
-    wv = np.einsum("ctj,tji->cti", w, v_inv)
-    schur = u - np.einsum("cti,dti->cd", wv, w)
-    rhs = -g_cam + np.einsum("cti,ti->c", wv, g_tag)
+    wv, schur = _eliminate_tags(u, v_inv, w)
+    rhs = -g_cam + wv @ g_tag.ravel()
     step_cam = np.linalg.solve(schur, rhs) if len(rhs) else rhs
-    step_tag = np.einsum("tij,tj->ti", v_inv, -g_tag - np.einsum("ctj,c->tj", w, step_cam))
+    step_tag = (v_inv @ (-g_tag - (w.reshape(len(u), 6 * len(v)).T @ step_cam).reshape(-1, 6))[:, :, None])[:, :, 0]
     return np.concatenate([step_cam, step_tag.ravel()])
+
+
+def _eliminate_tags(u, v_inv, w):
+    """W V^-1 as (6C, 6T) and the Schur complement U - W V^-1 W^T on the camera poses."""
+    cams, tags = len(u), len(v_inv)
+    wv = (w.transpose(1, 0, 2) @ v_inv).transpose(1, 0, 2).reshape(cams, 6 * tags)
+    return wv, u - wv @ w.reshape(cams, 6 * tags).T
 
 
 def _tag_covariances(blocks, variance: float) -> np.ndarray:
     """Covariance (T, 6, 6) of each tag's pose (rotation vector, centre): variance x the tag blocks of (J^T J)^-1 (Schur)."""
     u, v, w, _, _ = blocks
     v_inv = np.linalg.inv(v + 1e-12 * np.eye(6))
-    wv = np.einsum("ctj,tji->cti", w, v_inv)
-    schur = u - np.einsum("cti,dti->cd", wv, w)
+    wv, schur = _eliminate_tags(u, v_inv, w)
     schur_inv = np.linalg.pinv(schur) if len(schur) else schur
-    return variance * (v_inv + np.einsum("cti,cd,dtj->tij", wv, schur_inv, wv))
+    per_tag = wv.reshape(len(u), len(v), 6).transpose(1, 0, 2)  # (T, 6C, 6)
+    return variance * (v_inv + per_tag.transpose(0, 2, 1) @ schur_inv @ per_tag)

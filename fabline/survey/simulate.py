@@ -10,7 +10,7 @@ changes, Gaussian blur and sensor noise. Written: the photos, `camera.json`, `ta
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -47,7 +47,6 @@ class SyntheticSpec:
     min_side_px: float = 16.0
     jpeg_quality: int = 95
     seed: int = 1
-    extras: dict = field(default_factory=dict)
 
     def camera(self) -> Camera:
         """The simulated camera's intrinsics (principal point slightly off centre, as in real lenses)."""

@@ -8,7 +8,7 @@ edge of the tag's outer black square (the AprilTag convention). Also writes prin
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2

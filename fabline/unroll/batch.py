@@ -18,7 +18,7 @@ from fabline.unroll.pieces import (ARROW_LENGTH, SEAM_HOLE_COLUMNS, SEAM_HOLE_RO
 from fabline.unroll.flat import QUARTER_ARC_BULGE
 from fabline.unroll.seams import Segment
 from fabline.unroll.stations import FAMILY_EDGE
-from fabline.unroll.strokes import TextBlock, layout_block, split_rows
+from fabline.unroll.strokes import TextBlock, gather, layout_block, split_rows
 
 _QUARTERS = np.column_stack([np.cos(np.arange(5) * np.pi / 2.0), np.sin(np.arange(5) * np.pi / 2.0)])
 
@@ -81,7 +81,12 @@ def straight_parts(segments: list[Segment], options: UnrollOptions) -> list[Part
     baseline = edge_y - sign * TEXT_GAP - np.where(sign > 0, height, 0.0)
     blocked_lo = np.where(right, node_x - TEXT_GAP, node_x - r_node)
     blocked_hi = np.where(right, node_x + r_node, node_x + TEXT_GAP)
-    node_strokes, node_stroke_count = _repeat_block(id_block, which, node_x - a[node_seg] + dx, baseline[node_seg], height)
+    ids = gather(id_block, which)  # each id is laid out once and engraved on up to four strips
+    id_points = ids.points * height
+    id_points[:, 0] += (node_x - a[node_seg] + dx)[ids.owner]
+    id_points[:, 1] += baseline[node_seg][ids.owner]
+    node_strokes = split_rows(id_points, ids.starts)
+    node_stroke_count = np.bincount(ids.stroke_owner, minlength=len(which))
 
     # labels: placed per segment (a short loop over each segment's few spans), drawn together
     labels = [segment_label(s) for s in segments]
@@ -196,29 +201,6 @@ def _slot_contours(x: np.ndarray, top: np.ndarray, h: float, half: float, depth:
     return contours
 
 
-def _repeat_block(block: TextBlock, which: np.ndarray, x0: np.ndarray, y0: np.ndarray,
-                  size: float) -> tuple[list[np.ndarray], np.ndarray]:
-    """Strokes of string `which[i]` of the block, put at (x0[i], y0[i]) at cap height `size`, for every i in turn.
-
-    A node id is engraved on four strips: it is laid out once and its vertices gathered by index.
-    """
-    strings = len(block.widths)
-    point_count = np.bincount(block.owner, minlength=strings)
-    point_first = np.cumsum(point_count) - point_count
-    stroke_count = np.bincount(block.stroke_owner, minlength=strings)
-    stroke_first = np.cumsum(stroke_count) - stroke_count
-    counts, strokes = point_count[which], stroke_count[which]
-    row = np.cumsum(counts) - counts                         # where instance i's vertices begin in the output
-    gather = np.repeat(point_first[which] - row, counts) + np.arange(counts.sum())
-    points = block.points[gather] * size
-    points[:, 0] += np.repeat(x0, counts)
-    points[:, 1] += np.repeat(y0, counts)
-    first = np.cumsum(strokes) - strokes
-    stroke_index = np.repeat(stroke_first[which] - first, strokes) + np.arange(strokes.sum())
-    starts = block.starts[stroke_index] + np.repeat(row - point_first[which], strokes)
-    return split_rows(points, starts), strokes
-
-
 def _labels(spots: list, block: TextBlock, a: np.ndarray, edge_y: np.ndarray,
             slot_end_y: np.ndarray) -> dict[int, list[np.ndarray]]:
     """Per segment with a label spot: the label's strokes, then its arrow's shaft and head (as `pieces._label`)."""
@@ -235,20 +217,15 @@ def _labels(spots: list, block: TextBlock, a: np.ndarray, edge_y: np.ndarray,
     points = block.points * size[block.owner][:, None]
     points[:, 0] += start[block.owner]
     points[:, 1] += (mid_y - size / 2.0)[block.owner]
-    ends = np.append(block.starts[1:], len(points)).tolist()
-    strokes: dict[int, list[np.ndarray]] = {int(k): [] for k in placed}
-    for owner, lo, hi in zip(block.stroke_owner.tolist(), block.starts.tolist(), ends):
-        if owner in strokes:
-            strokes[owner].append(points[lo:hi])
+    every = split_rows(points, block.starts)
+    first = np.searchsorted(block.stroke_owner, np.arange(count + 1)).tolist()
     shaft_x = start + (block.widths + 1.0) * size
     length, head = ARROW_LENGTH * size, np.minimum(0.8 * size, ARROW_LENGTH * size / 3.0)
     tip = shaft_x + length
     shafts = np.stack([np.column_stack([shaft_x, mid_y]), np.column_stack([tip, mid_y])], axis=1)
     heads = np.stack([np.column_stack([tip - head, mid_y + head / 2.0]), np.column_stack([tip, mid_y]),
                       np.column_stack([tip - head, mid_y - head / 2.0])], axis=1)
-    for k in placed.tolist():
-        strokes[k] += [shafts[k], heads[k]]
-    return strokes
+    return {k: every[first[k]:first[k + 1]] + [shafts[k], heads[k]] for k in placed.tolist()}
 
 
 def _seam_holes(segments: list[Segment], a: np.ndarray, start_seam: np.ndarray, end_seam: np.ndarray,

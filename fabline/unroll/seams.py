@@ -10,13 +10,14 @@ separate-joint mode a strip also ends `setback` before each singularity node and
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from fabline.errors import FablineError
 from fabline.unroll.options import TEXT_GAP, UnrollOptions
 from fabline.unroll.stations import Strip
-from fabline.unroll.strokes import text_width
+from fabline.unroll.strokes import text_widths
 
 
 @dataclass
@@ -41,8 +42,9 @@ class Segment:
     start_join: Join | None = None
     end_join: Join | None = None
 
-    @property
+    @cached_property
     def id(self) -> str:
+        """Part id: the strip's id, with ".k" when the strip has several segments (read after splitting)."""
         return self.strip.id if self.count == 1 else f"{self.strip.id}.{self.index}"
 
 
@@ -115,6 +117,6 @@ def seam_candidates(strip: Strip, options: UnrollOptions, start: float, end: flo
 
 def node_text_reach(options: UnrollOptions, node_ids: list[str]) -> float:
     """How far a node's engraved id reaches from its mark along the strip (mm): the longest id plus a gap."""
-    widest = max((text_width(n) for n in node_ids), default=0.0)
+    widest = float(text_widths(node_ids).max()) if node_ids else 0.0
     return widest * options.engrave_height + 2.0 * TEXT_GAP
 

@@ -9,6 +9,7 @@ All crossings of a network are solved together (one Gauss-Newton run), so the wo
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -45,8 +46,9 @@ class Strip:
     def family(self) -> str:
         return self.geometry.lamella.family
 
-    @property
+    @cached_property
     def id(self) -> str:
+        """The strip's id: the lamella's, with -L or -R for the two strips of a pair."""
         return f"{self.lamella}-{self.side}" if self.side else self.lamella
 
     @property

@@ -71,11 +71,6 @@ def layout(text: str) -> StrokeText:
     return StrokeText(points, starts, advance)
 
 
-def text_width(text: str) -> float:
-    """Advance width of `text` at cap height 1, without laying out its strokes."""
-    return sum(_glyph(char).width for char in text)
-
-
 @dataclass(frozen=True)
 class TextBlock:
     """Many strings laid out together at cap height 1, each from x = 0: all vertices, whose string each vertex and
@@ -88,25 +83,70 @@ class TextBlock:
     widths: np.ndarray
 
 
-def layout_block(texts: list[str]) -> TextBlock:
-    """Lay out many strings at once (the same glyphs as `layout`, without a Python loop per string's arrays)."""
-    glyph_of = {char: _glyph(char) for char in set("".join(texts))}
-    glyphs = [glyph_of[char] for text in texts for char in text]
-    text_of_char = np.repeat(np.arange(len(texts)), [len(text) for text in texts])
-    char_width = np.array([g.width for g in glyphs])
-    widths = np.bincount(text_of_char, weights=char_width, minlength=len(texts))
-    advance = np.cumsum(char_width) - char_width                       # from the block's start ...
-    first_char = np.concatenate([[0], np.cumsum([len(text) for text in texts])[:-1]]).astype(int)
-    advance -= np.repeat(advance[first_char] if len(glyphs) else np.zeros(len(texts)), [len(t) for t in texts])
-    counts = np.array([len(g.points) for g in glyphs], dtype=int)     # ... made relative to each string's start
-    if not counts.sum():
-        return TextBlock(np.zeros((0, 2)), np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), widths)
-    points = np.concatenate([g.points for g in glyphs if len(g.points)])
-    points[:, 0] += np.repeat(advance, counts)
+def _codes(texts: list[str]) -> np.ndarray:
+    """The characters of all strings, one after another, as code points."""
+    return np.frombuffer("".join(texts).encode("utf-32-le"), dtype="<u4")
+
+
+@lru_cache(maxsize=256)
+def _glyph_table(alphabet: str) -> TextBlock:
+    """The glyphs of the characters of `alphabet` as a block, one 'string' per character."""
+    glyphs = [_glyph(char) for char in alphabet]
+    counts = np.array([len(g.points) for g in glyphs], dtype=int)
+    stroke_counts = np.array([len(g.starts) if len(g.points) else 0 for g in glyphs], dtype=int)
+    drawn = [g for g in glyphs if len(g.points)]
+    points = np.concatenate([g.points for g in drawn]) if drawn else np.zeros((0, 2))
+    first = np.cumsum(counts) - counts
+    starts = (np.concatenate([g.starts for g in drawn]) if drawn else np.zeros(0, int)) + np.repeat(first, stroke_counts)
+    index = np.arange(len(glyphs))
+    return TextBlock(points, np.repeat(index, counts), starts, np.repeat(index, stroke_counts),
+                     np.array([g.width for g in glyphs]))
+
+
+def gather(block: TextBlock, which: np.ndarray, x0: np.ndarray | None = None) -> TextBlock:
+    """The strings block[which[i]] one after another (owner i), each shifted along x by x0[i]; widths per instance."""
+    strings = len(block.widths)
+    point_count = np.bincount(block.owner, minlength=strings)
+    stroke_count = np.bincount(block.stroke_owner, minlength=strings)
+    point_first, stroke_first = np.cumsum(point_count) - point_count, np.cumsum(stroke_count) - stroke_count
+    counts, strokes = point_count[which], stroke_count[which]
     row = np.cumsum(counts) - counts
-    stroke_counts = [len(g.starts) if len(g.points) else 0 for g in glyphs]
-    starts = np.concatenate([g.starts for g in glyphs if len(g.points)]) + np.repeat(row, stroke_counts)
-    return TextBlock(points, np.repeat(text_of_char, counts), starts, np.repeat(text_of_char, stroke_counts), widths)
+    points = block.points[np.repeat(point_first[which] - row, counts) + np.arange(counts.sum())]
+    instance = np.arange(len(which))
+    if x0 is not None:
+        points[:, 0] += np.repeat(x0, counts)
+    first = np.cumsum(strokes) - strokes
+    stroke_index = np.repeat(stroke_first[which] - first, strokes) + np.arange(strokes.sum())
+    starts = block.starts[stroke_index] + np.repeat(row - point_first[which], strokes)
+    return TextBlock(points, np.repeat(instance, counts), starts, np.repeat(instance, strokes), block.widths[which])
+
+
+def _characters(texts: list[str]) -> tuple[TextBlock, np.ndarray, np.ndarray, np.ndarray]:
+    """The glyph table of the strings' characters, each character's glyph, its string, and the string lengths."""
+    codes = _codes(texts)
+    alphabet, glyph = np.unique(codes, return_inverse=True)
+    table = _glyph_table("".join(map(chr, alphabet.tolist())))
+    lengths = np.array([len(text) for text in texts], dtype=int)
+    return table, glyph.ravel(), np.repeat(np.arange(len(texts)), lengths), lengths
+
+
+def text_widths(texts: list[str]) -> np.ndarray:
+    """Advance widths of many strings at cap height 1, without laying out their strokes."""
+    table, glyph, string, _ = _characters(texts)
+    return np.bincount(string, weights=table.widths[glyph], minlength=len(texts))
+
+
+def layout_block(texts: list[str]) -> TextBlock:
+    """Lay out many strings at once: the glyphs of `layout`, gathered and shifted by whole-array operations."""
+    table, glyph, string, lengths = _characters(texts)
+    char_width = table.widths[glyph]
+    end = np.cumsum(char_width)
+    before = end - char_width                                       # advance from the block's start ...
+    first = np.cumsum(lengths) - lengths
+    start_of_string = np.repeat(before[first[lengths > 0]], lengths[lengths > 0])
+    chars = gather(table, glyph, before - start_of_string)          # ... made relative to each string's start
+    widths = np.bincount(string, weights=char_width, minlength=len(texts))
+    return TextBlock(chars.points, string[chars.owner], chars.starts, string[chars.stroke_owner], widths)
 
 
 def arrow(length: float, height: float) -> list[np.ndarray]:

@@ -134,12 +134,16 @@ class LamellaCheck:
             "helix_centre_contraction_mm": round(self.centre_contraction, 3),
             "helix_top_edge_extension_mm": round(self.top_extension, 3),
             "helix_bottom_edge_extension_mm": round(self.bottom_extension, 3),
-            "intervals": [
-                {"from": a, "to": b, "k_g": float(f"{kg:.6g}"), "tau_g": float(f"{tg:.6g}"),
-                 **{k: round(float(v[i]), 4) for k, v in self.use.items()}}
-                for i, (a, b, kg, tg) in enumerate(zip(self.node_ids[:-1], self.node_ids[1:], self.max_k_g, self.max_tau_g))
-            ],
+            "intervals": self._intervals(),
         }
+
+    def _intervals(self) -> list[dict]:
+        """Per node interval: the largest k_g and tau_g (1/m) and the utilisations, rounded for the report."""
+        columns = {"k_g_per_m": np.round(self.max_k_g * MM_PER_M, 6), "tau_g_per_m": np.round(self.max_tau_g * MM_PER_M, 6),
+                   **{k: np.round(v, 4) for k, v in self.use.items()}}
+        names, values = list(columns), zip(*(c.tolist() for c in columns.values()))
+        return [{"from": a, "to": b, **dict(zip(names, row))}
+                for a, b, row in zip(self.node_ids[:-1], self.node_ids[1:], values)]
 
 
 def check_lamella(geometry: LamellaGeometry, material: Material, profile: Profile) -> LamellaCheck:
