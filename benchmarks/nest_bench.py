@@ -1,6 +1,7 @@
 """Nesting benchmark: fabline against peers on the pavilion-sized cut list and a 10x larger one.
 
-    python benchmarks/nest_bench.py                      # scales 1 and 10 of pavilion_parts()
+    python benchmarks/nest_bench.py                      # scales 1 and 10 of the unrolled built-in design
+    python benchmarks/nest_bench.py --synthetic          # the same on the synthetic pavilion-like cut list
     python benchmarks/nest_bench.py --parts parts.json --scale 1 --scale 10
     python benchmarks/nest_bench.py --scale 1 --spyrrow-time 60
 
@@ -29,14 +30,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from fabline.nest import NestOptions, Nesting, Placement, Sheet, StockItem, nest, validate_nesting  # noqa: E402
 from fabline.nest.shapes import NestShape, nest_shapes  # noqa: E402
 from fabline.nest.synthetic import pavilion_like_parts  # noqa: E402
-from fabline.unroll import PartSet, load_parts  # noqa: E402
+from fabline.model.designs import enneper_network  # noqa: E402
+from fabline.unroll import PartSet, load_parts, unroll_network  # noqa: E402
 
 SHEET = (4000.0, 2000.0)
 
 
-def pavilion_parts(scale: int = 1) -> PartSet:
-    """The built-in pavilion-sized cut list, `scale` times over (re-point this at the real unrolled design)."""
-    return pavilion_like_parts(scale)
+def pavilion_parts(scale: int = 1, synthetic: bool = False) -> PartSet:
+    """The built-in pavilion-sized cut list, `scale` times over: the Enneper design (9 x 12 m) unrolled with
+    default options, or the seeded synthetic cut list of the same make-up."""
+    if synthetic:
+        return pavilion_like_parts(scale)
+    return replicate(unroll_network(enneper_network()), scale)
 
 
 def replicate(partset: PartSet, scale: int) -> PartSet:
@@ -176,6 +181,8 @@ def main() -> None:
     """Parse options, run every instance and print one table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--parts", help="a parts.json to use instead of the built-in pavilion cut list")
+    parser.add_argument("--synthetic", action="store_true",
+                        help="use the seeded synthetic pavilion-like cut list instead of the unrolled built-in design")
     parser.add_argument("--scale", type=int, action="append", help="instance sizes to run (default 1 and 10)")
     parser.add_argument("--peers", default="ffd,rectpack,spyrrow", help="comma-separated peers to run")
     parser.add_argument("--spyrrow-time", type=int, default=60, help="seconds for spyrrow per instance (default 60)")
@@ -191,8 +198,9 @@ def main() -> None:
     print(header)
     print("-" * len(header), flush=True)
     for scale in args.scale or [1, 10]:
-        partset = replicate(load_parts(args.parts), scale) if args.parts else pavilion_parts(scale)
-        for r in run_instance(f"{Path(args.parts).stem if args.parts else 'pavilion'} x{scale}", partset, options,
+        partset = replicate(load_parts(args.parts), scale) if args.parts else pavilion_parts(scale, args.synthetic)
+        name = Path(args.parts).stem if args.parts else ("synthetic" if args.synthetic else "enneper")
+        for r in run_instance(f"{name} x{scale}", partset, options,
                               peers, args.spyrrow_time, args.spyrrow_max_parts):
             sheets = "-" if r["sheets"] is None else str(r["sheets"])
             util = "-" if r["utilisation"] is None else f"{100 * r['utilisation']:.1f}"

@@ -1,4 +1,5 @@
-"""The pavilion-sized cut list: every part placed, validated, at most one sheet above the best lower bound."""
+"""Pavilion-sized cut lists (synthetic and the unrolled built-in design): every part placed, validated,
+at most one sheet above the best lower bound; the lower bounds against closed forms."""
 
 from __future__ import annotations
 
@@ -9,10 +10,11 @@ import pytest
 from shapely.geometry import Polygon, box
 
 from fabline.nest import NestOptions, StockItem, nest, place, validate_nesting
+from fabline.model.designs import enneper_network
 from fabline.nest.nester import lower_bounds
 from fabline.nest.shapes import nest_shapes
 from fabline.nest.synthetic import pavilion_like_parts
-from fabline.unroll import Part, flatten_contour
+from fabline.unroll import Part, flatten_contour, unroll_network
 
 
 @pytest.fixture(scope="module")
@@ -71,3 +73,10 @@ def test_clearance_area_bound_closed_form():
     assert bounds["clearance_area"] == math.ceil(ratio) == 5
     assert bounds["area"] == math.ceil(count * a * b / 1e6) == 4
     assert bounds["strip_lp"] == 0
+
+
+def test_the_unrolled_built_in_design_nests_within_one_sheet_of_the_bound():
+    parts = unroll_network(enneper_network())
+    result = nest(parts, [StockItem("4x2", 4000, 2000)], NestOptions(kerf=0.2, gap=3.0, margin=10.0))
+    assert validate_nesting(result.nesting, parts) == []
+    assert len(result.nesting.sheets) <= result.report["lower_bound"]["best"] + 1

@@ -158,7 +158,7 @@ def load_parts(path: str | os.PathLike) -> PartSet:
 
 def save_parts(partset: PartSet, path: str | os.PathLike) -> None:
     """Write a part set atomically."""
-    write_json(path, parts_to_dict(partset))
+    write_json(path, parts_to_dict(partset), compact=True)
 
 
 def _contour(raw: Any, where: str, closed: bool = False) -> np.ndarray:
