@@ -1,7 +1,8 @@
 """Survey benchmark: a synthetic 24 MP photo set of the pavilion-sized model, surveyed end to end.
 
 Prints detection time per photo (fabline and, when installed, pupil-apriltags), the whole survey time,
-tags found against tags visible, false tags, and the RMS of recovered against injected deviations.
+tags found against tags visible, false tags, and the RMS of recovered against injected deviations
+(supports as reference without and with a scale bar between the two farthest support tags; all nodes).
 Run: python benchmarks/survey_bench.py [--model FILE] [--photos 32] [--size 6000x4000] [--out DIR]
 """
 
@@ -112,6 +113,17 @@ def main() -> int:
     recovered_all = np.array([record_all["nodes"][n]["deviation_mm"] for n in ids])
     rms_all = float(np.sqrt(np.mean(np.sum((recovered_all - (built @ rotation.T + translation - design)) ** 2, axis=1))))
     rows.append(("deviation error, RMS", f"{rms_all:.3f} mm", "reference = all nodes (truth fitted the same way)"))
+    supports = [n for n in ids if network.nodes[n].kind == "support" and truth["nodes"][n]["tag"] is not None]
+    centres = np.array([truth["nodes"][n]["tag_centre_mm"] for n in supports])
+    gaps = np.linalg.norm(centres[:, None] - centres[None], axis=2)
+    a, b = np.unravel_index(np.argmax(gaps), gaps.shape)
+    bar = (truth["nodes"][supports[a]]["tag"], truth["nodes"][supports[b]]["tag"], round(float(gaps[a, b]), 1))
+    record_bar = measure_survey(photos, network, camera, tag_map, out / "survey-bar",
+                                MeasureOptions(reference="supports", pictures=False, scale_bars=(bar,)))
+    recovered_bar = np.array([record_bar["nodes"][n]["deviation_mm"] for n in ids])
+    rms_bar = float(np.sqrt(np.mean(np.sum((recovered_bar - injected) ** 2, axis=1))))
+    rows.append(("deviation error, RMS", f"{rms_bar:.3f} mm",
+                 f"reference = supports, scale bar tags {bar[0]}-{bar[1]} {bar[2]:g} mm (factor {record_bar['scale']['factor']:.6f})"))
     width_col = max(len(r[0]) for r in rows)
     print(f"survey benchmark: {network.name or 'model'}, {len(network.nodes)} nodes, {len(tag_map.node_of_tag)} tags, output {out}")
     for name, value, note in rows:

@@ -58,8 +58,11 @@ def test_check_reports_unsupported_words_out_of_bed_moves_laser_on_travel_and_lo
     program = "\n".join([
         "G21", "G90", "G28",                                # G28: not in the laser profile
         "M4 S1000",
-        "G0 X10.000 Y10.000",                               # travel with the laser firing
-        "G1 X5000.000 Y10.000 F1500.000",                   # beyond the 4100 mm bed
+        "G0 X10.000 Y10.000",                               # laser mode: G0 does not fire the laser
+        "; cut-outer P1",
+        "G1 X20.000 Y10.000 F1500.000",                     # travel to the path's start with the laser on
+        "G0 X30.000 Y10.000",
+        "G1 X5000.000 Y10.000",                             # beyond the 4100 mm bed
         "M5",
         "G1 X1.000 Y1.000 ; " + "x" * 80,                   # over 80 characters
         "M2", ""])
@@ -67,9 +70,14 @@ def test_check_reports_unsupported_words_out_of_bed_moves_laser_on_travel_and_lo
     code, out, _ = cli("gcode-check", tmp_path / "bad.gcode", "--machine", "grbl-laser")
     assert code == 1
     assert "line 3: G28 is not supported" in out
-    assert "line 5: travel move (G0) with the tool on" in out
-    assert "line 6: move reaches x" in out and "outside the bed" in out
-    assert "line 8:" in out and "over the limit of 80" in out
+    assert "line 5:" not in out
+    assert "line 7: travel with the laser on" in out
+    assert "line 9: move reaches x" in out and "outside the bed" in out
+    assert "line 11:" in out and "over the limit of 80" in out
+    program = "\n".join(["G21", "G90", "M3 S80", "G0 X10.000 Y10.000", "M3 S30", "G0 X0 Y0", "M2", ""])
+    (tmp_path / "pen.gcode").write_text(program)                       # the plotter: pen down (S80) during G0
+    code, out, _ = cli("gcode-check", tmp_path / "pen.gcode", "--machine", "grbl-plotter")
+    assert code == 1 and "line 4: travel move (G0) with the tool on" in out and "line 6:" not in out
 
 
 def test_a_user_profile_file_works_without_touching_code(cli, job, monkeypatch):
@@ -115,6 +123,7 @@ def test_sheet_larger_than_the_bed(cli, job):
     (lambda t: t.replace('tool_on = ["M4 S{power}"]', 'tool_on = ["M3 S{power}"]'), "tool_on: M3 is not in the profile's words"),
     (lambda t: t.replace("passes = 1", "passes = 0", 1), "operations.engrave-mark.passes"),
     (lambda t: t.replace('"G2", "G3", ', ""), "words: must include G2"),
+    (lambda t: t.replace('mode = "laser"', 'mode = "plotter"'), "laser_mode: only a laser profile"),
 ])
 def test_bad_machine_profiles_name_the_file_and_the_field(cli, job, edit, field):
     folder, _, _ = job

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import numpy as np
 import pytest
 
-from fabline.export import MoveLog, ToolpathOptions, estimate_time, export_job, load_machine
+from fabline.export import MoveLog, ToolpathOptions, check_program, estimate_time, export_job, load_machine
 from fabline.export import samplejob
 
 from test_export_helpers import every_kind_nesting, every_kind_partset, gcodeparser, read_toolpaths
@@ -49,12 +50,58 @@ def test_laser_program_uses_m4_dynamic_power_within_the_s_range_and_says_it_need
     assert any("$32=1" in line for line in header)
     assert any("job job" in line and "sheet S1" in line for line in header)
     assert any("A B C W K J" in line for line in header)
-    powers = [float(m) for m in re.findall(r"^M4 S(\d+\.?\d*)$", text, re.M)]
+    powers = [float(m) for m in re.findall(r"^G[123] .*S(\d+\.?\d*)", text, re.M)]
     assert powers and all(profile.s_min <= s <= profile.s_max for s in powers)
     assert "M3" not in text
     runs = read_toolpaths(text)
     assert {r["power"] for r in runs if r["comment"].startswith("engrave")} == {250.0}
     assert {r["power"] for r in runs if r["comment"].startswith("cut")} == {1000.0}
+
+
+def test_laser_mode_arms_the_laser_once_and_carries_the_power_on_cutting_moves():
+    """Grbl syncs the planner on every M3/M4/M5, so a laser-mode program has one M4 S0 and one M5, cuts with S."""
+    result, profile = _export("grbl-laser")
+    lines = [line for line in result.sheets[0].gcode.splitlines() if not line.startswith(";")]
+    assert [line for line in lines if line.startswith("M")] == ["M4 S0.000", "M5", "M2"]
+    assert lines[:5] == ["G21", "G90", "G17", "G94", "M4 S0.000"]
+    assert lines[-3:] == ["M5", "G0 X0 Y0", "M2"]
+    assert not any(line.startswith("G0") and "S" in line for line in lines)
+    speeds = [float(m) for line in lines for m in re.findall(r" S(\d+\.\d+)", line) if line.startswith("G")]
+    assert all(a != b for a, b in zip(speeds, speeds[1:]))              # S written only when it changes
+    assert set(speeds) == {250.0, 1000.0}
+    report = check_program(result.sheets[0].gcode, profile)
+    assert report.problems == []
+    assert report.summary.time == pytest.approx(result.sheets[0].summary.time, rel=1e-9)
+
+
+def test_laser_mode_estimate_has_no_stop_per_contour():
+    """The same toolpaths with M4/M5 around each contour (laser mode off) take longer: a stop at every switch."""
+    synced = dataclasses.replace(load_machine("grbl-laser"), laser_mode=False)
+    nesting, partset = every_kind_nesting(), every_kind_partset()
+    parts = {p.id: p for p in partset.parts}
+    fast = export_job(nesting, parts, load_machine("grbl-laser"), ToolpathOptions(kerf=0.2)).sheets[0]
+    slow = export_job(nesting, parts, synced, ToolpathOptions(kerf=0.2)).sheets[0]
+    switches = slow.gcode.count("\nM5\n")
+    assert switches > 20 and fast.gcode.count("\nM5\n") == 1
+    assert fast.summary.cut_length == pytest.approx(slow.summary.cut_length)
+    assert fast.summary.time < slow.summary.time
+    report = check_program(slow.gcode, synced)                            # without laser mode G0 must be tool-off
+    assert report.problems == []
+
+
+def test_laser_on_travel_is_still_caught_in_a_hand_made_laser_mode_program():
+    result, profile = _export("grbl-laser")
+    lines = result.sheets[0].gcode.splitlines()
+    comments = [k for k, line in enumerate(lines) if line.startswith("; cut-inner")]
+    travel = comments[1] + 1
+    assert lines[travel].startswith("G0 ")
+    lines[travel] = "G1" + lines[travel][2:]                             # a G1 used as travel, laser at S1000
+    report = check_program("\n".join(lines) + "\n", profile)
+    assert len(report.problems) == 1
+    assert report.problems[0].startswith(f"line {travel + 1}: travel with the laser on")
+    synced = dataclasses.replace(profile, laser_mode=False)
+    unsafe = check_program(result.sheets[0].gcode, synced).problems   # the same program on a Grbl without $32=1
+    assert unsafe and all("travel move (G0) with the tool on" in p for p in unsafe)
 
 
 def test_plotter_lifts_the_pen_between_paths_and_mill_plunges_per_pass():

@@ -34,7 +34,9 @@ def test_example_job_parses_with_defaults_filled_in():
     assert spec.name == "pavilion"
     assert spec.model == {"design": "enneper", "options": {"size": (9.0, 12.0), "spacing": 0.35, "k_max": 1.1}}
     assert spec.machine["ports"] == [f"sim://grbl-{k}" for k in range(1, 7)]
-    assert spec.stages == ("unroll", "nest", "export", "stream", "report")
+    assert spec.stages == ("unroll", "nest", "export", "stream", "survey", "report")
+    assert spec.survey == {"result": None, "simulate": True, "photos": 12, "resolution": "3600x2400", "coverage": 0.7,
+                           "sag_mm": 40.0, "seed": 1, "tolerance_mm": 20.0, "reference": "all"}
     assert spec.output_folder == (REPO / "out" / "pavilion").resolve()
 
 
@@ -75,6 +77,24 @@ def test_required_keys(tmp_path):
     ("[lamella]\nmaterial = \"unobtainium\"", "job.toml: lamella.material: unknown material 'unobtainium'"),
     ("[nest]\ngap = -1", "job.toml: nest.gap: must not be negative"),
     ("[survey]\nresult = \"survey.json\"", "job.toml: survey.result: file not found"),
+    ("[survey]\nsimulate = \"yes\"", "job.toml: survey.simulate: expected true or false, got string 'yes'"),
+    ("[survey]\nsimulate = true\nlens = 35", "job.toml: survey.lens: unknown key (allowed: result, simulate, photos"),
+    ("[survey]\nsimulate = true\nphotos = 6.5", "job.toml: survey.photos: expected an integer, got number 6.5"),
+    ("[survey]\nsimulate = true\nphotos = 1", "job.toml: survey.photos: must be at least 2, got 1"),
+    ("[survey]\nsimulate = true\nresolution = 3000", "job.toml: survey.resolution: expected a string, got integer 3000"),
+    ("[survey]\nsimulate = true\nresolution = \"3000 by 2000\"",
+     "job.toml: survey.resolution: '3000 by 2000': expected WIDTHxHEIGHT in pixels"),
+    ("[survey]\nsimulate = true\nresolution = \"48x48\"", "job.toml: survey.resolution: '48x48': must be at least 64x64"),
+    ("[survey]\nsimulate = true\ncoverage = 3", "job.toml: survey.coverage: must be in (0, 2], got 3.0"),
+    ("[survey]\nsimulate = true\nsag_mm = -5", "job.toml: survey.sag_mm: must not be negative, got -5.0"),
+    ("[survey]\nsimulate = true\nsag_mm = \"a lot\"", "job.toml: survey.sag_mm: expected a number, got string 'a lot'"),
+    ("[survey]\nsimulate = true\nseed = -1", "job.toml: survey.seed: must not be negative, got -1"),
+    ("[survey]\nsimulate = true\ntolerance_mm = 0", "job.toml: survey.tolerance_mm: must be positive, got 0.0"),
+    ("[survey]\nsimulate = true\nreference = \"corners\"",
+     "job.toml: survey.reference: 'corners' must be 'all' or 'supports'"),
+    ("[survey]\nphotos = 8", "job.toml: survey.photos: only with survey.simulate = true"),
+    ("survey = 3", "job.toml: survey: expected a table, got integer"),
+    ("stages = [\"survey\", \"report\"]", "job.toml: stages: 'survey' needs survey.simulate = true"),
     ("stages = [\"unroll\", \"polish\"]", "job.toml: stages[1]: unknown stage 'polish'"),
     ("stages = \"unroll\"", "job.toml: stages: expected a list, got string 'unroll'"),
     ("stages = [\"unroll\", \"export\"]", "job.toml: stages: 'export' needs 'nest' in the same job"),
@@ -87,6 +107,32 @@ def test_bad_keys_name_the_key_path(tmp_path, extra, message):
         load_job_file(write(tmp_path, text))
     assert str(err.value).startswith(message), str(err.value)
     assert "\n" not in str(err.value)
+
+
+def test_survey_settings_and_stages(tmp_path):
+    """`survey.simulate` adds the survey stage to the default stages (after stream, before report), defaults filled in."""
+    spec = load_job_file(write(tmp_path, GOOD + "\n[survey]\nsimulate = true\nphotos = 8\n"))
+    assert spec.stages == ("unroll", "nest", "export", "stream", "survey", "report")
+    assert spec.survey == {"result": None, "simulate": True, "photos": 8, "resolution": "4000x2667", "coverage": 0.7,
+                           "sag_mm": 25.0, "seed": 1, "tolerance_mm": 20.0, "reference": "all"}
+    spec = load_job_file(write(tmp_path, 'stages = ["report", "survey"]\n' + GOOD + "\n[survey]\nsimulate = true\n"))
+    assert spec.stages == ("survey", "report")
+    assert load_job_file(write(tmp_path, GOOD)).survey == {"result": None, "simulate": False}
+
+
+def test_survey_simulate_needs_the_stage_and_excludes_a_result(tmp_path):
+    with pytest.raises(FablineError) as err:
+        load_job_file(write(tmp_path, 'stages = ["report"]\n' + GOOD + "\n[survey]\nsimulate = true\n"))
+    assert str(err.value) == "job.toml: survey.simulate: true but 'survey' is not in stages"
+    (tmp_path / "survey.json").write_text('{"schema": "fabline.survey/1"}', encoding="utf-8")
+    with pytest.raises(FablineError) as err:
+        load_job_file(write(tmp_path, GOOD + '\n[survey]\nsimulate = true\nresult = "survey.json"\n'))
+    assert str(err.value) == ("job.toml: survey: give survey.result (an existing survey) or survey.simulate = true, "
+                              "not both")
+    with pytest.raises(FablineError) as err:
+        load_job_file(write(tmp_path, GOOD + '\n[survey]\nresult = "survey.json"\n'))
+    assert str(err.value) == (f"job.toml: survey.result: {tmp_path / 'survey.json'}: not a complete fabline.survey/1 "
+                              "record (missing 'tolerance_mm')")
 
 
 @pytest.mark.parametrize("model, message", [
@@ -136,9 +182,13 @@ def test_cli_bad_design_options_exit_2_and_write_nothing(tmp_path, cli):
     assert not (tmp_path / "out").exists()
 
 
-def test_cli_bad_job_file_exits_2_with_one_line_and_writes_nothing(tmp_path, cli):
-    path = write(tmp_path, GOOD + "\n[machine]\nport = 7\n")
+@pytest.mark.parametrize("extra, message", [
+    ("[machine]\nport = 7", "job.toml: machine.port: expected a string, got integer 7"),
+    ("[survey]\nsimulate = true\nphotos = \"twelve\"", "job.toml: survey.photos: expected an integer, got string 'twelve'"),
+])
+def test_cli_bad_job_file_exits_2_with_one_line_and_writes_nothing(tmp_path, cli, extra, message):
+    path = write(tmp_path, GOOD + "\n" + extra + "\n")
     code, out, err = cli("run", path)
     assert code == 2
-    assert err.strip() == "fabline run: error: job.toml: machine.port: expected a string, got integer 7"
+    assert err == f"fabline run: error: {message}\n"
     assert not (tmp_path / "out").exists()

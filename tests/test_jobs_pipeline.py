@@ -1,13 +1,17 @@
 """`fabline run` end to end on a small design: every stage, the simulator executed every program line once,
-and the report (HTML + JSON) shows pictures first, every sheet with every part labelled, and the check."""
+the simulated survey agrees with the deviations it injected, and the report (HTML + JSON) shows pictures
+first, every sheet with every part labelled, the check and the survey."""
 
 from __future__ import annotations
 
+import base64
 import json
 import re
+import shutil
 from html.parser import HTMLParser
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fabline.cli import main
@@ -31,9 +35,18 @@ sheet = "1200x500"
 [machine]
 time_scale = 1000.0
 ports = ["sim://pipeline-1?log={log}1", "sim://pipeline-2?log={log}2"]
+[survey]
+simulate = true
+photos = 6
+resolution = "1200x800"
+coverage = 1.5
+sag_mm = 25.0
+tolerance_mm = 10.0
 [output]
 folder = "out"
 """
+SURVEY_PHOTOS = 6
+SURVEY_TOLERANCE_MM = 10.0
 
 
 @pytest.fixture(scope="module")
@@ -45,6 +58,9 @@ def run(tmp_path_factory):
     import io
     from contextlib import redirect_stdout
 
+    stale = folder / "out" / "survey" / "photos" / "photo-099.jpg"  # an earlier, larger photo set's last photo
+    stale.parent.mkdir(parents=True)
+    stale.write_bytes(b"not this job's photo")
     out = io.StringIO()
     with redirect_stdout(out):
         code = main(["run", str(job)])
@@ -147,24 +163,113 @@ def test_missing_model_file_is_one_line_exit_2_nothing_written(tmp_path, cli):
     assert not (tmp_path / "out").exists()
 
 
-def test_report_shows_a_survey_result_with_its_deviation_map(tmp_path):
-    import base64
+def _kabsch(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Best rigid fit of source onto target with scipy's own solver (independent of fabline's registration)."""
+    from scipy.spatial.transform import Rotation
 
-    import cv2
-    import numpy as np
+    rotation, _ = Rotation.align_vectors(target - target.mean(axis=0), source - source.mean(axis=0))
+    matrix = rotation.as_matrix()
+    return matrix, target.mean(axis=0) - matrix @ source.mean(axis=0)
 
-    survey = {"schema": "fabline.survey/1", "summary": {"nodes": 9, "measured": 8, "rms_deviation_mm": 3.25}}
-    (tmp_path / "survey").mkdir()
-    (tmp_path / "survey" / "survey.json").write_text(json.dumps(survey), encoding="utf-8")
-    ok, png = cv2.imencode(".png", np.full((8, 8, 3), 200, np.uint8))
-    (tmp_path / "survey" / "deviation_map.png").write_bytes(png.tobytes())
+
+def test_simulated_survey_writes_a_fresh_photo_set_and_its_survey(run):
+    folder = run["dir"] / "survey"
+    assert sorted(p.name for p in (folder / "photos").iterdir()) == [f"photo-{k:03d}.jpg" for k in range(SURVEY_PHOTOS)]
+    for name in ("camera.json", "tagmap.json", "truth.json", "survey.json", "deviation_map.png"):
+        assert (folder / name).is_file(), name
+    assert not (run["dir"] / "survey.new").exists()
+    truth = json.loads((folder / "truth.json").read_text())
+    network = load_network(run["dir"] / "network.json")
+    assert sorted(truth["nodes"]) == sorted(network.nodes)
+    assert re.search(r"survey: \d+ of 9 nodes measured", run["out"])
+
+
+def test_report_survey_figures_agree_with_the_injected_truth(run):
+    """The report's figures against truth.json: the simulator's injected deviations, fitted the way the survey fits."""
+    data = json.loads((run["dir"] / "report.json").read_text())["survey"]
+    record = json.loads((run["dir"] / "survey" / "survey.json").read_text())
+    truth = json.loads((run["dir"] / "survey" / "truth.json").read_text())
+    assert data["summary"] == record["summary"] and data["tolerance_mm"] == SURVEY_TOLERANCE_MM
+    ids = list(record["nodes"])
+    assert len(ids) >= 8 and data["summary"]["measured"] == len(ids)
+    assert data["summary"]["not_seen"] == len(truth["nodes"]) - len(ids) == len(data["not_seen"])
+    injected = np.array([truth["nodes"][n]["deviation_mm"] for n in truth["nodes"]])
+    assert np.abs(injected[:, 2]).max() == pytest.approx(25.0)  # the sag is really there
+    design = np.array([truth["nodes"][n]["design_mm"] for n in ids])
+    built = np.array([truth["nodes"][n]["built_mm"] for n in ids])
+    assert data["reference"] == "all"
+    rotation, translation = _kabsch(built, design)
+    true_deviation = built @ rotation.T + translation - design
+    true_distance = np.linalg.norm(true_deviation, axis=1)
+    measured = np.array([record["nodes"][n]["deviation_mm"] for n in ids])
+    error = np.linalg.norm(measured - true_deviation, axis=1)
+    rms_error = float(np.sqrt(np.mean(error ** 2)))
+    assert rms_error < 1.5, "the survey recovers the sag to about a millimetre"
+    comparison = data["truth"]
+    assert comparison["nodes_compared"] == len(ids)
+    assert comparison["rms_error_mm"] == pytest.approx(rms_error, abs=2e-3)
+    assert comparison["max_error_mm"] == pytest.approx(error.max(), abs=2e-3)
+    assert comparison["true_rms_deviation_mm"] == pytest.approx(np.sqrt(np.mean(true_distance ** 2)), abs=2e-3)
+    summary = data["summary"]
+    assert summary["rms_deviation_mm"] == pytest.approx(np.sqrt(np.mean(true_distance ** 2)), abs=1.5)
+    assert summary["max_deviation_mm"] == pytest.approx(true_distance.max(), abs=1.5)
+    true_pass = true_distance <= SURVEY_TOLERANCE_MM
+    assert 0 < (~true_pass).sum() < len(ids), "the tolerance splits the nodes"
+    measured_pass = np.array([record["nodes"][n]["pass"] for n in ids])
+    clear = np.abs(true_distance - SURVEY_TOLERANCE_MM) > 3 * rms_error  # away from the threshold, verdicts agree
+    assert np.array_equal(measured_pass[clear], true_pass[clear])
+    assert summary["passed"] == int(measured_pass.sum()) and summary["failed"] == int((~measured_pass).sum())
+    assert comparison["true_failed"] == int((~true_pass).sum())
+    assert comparison["pass_fail_agreement"] == int((measured_pass == true_pass).sum())
+
+
+def test_report_page_shows_the_survey_map_first_then_its_figures(run):
+    html = (run["dir"] / "report.html").read_text()
+    section = html[html.index("<h2>Survey</h2>"):html.index("<h2>Run</h2>")]
+    png = (run["dir"] / "survey" / "deviation_map.png").read_bytes()
+    assert section.startswith('<h2>Survey</h2><figure id=deviation-map><img alt="deviation map" '
+                              f'src="data:image/png;base64,{base64.b64encode(png).decode()}"')
+    data = json.loads((run["dir"] / "report.json").read_text())["survey"]
+    s, truth = data["summary"], data["truth"]
+    assert f"<tr><td>RMS deviation mm</td><td>{s['rms_deviation_mm']}</td></tr>" in section
+    assert f"<tr><td>max deviation mm</td><td>{s['max_deviation_mm']}</td></tr>" in section
+    assert f"<tr><td>worst nodes</td><td>{', '.join(s['worst'])}</td></tr>" in section
+    assert f"({s['passed']} pass, {s['failed']} fail against 10 mm); {s['not_seen']} not seen" in section
+    assert f"<tr><td>RMS of measured minus true deviation mm</td><td>{truth['rms_error_mm']}</td></tr>" in section
+    assert section.index("id=deviation-map") < section.index("id=survey>") < section.index("id=survey-truth")
+    stages = json.loads((run["dir"] / "report.json").read_text())["job"]["stages"]
+    assert stages == ["unroll", "nest", "export", "stream", "survey", "report"]
+
+
+def test_report_shows_an_existing_survey_result_with_its_deviation_map(run, tmp_path):
+    """`survey.result` names a survey.json made elsewhere: the report shows it (and its map) without a survey stage."""
+    (tmp_path / "measured").mkdir()
+    for name in ("survey.json", "deviation_map.png"):
+        shutil.copy(run["dir"] / "survey" / name, tmp_path / "measured" / name)
     job = tmp_path / "built.toml"
     job.write_text('name = "built"\nstages = ["report"]\n[model]\ndesign = "enneper"\n[model.options]\n'
-                   'size = [1.5, 1.5]\nspacing = 0.5\n[survey]\nresult = "survey/survey.json"\n[output]\nfolder = "out"\n',
+                   'size = [1.5, 1.5]\nspacing = 0.5\n[survey]\nresult = "measured/survey.json"\n[output]\nfolder = "out"\n',
                    encoding="utf-8")
     assert main(["run", str(job), "--quiet"]) == 0
     data = json.loads((tmp_path / "out" / "report.json").read_text())
-    assert data["survey"] == survey and data["stream"]["sheets"] == []
+    record = json.loads((tmp_path / "measured" / "survey.json").read_text())
+    assert data["survey"]["summary"] == record["summary"] and data["survey"]["truth"] is None
+    assert data["stream"]["sheets"] == [] and data["job"]["stages"] == ["report"]
+    assert not (tmp_path / "out" / "survey").exists()
     html = (tmp_path / "out" / "report.html").read_text()
-    assert "<td>rms_deviation_mm</td><td>3.25</td>" in html
-    assert f'src="data:image/png;base64,{base64.b64encode(png.tobytes()).decode()}"' in html
+    png = (tmp_path / "measured" / "deviation_map.png").read_bytes()
+    assert f'src="data:image/png;base64,{base64.b64encode(png).decode()}"' in html
+    assert f"<tr><td>RMS deviation mm</td><td>{record['summary']['rms_deviation_mm']}</td></tr>" in html
+
+
+def test_a_survey_result_that_is_not_a_survey_is_one_line_exit_2_nothing_written(tmp_path, cli):
+    (tmp_path / "survey.json").write_text(json.dumps({"schema": "fabline.nesting/1"}), encoding="utf-8")
+    job = tmp_path / "built.toml"
+    job.write_text('name = "built"\nstages = ["report"]\n[model]\ndesign = "enneper"\n[model.options]\n'
+                   'size = [1.5, 1.5]\nspacing = 0.5\n[survey]\nresult = "survey.json"\n[output]\nfolder = "out"\n',
+                   encoding="utf-8")
+    code, out, err = cli("run", job)
+    assert code == 2
+    assert err == (f"fabline run: error: built.toml: survey.result: {tmp_path / 'survey.json'}: not a fabline.survey/1 "
+                   "file (schema 'fabline.nesting/1')\n")
+    assert not (tmp_path / "out").exists()

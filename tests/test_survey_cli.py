@@ -79,6 +79,35 @@ def test_measure_prints_a_summary_and_writes_the_survey(cli, model_file, simulat
     assert len(ids) > 10 and np.sqrt(np.mean(np.sum((measured @ rotation.T + translation - built) ** 2, axis=1))) < 1.0
 
 
+def test_a_scale_bar_corrects_a_wrong_tag_size(cli, model_file, simulated, tmp_path):
+    """The tag map claims 63 mm tags (printed 65 mm): a measured distance between two tag centres fixes the scale."""
+    truth = json.loads((simulated / "truth.json").read_text())
+    tag_map = json.loads((simulated / "tagmap.json").read_text())
+    (tmp_path / "small.json").write_text(json.dumps({**tag_map, "tag_size_mm": 63.0}))
+    seen = {int(t) for p in truth["photos"] for t in p["visible"]}
+    centre = {n["tag"]: np.array(n["tag_centre_mm"]) for n in truth["nodes"].values() if n["tag"] in seen}
+    a, b = max(((a, b) for a in centre for b in centre), key=lambda pair: np.linalg.norm(centre[pair[0]] - centre[pair[1]]))
+    length = np.linalg.norm(centre[a] - centre[b])
+    common = ["survey", "measure", simulated / "photos", "--model", model_file, "--camera", simulated / "camera.json",
+              "--tags", tmp_path / "small.json"]
+    built = {n: np.array(v["built_mm"]) for n, v in truth["nodes"].items()}
+
+    def span_error(record):
+        ids = list(record["nodes"])
+        measured = np.array([record["nodes"][n]["measured_mm"] for n in ids])
+        return np.ptp(measured[:, 0]) / np.ptp(np.array([built[n][0] for n in ids])) - 1
+
+    assert cli(*common, "-o", tmp_path / "plain")[0] == 0
+    code, out, err = cli(*common, "-o", tmp_path / "bar", "--scale-bar", str(a), str(b), f"{length:.1f}")
+    assert code == 0, err
+    plain = json.loads((tmp_path / "plain" / "survey.json").read_text())
+    record = json.loads((tmp_path / "bar" / "survey.json").read_text())
+    assert span_error(plain) == pytest.approx(63 / 65 - 1, abs=2e-3)  # without the bar the shell is 3 % small
+    assert abs(span_error(record)) < 1e-3
+    assert record["scale"]["factor"] == pytest.approx(65 / 63, rel=1e-3)
+    assert record["scale"]["bars"][0]["tags"] == [a, b] and abs(record["scale"]["bars"][0]["misfit_mm"]) < 0.1
+
+
 @pytest.mark.parametrize("args, message", [
     (["survey", "detect", "{tmp}/missing.jpg"], "missing.jpg: cannot read the image"),
     (["survey", "detect", "{sim}/photos/photo-000.jpg", "--camera", "{sim}/camera.json"], "poses need both --camera and --tag-size"),
@@ -92,6 +121,14 @@ def test_measure_prints_a_summary_and_writes_the_survey(cli, model_file, simulat
       "-o", "{tmp}/out"], "two.json: tag 1 is given to two nodes"),
     (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "--tags", "{tmp}/ghost.json",
       "-o", "{tmp}/out"], "tag 2 is mapped to node ghost, which the model does not define"),
+    (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out",
+      "--scale-bar", "0", "999", "1500"], "--scale-bar 0 999 1500: tag 999 is not in the tag map"),
+    (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out",
+      "--scale-bar", "3", "3", "1500"], "--scale-bar 3 3 1500: a bar needs two different tags"),
+    (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out",
+      "--scale-bar", "0", "4", "0"], "--scale-bar 0 4 0: the distance must be a positive number of mm"),
+    (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out",
+      "--scale-bar", "0", "4", "1.5m"], "--scale-bar 0 4 1.5m: expected two tag ids and a distance in mm"),
     (["survey", "calibrate", "{tmp}", "-o", "{tmp}/cam.json"], "no photos"),
     (["survey", "simulate", "--model", "{model}", "-o", "{tmp}/out", "--size", "big"], "--size 'big': expected WxH"),
 ])

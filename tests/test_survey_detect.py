@@ -120,3 +120,21 @@ def test_no_tags_and_unreadable_images(tmp_path):
     (tmp_path / "broken.jpg").write_bytes(b"not a jpeg")
     with pytest.raises(FablineError, match=r"broken.jpg: cannot read the image"):
         read_gray(tmp_path / "broken.jpg")
+
+
+def test_detected_tags_are_not_shrunk_or_grown(photo_set):
+    """Mean signed error of the detected side lengths against the simulator's exact corners: a bias here is a
+    scale error of the whole survey (the tags are its only scale), so it must stay at a few thousandths of a pixel."""
+    _, truth, detections = photo_set
+    errors, lengths = [], []
+    for record, found in zip(truth["photos"], detections):
+        by_id = {d.tag_id: d.corners for d in found}
+        for tag_id, corners in record["visible"].items():
+            exact, detected = np.array(corners), by_id[int(tag_id)]
+            exact_sides = np.linalg.norm(exact - np.roll(exact, -1, axis=0), axis=1)
+            errors += list(np.linalg.norm(detected - np.roll(detected, -1, axis=0), axis=1) - exact_sides)
+            lengths += list(exact_sides)
+    errors = np.array(errors)
+    print(f"side error {errors.mean():+.4f} px +/- {errors.std() / np.sqrt(len(errors)):.4f}, median side {np.median(lengths):.1f} px")
+    assert len(errors) > 150
+    assert abs(errors.mean()) < 0.01 and abs(np.mean(errors / lengths)) < 2e-4

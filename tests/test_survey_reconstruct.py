@@ -140,3 +140,29 @@ def test_rigid_fit_recovers_a_known_motion_and_register_needs_three_reference_no
         register(line, line, np.ones(5, dtype=bool))
     with pytest.raises(FablineError, match=r"got 2"):
         register(source, target, np.arange(25) < 2)
+
+
+def test_a_scale_bar_fixes_the_scale_when_the_tag_size_is_wrong():
+    """Tags printed 1.5 % small: the adjustment scales everything by it; one measured distance restores the truth."""
+    rng = np.random.default_rng(6)
+    camera, observations, centres, _, _ = _scene(rng)
+    result = bundle_adjust(observations, camera, TAG_MM / 1.015)
+    ids = sorted(result.tag_poses)
+    recovered = np.array([result.tag_poses[t][3:] for t in ids])
+    spread = np.linalg.norm(recovered[0] - recovered[-1]) / np.linalg.norm(centres[ids[0]] - centres[ids[-1]])
+    assert spread == pytest.approx(1 / 1.015, rel=1e-6)
+    before = {t: np.diag(result.tag_covariances[t])[3:].copy() for t in ids}
+    far = int(np.argmax(np.linalg.norm(centres[ids] - centres[ids[0]], axis=1)))
+    length = float(np.linalg.norm(centres[ids[0]] - centres[ids[far]]))
+    factor, misfits = result.scale_to_bars([(ids[0], ids[far], length)])
+    assert factor == pytest.approx(1.015, rel=1e-6) and abs(misfits[0]) < 1e-6
+    recovered = np.array([result.tag_poses[t][3:] for t in ids])
+    rotation, translation = rigid_fit(recovered, centres[ids])
+    assert np.abs(recovered @ rotation.T + translation - centres[ids]).max() < 1e-3
+    assert np.allclose(np.diag(result.tag_covariances[ids[1]])[3:], factor ** 2 * before[ids[1]])
+    # the cameras moved with the tags: reprojection is unchanged
+    photo = next(p for p in result.camera_rotations if p != min(result.camera_rotations))
+    obs = next(o for o in observations if o.photo == photo)
+    cam = (tag_object_points(TAG_MM) @ rotation_matrices(result.tag_poses[obs.tag][None, :3])[0].T
+           + result.tag_poses[obs.tag][3:]) @ result.camera_rotations[photo].T + result.camera_translations[photo]
+    assert np.abs(cam[:, :2] / cam[:, 2:] - obs.normalised).max() < 1e-7

@@ -13,7 +13,7 @@ import sys
 from fabline import __version__
 from fabline.errors import FablineError
 
-STAGE_COMMANDS = ("model", "importing", "unroll", "export", "survey", "nest", "jobs", "link")
+STAGE_COMMANDS = ("model", "importing", "unroll", "nest", "export", "link", "survey", "jobs")
 
 
 def build_parser() -> argparse.ArgumentParser:

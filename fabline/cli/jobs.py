@@ -15,7 +15,7 @@ RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm")
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add `run` and `runner` (serve, submit, status, pause, resume, cancel, confirm)."""
-    run = subparsers.add_parser("run", help="run a job file end to end: model, unroll, nest, export, stream, report")
+    run = subparsers.add_parser("run", help="run a job file end to end: model, unroll, nest, export, stream, survey, report")
     run.add_argument("job", help="a job file (jobs/*.toml)")
     run.add_argument("-y", "--yes", action="store_true",
                      help="do not ask before each sheet on a real machine (the sheets are already loaded)")

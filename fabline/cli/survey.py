@@ -65,6 +65,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     measure.add_argument("--reference", default="all",
                          help="nodes the registration fits: all (default), supports, or comma-separated node ids")
     measure.add_argument("--min-views", type=int, default=2, help="photos a tag must be seen in (default 2)")
+    measure.add_argument("--scale-bar", nargs=3, action="append", default=[], metavar=("TAG_A", "TAG_B", "DIST_MM"),
+                         help="distance between two tag centres measured on site; fixes the scale (repeatable)")
     measure.set_defaults(func=_measure)
 
 
@@ -164,6 +166,14 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _scale_bar(values: list[str]) -> tuple[int, int, float]:
+    """Parse one `--scale-bar TAG_A TAG_B DIST_MM`; a non-number raises naming the bar."""
+    try:
+        return int(values[0]), int(values[1]), float(values[2])
+    except ValueError:
+        raise FablineError(f"--scale-bar {' '.join(values)}: expected two tag ids and a distance in mm") from None
+
+
 def _measure(args: argparse.Namespace) -> int:
     from fabline.model import load_network
     from fabline.survey import MeasureOptions, list_photos, load_camera, load_tag_map, make_tag_map, measure_survey
@@ -171,7 +181,8 @@ def _measure(args: argparse.Namespace) -> int:
     network = load_network(args.model)
     tag_map = load_tag_map(args.tags) if args.tags else make_tag_map(network)
     reference = args.reference if args.reference in ("all", "supports") else [n.strip() for n in args.reference.split(",") if n.strip()]
-    options = MeasureOptions(tolerance_mm=args.tolerance, reference=reference, min_views=args.min_views)
+    options = MeasureOptions(tolerance_mm=args.tolerance, reference=reference, min_views=args.min_views,
+                             scale_bars=tuple(_scale_bar(values) for values in args.scale_bar))
     record = measure_survey(list_photos(args.photos), network, load_camera(args.camera), tag_map, args.output, options)
     for problem in record["problems"]:
         print(f"warning: {problem['problem']}")

@@ -3,6 +3,10 @@
 Reports unsupported words, lines over the controller's limit, moves outside the bed, travel moves with
 the tool on (laser firing or pen down during G0), and recomputes cut, mark and travel lengths and the run
 time with the profile's acceleration.
+
+In a laser-mode profile (Grbl $32=1) the controller switches the laser off on G0, so a G0 with M4 active
+is fine; instead every path (opened by its `; <operation>` comment) must reach its start with a G0, and a
+feed move with the laser on (M3/M4 and S > 0) before that G0 is travel with the laser on.
 """
 
 from __future__ import annotations
@@ -58,6 +62,7 @@ def check_program(text: str, profile: MachineProfile, source: str = "program") -
         marker = OPERATION_COMMENT.match(raw)
         if marker:
             state.operation = marker.group(1)
+            state.positioned = False
         try:
             block = pygcode.Line(raw).block
         except Exception as exc:   # pygcode raises several exception types for malformed words
@@ -84,6 +89,7 @@ class _State:
         self.moves = MoveLog()
         self.stop_pending = True
         self.dwell = 0.0
+        self.positioned = True      # laser mode: the current path's G0 to its start has been read
 
     def tool_on(self) -> bool:
         """Is the tool cutting: laser on with power, pen down (S other than pen-up), or cutter below the top."""
@@ -147,9 +153,15 @@ class _State:
                 return
             centre = (start[0] + params.get("I", 0.0), start[1] + params.get("J", 0.0))
         self.position = target
-        cutting = self.tool_on()
-        if self.motion == 0 and cutting and np.hypot(*(target[:2] - start[:2])) > 0:
-            problems.append(f"{where}: travel move (G0) with the tool on")
+        cutting = self.tool_on() and not (self.motion == 0 and self.profile.laser_mode)
+        if self.motion == 0:
+            self.positioned = True
+            if cutting and np.hypot(*(target[:2] - start[:2])) > 0:
+                problems.append(f"{where}: travel move (G0) with the tool on")
+        elif cutting and not self.positioned and self.profile.laser_mode:
+            problems.append(f"{where}: travel with the laser on (G{self.motion} before the G0 to the start of "
+                            f"the {self.operation} path; in laser mode only G0 travels with the laser off)")
+            self.positioned = True  # once per path: the moves after it are its cut
         self._check_bed(start[:2], target[:2], centre, self.motion == 2, where, problems)
         self.moves.add(tuple(start[:2]), tuple(target[:2]), self.profile.rapid_rate if self.motion == 0 else self.feed,
                        self.motion == 0, cutting and self.motion != 0, self.operation.startswith("engrave"), centre,

@@ -2,20 +2,21 @@
 
 Contours are closed LWPOLYLINEs whose arcs stay arcs (bulges); marks and text are open LWPOLYLINEs;
 the sheet outline has its own layer. The geometry is the nested part geometry itself, not kerf-offset:
-CAM software applies its own kerf.
+CAM software applies its own kerf. A drawing is made and serialised in one call (`drawing_text`), so the
+export stage can run the drawings in worker processes while it computes the toolpaths.
 """
 
 from __future__ import annotations
 
-import os
+import io
 
 import ezdxf
 import numpy as np
 from ezdxf import units
+from ezdxf.entities.lwpolyline import LWPolylinePoints
 
 from fabline.export.contours import is_closed, with_bulges
 from fabline.export.toolpath import inner_contours
-from fabline.fileio import atomic_output
 from fabline.nest.layout import Sheet, place
 from fabline.unroll.parts import Part
 
@@ -52,9 +53,19 @@ def add_sheet(doc: ezdxf.document.Drawing, sheet: Sheet, parts: dict[str, Part],
         rows, pieces = shapes[part.id]
         placed = place(rows, placement)
         placed[:, 0] += dx
-        values = np.round(placed, 6).tolist()
+        vertices = np.zeros((len(placed), 5))          # ezdxf's LWPOLYLINE vertex: x, y, start width, end width, bulge
+        vertices[:, [0, 1, 4]] = np.round(placed, 6)
         for layer, closed, start, end in pieces:
-            msp.add_lwpolyline(values[start:end], format="xyb", close=closed, dxfattribs={"layer": layer})
+            _add_polyline(msp, vertices[start:end], closed, layer)
+
+
+def _add_polyline(layout, vertices: np.ndarray, closed: bool, layer: str) -> None:
+    """An LWPOLYLINE from an (N, 5) vertex array at once: ezdxf's add_lwpolyline parses every vertex in Python,
+    which is most of the time of a 40 000-contour drawing; the entity's vertex array is the same numpy layout."""
+    polyline = layout.add_lwpolyline([], close=closed, dxfattribs={"layer": layer})
+    points = LWPolylinePoints()
+    points.values = vertices
+    polyline.lwpoints = points
 
 
 def _part_shapes(part: Part) -> tuple[np.ndarray, list[tuple[str, bool, int, int]]]:
@@ -73,17 +84,18 @@ def _part_shapes(part: Part) -> tuple[np.ndarray, list[tuple[str, bool, int, int
     return np.vstack(blocks), pieces
 
 
-def write_drawing(doc: ezdxf.document.Drawing, path: str | os.PathLike) -> None:
-    """Save a drawing atomically."""
-    with atomic_output(path) as handle:
-        doc.write(handle)
-
-
 def sheets_drawing(sheets: list[Sheet], parts: dict[str, Part]) -> ezdxf.document.Drawing:
-    """One drawing with all sheets side by side along x, SHEET_SPACING apart."""
+    """One drawing with the sheets side by side along x, SHEET_SPACING apart (one sheet: just that sheet)."""
     doc = new_drawing()
     dx = 0.0
     for sheet in sheets:
         add_sheet(doc, sheet, parts, dx)
         dx += sheet.width + SHEET_SPACING
     return doc
+
+
+def drawing_text(sheets: list[Sheet], parts: dict[str, Part]) -> str:
+    """The DXF text of `sheets_drawing`: what a worker process returns for the export stage to write."""
+    stream = io.StringIO()
+    sheets_drawing(sheets, parts).write(stream)
+    return stream.getvalue()

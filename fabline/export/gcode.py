@@ -41,6 +41,8 @@ class GcodeWriter:
         self.moves = MoveLog()
         self.position = (0.0, 0.0)
         self.feed: float | None = None
+        self.power: float | None = None   # laser mode: the S cutting moves carry (None: templates switch the tool)
+        self.speed = 0.0                  # laser mode: the modal S last written
         self.mark = False
         self.tool_on = False
         self.stop_pending = True
@@ -73,10 +75,10 @@ class GcodeWriter:
                 self.feed = None      # the template changed the modal feed; state it again on the next move
         self.stop_pending = True
 
-    def rapid(self, point) -> None:
-        """Tool-off travel to `point` (skipped when already there)."""
+    def rapid(self, point, always: bool = False) -> None:
+        """Tool-off travel to `point` (skipped when already there, unless `always`)."""
         target = self.rounded(point)
-        if target == self.position:
+        if target == self.position and not always:
             return
         self.lines.append(f"G0 {self.xy_format.format(*target)}")
         self._record(target, None, False, rapid=True)
@@ -86,7 +88,7 @@ class GcodeWriter:
         target = self.rounded(point)
         if target == self.position:
             return
-        self.lines.append(f"G1 {self.xy_format.format(*target)}{self._feed_word(feed)}")
+        self.lines.append(f"G1 {self.xy_format.format(*target)}{self._modal_words(feed)}")
         self._record(target, None, False, rapid=False, feed=feed)
 
     def contour(self, contour: np.ndarray, feed: float) -> None:
@@ -118,15 +120,20 @@ class GcodeWriter:
         if abs(r_start - r_end) > ARC_RADIUS_TOLERANCE or target == start:
             return False
         self.lines.append(f"{'G2' if clockwise else 'G3'} {self.xy_format.format(*target)} "
-                          f"I{self.fmt(offset[0])} J{self.fmt(offset[1])}{self._feed_word(feed)}")
+                          f"I{self.fmt(offset[0])} J{self.fmt(offset[1])}{self._modal_words(feed)}")
         self._record(target, rounded_centre, clockwise, rapid=False, feed=feed)
         return True
 
-    def _feed_word(self, feed: float) -> str:
-        if self.feed == feed:
-            return ""
-        self.feed = feed
-        return f" F{self.fmt(feed)}"
+    def _modal_words(self, feed: float) -> str:
+        """F (and in laser mode S) for a feed move, each written only when it changes."""
+        words = ""
+        if self.feed != feed:
+            self.feed = feed
+            words = f" F{self.fmt(feed)}"
+        if self.power is not None and self.tool_on and self.speed != self.power:
+            self.speed = self.power
+            words += f" S{self.fmt(self.power)}"
+        return words
 
     def _record(self, target, centre, clockwise: bool, rapid: bool, feed: float | None = None) -> None:
         self.moves.add(self.position, target, self.profile.rapid_rate if rapid else float(feed or 0.0), rapid,
@@ -175,22 +182,29 @@ def sheet_program(paths: list[Toolpath], profile: MachineProfile) -> tuple[str, 
     """The G-code of one sheet (without header) and its MoveLog.
 
     An open path that starts where the previous one of the same operation ended (strokes of a letter) is run
-    on without switching the tool off and on again.
+    on without switching the tool off and on again. In laser mode the laser is armed once (tool_on with S0),
+    every path starts with a G0 to its entry (the laser is off on G0) and its cutting moves carry the
+    operation's power as S; the planner never has to stop for a spindle state change between paths.
     """
     writer = GcodeWriter(profile)
     writer.template(profile.render(profile.program_start))
+    if profile.laser_mode:
+        writer.template(profile.render(profile.tool_on, power=0.0))
     for index, path in enumerate(paths):
         operation = profile.operations[path.operation]
         if not _continues(paths, index, writer, operation.passes):
             writer.mark = path.operation.startswith("engrave")
             writer.comment(f"{path.operation} {path.part}")
-            writer.rapid(path.entry)
+            writer.rapid(path.entry, always=profile.laser_mode)
         contour = path.contour
         for k in range(operation.passes):
             if (k == 0 and not writer.tool_on) or (k > 0 and profile.mode == "mill"):
                 depth = -operation.depth * (k + 1) / operation.passes
                 writer.tool_on = False
-                writer.template(profile.render(profile.tool_on, power=operation.power, depth=depth))
+                if profile.laser_mode:
+                    writer.power = operation.power
+                else:
+                    writer.template(profile.render(profile.tool_on, power=operation.power, depth=depth))
                 writer.tool_on = True
             if k == 0 and path.lead_in is not None:
                 writer.line_to(contour[0, :2], operation.feed)
@@ -199,8 +213,11 @@ def sheet_program(paths: list[Toolpath], profile: MachineProfile) -> tuple[str, 
                 contour = reverse(contour)
         if not _continues(paths, index + 1, writer, operation.passes):
             writer.tool_on = False
-            writer.template(profile.render(profile.tool_off))
+            if not profile.laser_mode:
+                writer.template(profile.render(profile.tool_off))
     writer.mark = False
+    if profile.laser_mode:
+        writer.template(profile.render(profile.tool_off))
     writer.template(profile.render(profile.program_end))
     return writer.finish(), writer.moves
 

@@ -1,7 +1,8 @@
 """Export a whole nesting: per sheet a DXF and a G-code program, an all-sheets DXF, and a summary.
 
 Everything is computed and checked first and written only at the end, each file atomically, so a bad
-input leaves nothing behind.
+input leaves nothing behind. Sheets are independent: each one's toolpaths, G-code and DXF drawing are made
+in a worker process, the all-sheets drawing in another, so a many-sheet job uses every core.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 import os
 import re
 import textwrap
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,11 +22,13 @@ from fabline.export.contours import arc_centres
 from fabline.export.gcode import header_block, sheet_program
 from fabline.export.machine import MachineProfile
 from fabline.export.motion import MotionSummary, summarise
-from fabline.export.toolpath import Toolpath, ToolpathOptions, sheet_toolpaths
+from fabline.export.toolpath import Toolpath, ToolpathOptions, check_placements, sheet_toolpaths
 from fabline.fileio import atomic_output
-from fabline.nest.layout import Nesting, load_nesting, parts_path
+from fabline.nest.layout import Nesting, Sheet, load_nesting, parts_path
 from fabline.progress import progress
 from fabline.unroll.parts import Part, load_parts
+
+WORKERS = len(os.sched_getaffinity(0))   # processes making sheets and drawings at once
 
 
 @dataclass
@@ -63,40 +67,55 @@ def load_job(nesting_path: str | os.PathLike) -> tuple[Nesting, dict[str, Part]]
 def export_job(nesting: Nesting, parts: dict[str, Part], profile: MachineProfile, options: ToolpathOptions,
                dxf_dir: str | os.PathLike | None = None, gcode_dir: str | os.PathLike | None = None,
                name: str = "job", source: str = "nesting") -> ExportResult:
-    """Make (and, given folders, write) the DXF and G-code of every sheet; `source` names the nesting in errors."""
+    """Make (and, given folders, write) the DXF and G-code of every sheet; `source` names the nesting in errors.
+
+    Sheets are independent, so each is made in a worker process (toolpaths, G-code and its drawing), and the
+    all-sheets drawing in another; the first sheet (in nesting order) that fails raises its error.
+    """
     for sheet in nesting.sheets:
         if sheet.width > profile.bed_width or sheet.height > profile.bed_height:
             raise FablineError(f"{source}: sheet {sheet.id}: {sheet.width:g} x {sheet.height:g} mm is larger than the "
                                f"bed of machine {profile.name} ({profile.bed_width:g} x {profile.bed_height:g} mm, "
                                f"{profile.source}: bed)")
-    outputs: dict[Path, object] = {}
-    results = []
-    for number, sheet in enumerate(progress(nesting.sheets, "export", len(nesting.sheets)), start=1):
-        paths = sheet_toolpaths(sheet, parts, options, source)
-        _check_bed(paths, profile, f"{source}: sheet {sheet.id}")
-        body, moves = sheet_program(paths, profile)
-        summary = summarise(moves, profile.acceleration, profile.junction_deviation)
-        header = _header(name, sheet, number, len(nesting.sheets), profile, options, summary)
-        program = header_block(header, profile) + body
-        stem = f"{name}_{_safe(sheet.id)}"
-        done = SheetExport(sheet.id, len(sheet.placements), summary, program)
-        if gcode_dir is not None:
-            outputs[Path(gcode_dir) / f"{stem}.gcode"] = program
-        if dxf_dir is not None:
-            doc = dxf.new_drawing()
-            dxf.add_sheet(doc, sheet, parts)
-            outputs[Path(dxf_dir) / f"{stem}.dxf"] = doc
-        done.files = [str(p) for p in outputs if p.stem == stem]
-        results.append(done)
-    if dxf_dir is not None:
-        outputs[Path(dxf_dir) / f"{name}_all-sheets.dxf"] = dxf.sheets_drawing(nesting.sheets, parts)
-    for path, content in outputs.items():
-        if isinstance(content, str):
-            with atomic_output(path) as handle:
-                handle.write(content)
-        else:
-            dxf.write_drawing(content, path)
+        check_placements(sheet, parts, source)
+    count = len(nesting.sheets)
+    pool = ProcessPoolExecutor(max_workers=max(1, min(WORKERS, count + (dxf_dir is not None))))
+    try:
+        overview = (pool.submit(dxf.drawing_text, nesting.sheets, parts) if dxf_dir is not None else None)
+        futures = [pool.submit(_export_sheet, sheet, number, count, {p.part: parts[p.part] for p in sheet.placements},
+                               profile, options, name, source, dxf_dir is not None)
+                   for number, sheet in enumerate(nesting.sheets, start=1)]
+        results, outputs = [], {}
+        for future in progress(futures, "export", count):
+            done, drawing = future.result()
+            stem = f"{name}_{_safe(done.sheet)}"
+            if gcode_dir is not None:
+                outputs[Path(gcode_dir) / f"{stem}.gcode"] = done.gcode
+            if drawing is not None:
+                outputs[Path(dxf_dir) / f"{stem}.dxf"] = drawing
+            done.files = [str(p) for p in outputs if p.stem == stem]
+            results.append(done)
+        if overview is not None:
+            outputs[Path(dxf_dir) / f"{name}_all-sheets.dxf"] = overview.result()
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)
+    for path, text in outputs.items():
+        with atomic_output(path) as handle:
+            handle.write(text)
     return ExportResult(results, [str(p) for p in outputs], profile.name, options.kerf)
+
+
+def _export_sheet(sheet: Sheet, number: int, count: int, parts: dict[str, Part], profile: MachineProfile,
+                  options: ToolpathOptions, name: str, source: str, drawing: bool) -> tuple[SheetExport, str | None]:
+    """One sheet's toolpaths (checked against the bed), G-code with its header and summary, and DXF text if asked."""
+    paths = sheet_toolpaths(sheet, parts, options, source)
+    _check_bed(paths, profile, f"{source}: sheet {sheet.id}")
+    body, moves = sheet_program(paths, profile)
+    summary = summarise(moves, profile.acceleration, profile.junction_deviation)
+    header = _header(name, sheet, number, count, profile, options, summary)
+    program = header_block(header, profile) + body
+    return (SheetExport(sheet.id, len(sheet.placements), summary, program),
+            dxf.drawing_text([sheet], parts) if drawing else None)
 
 
 def export_nesting(nesting_path: str | os.PathLike, profile: MachineProfile, options: ToolpathOptions,

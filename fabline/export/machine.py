@@ -53,6 +53,7 @@ class MachineProfile:
     decimals: int
     max_line_length: int
     arcs: bool
+    laser_mode: bool            # Grbl laser mode ($32=1): laser off on G0, S on cutting moves, no M5 between paths
     words: frozenset[str]
     program_start: tuple[str, ...]
     program_end: tuple[str, ...]
@@ -213,6 +214,7 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
         controller=fields.text("controller", ""), mode=mode,
         kerf=fields.number("kerf", 0, 20), decimals=fields.integer("decimals", 3, 4),
         max_line_length=fields.integer("max_line_length", 40, 256), arcs=fields.flag("arcs", True),
+        laser_mode=fields.flag("laser_mode", False),
         words=frozenset(_canonical(w) for w in words), program_start=fields.lines("program_start"),
         program_end=fields.lines("program_end"), tool_on=fields.lines("tool_on"), tool_off=fields.lines("tool_off"),
         requires=fields.text("requires", ""),
@@ -223,6 +225,8 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
         junction_deviation=fields.number("motion.junction_deviation", 0, 10),
         s_min=s_min, s_max=s_max, operations=operations, variables=variables,
     )
+    if profile.laser_mode and mode != "laser":
+        raise FablineError(f"{source}: laser_mode: only a laser profile (mode = \"laser\") can use laser mode")
     needed = {"G0", "G1"} | ({"G2", "G3"} if profile.arcs else set())
     missing = sorted(needed - profile.words)
     if missing:

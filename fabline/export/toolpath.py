@@ -63,13 +63,11 @@ class ToolpathOptions:
 
 def sheet_toolpaths(sheet: Sheet, parts: dict[str, Part], options: ToolpathOptions, source: str = "nesting") -> list[Toolpath]:
     """All toolpaths of a sheet, grouped by operation in cutting order, each group ordered for short travel."""
+    check_placements(sheet, parts, source)
     groups: dict[str, list[Toolpath]] = {op: [] for op in OPERATIONS}
     placed_ids = set()
-    for index, placement in enumerate(sheet.placements):
-        part = parts.get(placement.part)
-        if part is None:
-            raise FablineError(f"{source}: sheet {sheet.id}: placements[{index}] refers to part "
-                               f"{placement.part!r}, which is not in the parts file")
+    for placement in sheet.placements:
+        part = parts[placement.part]
         placed_ids.add(part.id)
         for operation, path in _part_paths(part, placement, options):
             groups[operation].append(path)
@@ -97,6 +95,14 @@ def sheet_toolpaths(sheet: Sheet, parts: dict[str, Part], options: ToolpathOptio
             if path.closed and path.operation.startswith("cut"):
                 path.lead_in = _lead_in(path, options.lead_in)
     return ordered
+
+
+def check_placements(sheet: Sheet, parts: dict[str, Part], source: str = "nesting") -> None:
+    """Every placement of the sheet must name a part of the parts file."""
+    for index, placement in enumerate(sheet.placements):
+        if placement.part not in parts:
+            raise FablineError(f"{source}: sheet {sheet.id}: placements[{index}] refers to part "
+                               f"{placement.part!r}, which is not in the parts file")
 
 
 def _part_paths(part: Part, placement: Placement, options: ToolpathOptions):

@@ -21,10 +21,11 @@ except ImportError:  # Python 3.10
 
 from fabline.errors import FablineError
 
-STAGES = ("unroll", "nest", "export", "stream", "report")
+STAGES = ("unroll", "nest", "export", "stream", "survey", "report")
 """Pipeline stages after the model, in the order they run; a job lists the ones it wants."""
 
 DEFAULT_STAGES = ("unroll", "nest", "export", "stream", "report")
+"""The stages of a job that does not list its own; `survey` joins them when the job sets `survey.simulate`."""
 DEFAULT_PORT = "sim://grbl"
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 _TYPE_NAMES = {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
@@ -53,8 +54,14 @@ SCHEMA: dict[str, Any] = {
     "machine": {"profile": Key(str, default="grbl-laser"), "port": Key(str), "ports": Key(list),
                 "time_scale": Key(float, default=1.0)},
     "output": {"folder": Key(str, required=True), "report": Key(str, default="report.html")},
-    "survey": {"result": Key(str)},
+    "survey": {"result": Key(str), "simulate": Key(bool, default=False), "photos": Key(int), "resolution": Key(str),
+               "coverage": Key(float), "sag_mm": Key(float), "seed": Key(int), "tolerance_mm": Key(float),
+               "reference": Key(str)},
 }
+
+SIMULATED_SURVEY_DEFAULTS = {"photos": 12, "resolution": "4000x2667", "coverage": 0.7, "sag_mm": 25.0, "seed": 1,
+                             "tolerance_mm": 20.0, "reference": "all"}
+"""The `[survey]` keys of a simulated survey (`simulate = true`) and their defaults; they mean nothing without it."""
 
 
 @dataclass
@@ -117,11 +124,15 @@ def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
     if not _NAME.fullmatch(data["name"]):
         raise FablineError(f"{where}: name: {data['name']!r} must be letters, digits, '.', '_' or '-' "
                            "(it names output files)")
-    stages = _check_stages(data["stages"], where)
     model = _check_model(data["model"], base, where)
     for section, key in (("lamella", "materials_file"), ("stock", "file"), ("survey", "result")):
         if data[section][key] is not None:
             data[section][key] = str(_existing(base, data[section][key], f"{where}: {section}.{key}"))
+    survey = _check_survey(data["survey"], where)
+    stages = _check_stages(data["stages"] if "stages" in raw else _default_stages(survey), where)
+    if ("survey" in stages) != survey["simulate"]:
+        raise FablineError(f"{where}: stages: 'survey' needs survey.simulate = true" if "survey" in stages else
+                           f"{where}: survey.simulate: true but 'survey' is not in stages")
     data["machine"]["ports"] = _check_ports(data["machine"], where)
     if data["machine"]["profile"].endswith(".toml"):
         data["machine"]["profile"] = str(_existing(base, data["machine"]["profile"], f"{where}: machine.profile"))
@@ -131,7 +142,7 @@ def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
         raise FablineError(f"{where}: output.folder: {folder} exists and is not a folder")
     spec = JobSpec(path=path.resolve(), name=data["name"], description=data["description"], stages=stages, model=model,
                    lamella=data["lamella"], stock=data["stock"], nest=data["nest"], machine=data["machine"],
-                   output_folder=folder.resolve(), report_name=data["output"]["report"], survey=data["survey"])
+                   output_folder=folder.resolve(), report_name=data["output"]["report"], survey=survey)
     report = spec.output(spec.report_name)
     if report.suffix != ".html":
         raise FablineError(f"{where}: output.report: {spec.report_name!r} must end in .html")
@@ -187,6 +198,44 @@ def _check_stages(stages: list, where: str) -> tuple[str, ...]:
         if stage in stages and needs not in stages:
             raise FablineError(f"{where}: stages: '{stage}' needs '{needs}' in the same job")
     return tuple(s for s in STAGES if s in stages)
+
+
+def _default_stages(survey: dict[str, Any]) -> list[str]:
+    return list(DEFAULT_STAGES) + (["survey"] if survey["simulate"] else [])
+
+
+def _check_survey(survey: dict[str, Any], where: str) -> dict[str, Any]:
+    """`survey.result` (an existing survey to show) or `survey.simulate` with its settings, defaults filled in."""
+    from fabline.jobs.survey_stage import load_survey_result, parse_resolution
+
+    if survey["result"] is not None and survey["simulate"]:
+        raise FablineError(f"{where}: survey: give survey.result (an existing survey) or survey.simulate = true, not both")
+    if not survey["simulate"]:
+        given = [key for key in SIMULATED_SURVEY_DEFAULTS if survey[key] is not None]
+        if given:
+            raise FablineError(f"{where}: survey.{given[0]}: only with survey.simulate = true")
+        if survey["result"] is not None:
+            try:
+                load_survey_result(survey["result"])
+            except FablineError as exc:
+                raise FablineError(f"{where}: survey.result: {exc}") from None
+        return {"result": survey["result"], "simulate": False}
+    checked = {"result": None, "simulate": True,
+               **{key: default if survey[key] is None else survey[key] for key, default in SIMULATED_SURVEY_DEFAULTS.items()}}
+    try:
+        parse_resolution(checked["resolution"])
+    except FablineError as exc:
+        raise FablineError(f"{where}: survey.resolution: {exc}") from None
+    for key, ok, rule in (("photos", checked["photos"] >= 2, "must be at least 2"),
+                          ("coverage", 0 < checked["coverage"] <= 2, "must be in (0, 2]"),
+                          ("sag_mm", checked["sag_mm"] >= 0, "must not be negative"),
+                          ("seed", checked["seed"] >= 0, "must not be negative"),
+                          ("tolerance_mm", checked["tolerance_mm"] > 0, "must be positive")):
+        if not ok:
+            raise FablineError(f"{where}: survey.{key}: {rule}, got {checked[key]}")
+    if checked["reference"] not in ("all", "supports"):
+        raise FablineError(f"{where}: survey.reference: {checked['reference']!r} must be 'all' or 'supports'")
+    return checked
 
 
 def _check_ports(machine: dict[str, Any], where: str) -> list[str]:

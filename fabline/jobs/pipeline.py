@@ -1,8 +1,9 @@
-"""The main job: model -> unroll -> nest -> export -> stream -> report, every output inside the job's folder.
+"""The main job: model -> unroll -> nest -> export -> stream -> survey -> report, every output inside the job's folder.
 
 `prepare_job` runs the stages up to export (what the runner does before any sheet is cut) and writes a
-report; `run_job` also streams every sheet to the job's machine (the built-in simulator by default) and
-rewrites the report with the streaming log. Each stage's files are written atomically by that stage.
+report; `run_job` also streams every sheet to the job's machine (the built-in simulator by default), runs
+the (simulated) as-built survey and rewrites the report with the streaming log and the survey. Each
+stage's files are written atomically by that stage.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from fabline.errors import FablineError
-from fabline.fileio import atomic_output, read_json, write_json
+from fabline.fileio import atomic_output, write_json
 from fabline.jobs.jobfile import JobSpec, load_job_file
 
 if TYPE_CHECKING:  # the model stage pulls in scipy; the runner imports this package and must start fast
@@ -36,7 +37,7 @@ class JobResult:
     export: Any = None
     sheet_files: list[dict] = field(default_factory=list)
     stream: list[dict] = field(default_factory=list)
-    survey: dict | None = None
+    survey: dict | None = None  # the report's survey entry (fabline.jobs.survey_stage.survey_entry)
     timings: dict[str, float] = field(default_factory=dict)
     report_path: Path | None = None
 
@@ -77,7 +78,9 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
         _timed(result.timings, "export", lambda: _export(result))
         say(f"export: {len(result.sheet_files)} G-code program(s) -> {spec.output('gcode')}")
     if spec.survey.get("result"):
-        result.survey = read_json(spec.survey["result"])
+        from fabline.jobs.survey_stage import load_survey_result
+
+        result.survey = load_survey_result(spec.survey["result"])
     if "report" in spec.stages:
         write_report(result)
     return result
@@ -86,16 +89,21 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
 def run_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None,
             confirm_sheet: Callable[[int, int, str], None] | None = None, resume: bool = False) -> JobResult:
     """The whole job: prepare, then stream every sheet (asking `confirm_sheet(k, n, sheet)` before each one
-    when given), then the report with the streaming log. `resume` continues an interrupted run from the
-    sheets' journals (finished sheets are not cut again); otherwise every sheet is cut afresh."""
+    when given), then the survey, then the report with the streaming log and the survey. `resume` continues
+    an interrupted run from the sheets' journals (finished sheets are not cut again); otherwise every sheet
+    is cut afresh."""
     spec = job if isinstance(job, JobSpec) else load_job_file(job)
     result = prepare_job(spec, say)
-    if "stream" in spec.stages:
-        try:
+    if "stream" not in spec.stages and "survey" not in spec.stages:
+        return result
+    try:
+        if "stream" in spec.stages:
             _timed(result.timings, "stream", lambda: _stream_all(result, say, confirm_sheet, resume))
-        finally:  # the report shows the streaming log, also of a run that stopped
-            if "report" in spec.stages:
-                write_report(result)
+        if "survey" in spec.stages:
+            _timed(result.timings, "survey", lambda: _survey(result, say))
+    finally:  # the report shows the streaming log, also of a run that stopped
+        if "report" in spec.stages:
+            write_report(result)
     return result
 
 
@@ -171,6 +179,19 @@ def _export(result: JobResult) -> None:
             handle.write(sheet_svg(sheet, parts))
         result.sheet_files.append({"sheet": sheet.id, "gcode": gcode, "svg": str(svg_path), "parts": made.parts,
                                    "cut_length_mm": made.summary.cut_length, "time_s": made.summary.time})
+
+
+def _survey(result: JobResult, say: Say) -> None:
+    from fabline.jobs.survey_stage import SURVEY_FOLDER, simulate_and_measure
+
+    spec = result.spec
+    folder = spec.output(SURVEY_FOLDER)
+    result.survey = simulate_and_measure(result.network, folder, spec.survey, say)
+    summary, truth = result.survey["summary"], result.survey["truth"]
+    say(f"survey: {summary['measured']} of {summary['nodes']} nodes measured in {result.survey['simulated']['measure_s']:.1f} s: "
+        f"RMS deviation {summary['rms_deviation_mm']} mm, max {summary['max_deviation_mm']} mm, {summary['failed']} over "
+        f"{result.survey['tolerance_mm']:g} mm; against the injected truth RMS error {truth['rms_error_mm']} mm "
+        f"-> {folder / 'survey.json'}")
 
 
 def machine_ports(spec: JobSpec) -> list[str]:

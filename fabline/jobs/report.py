@@ -1,8 +1,9 @@
 """The job report: one self-contained HTML page (pictures first) and its JSON twin with the same figures.
 
 Order on the page: the model in 3D (inline SVG projection), every sheet as an SVG with its parts
-labelled, then the strips table with the structural check, the streaming log summary, the survey result
-when there is one, and the stage timings. No external files, scripts or fonts: the page works offline.
+labelled, then the strips table with the structural check, the streaming log summary, the survey when
+there is one (its deviation map first, then its figures and, for a simulated survey, the comparison with
+the injected truth), and the stage timings. No external files, scripts or fonts: the page works offline.
 """
 
 from __future__ import annotations
@@ -82,8 +83,7 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
     parts.append("</div>")
     parts.append(_structure_table(data["structure"]))
     parts.append(_stream_table(data["stream"]))
-    result_file = spec.survey.get("result")
-    parts.append(_survey_section(data["survey"], Path(result_file).with_name("deviation_map.png") if result_file else None))
+    parts.append(_survey_section(data["survey"]))
     timings = ", ".join(f"{k} {v:.1f} s" for k, v in data["timings_s"].items())
     parts.append(f"<h2>Run</h2><p>Stages: {e(', '.join(spec.stages))}. Time per stage: {e(timings)}.</p>")
     if data["parts"]:
@@ -126,14 +126,56 @@ def _stream_table(stream: dict[str, Any]) -> str:
             f"{' - every sheet finished' if stream['finished'] else ''}.</p><table id=stream>{head}{body}</table>")
 
 
-def _survey_section(survey: dict[str, Any] | None, picture: Path | None) -> str:
+def _survey_section(survey: dict[str, Any] | None) -> str:
+    """The deviation map first, then the summary, the comparison with the truth (simulated surveys), the gaps."""
     if not survey:
         return ""
-    summary = survey.get("summary", {})
-    items = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>" for k, v in summary.items())
-    image = ""
-    if picture is not None and picture.is_file():
-        data = base64.b64encode(picture.read_bytes()).decode("ascii")
-        image = f'<figure><img alt="deviation map" src="data:image/png;base64,{data}" style="max-width:900px">' \
-                "<figcaption>Measured deviation from the design per node.</figcaption></figure>"
-    return f"<h2>Survey</h2>{image}<table id=survey>{items}</table>"
+    e = html.escape
+    s = survey["summary"]
+    parts = ["<h2>Survey</h2>"]
+    if survey["deviation_map"] and Path(survey["deviation_map"]).is_file():
+        data = base64.b64encode(Path(survey["deviation_map"]).read_bytes()).decode("ascii")
+        parts.append(f'<figure id=deviation-map><img alt="deviation map" src="data:image/png;base64,{data}" '
+                     f'style="max-width:900px"><figcaption>Measured deviation from the design per node, coloured up to '
+                     f"the {survey['tolerance_mm']:g} mm tolerance; failures ringed red, unmeasured nodes hollow."
+                     "</figcaption></figure>")
+    verdict = "every measured node within tolerance" if not s["failed"] else f"{s['failed']} node(s) out of tolerance"
+    parts.append(f"<p>{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
+                 f"{e(verdict)} ({s['passed']} pass, {s['failed']} fail against {survey['tolerance_mm']:g} mm); "
+                 f"{s['not_seen']} not seen. From {e(survey['file'])}.</p>")
+    rows = [("nodes measured", f"{s['measured']} of {s['nodes']}"), ("pass", s["passed"]),
+            ("fail", s["failed"]), ("tolerance mm", f"{survey['tolerance_mm']:g}"),
+            ("RMS deviation mm", s["rms_deviation_mm"]), ("max deviation mm", s["max_deviation_mm"]),
+            ("worst nodes", ", ".join(s["worst"])), ("not seen", s["not_seen"]),
+            ("reprojection RMS px", s["reprojection_rms_px"]),
+            ("registration", f"rigid on {survey['reference'] if isinstance(survey['reference'], str) else 'chosen'} "
+                             f"nodes, RMS {survey['registration_rms_mm']} mm")]
+    parts.append("<table id=survey>" + "".join(f"<tr><td>{e(k)}</td><td>{e(str(v))}</td></tr>" for k, v in rows)
+                 + "</table>")
+    if survey["truth"]:
+        parts.append(_truth_table(survey["truth"], survey["simulated"], s))
+    if survey["not_seen"]:
+        listed = [f"{node} ({why})" for node, why in list(survey["not_seen"].items())[:30]]
+        more = len(survey["not_seen"]) - len(listed)
+        parts.append(f"<p class=note>Not measured: {e('; '.join(listed))}{f'; and {more} more' if more else ''}.</p>")
+    if survey["problems"]:
+        parts.append("<p class=note>Problems: " + e("; ".join(survey["problems"][:10]))
+                     + (f"; and {len(survey['problems']) - 10} more" if len(survey["problems"]) > 10 else "") + ".</p>")
+    return "".join(parts)
+
+
+def _truth_table(truth: dict[str, Any], simulated: dict[str, Any], summary: dict[str, Any]) -> str:
+    """A simulated survey against the deviations the simulator injected."""
+    injected = truth["injected"]
+    rows = [("RMS of measured minus true deviation mm", truth["rms_error_mm"]),
+            ("max of measured minus true deviation mm", f"{truth['max_error_mm']} (node {truth['worst_node']})"),
+            ("RMS deviation mm, measured / true", f"{summary['rms_deviation_mm']} / {truth['true_rms_deviation_mm']}"),
+            ("max deviation mm, measured / true", f"{summary['max_deviation_mm']} / {truth['true_max_deviation_mm']}"),
+            ("nodes failing, measured / true", f"{summary['failed']} / {truth['true_failed']}"),
+            ("pass/fail as the truth", f"{truth['pass_fail_agreement']} of {truth['nodes_compared']} nodes")]
+    body = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(v))}</td></tr>" for k, v in rows)
+    return (f"<p>Simulated survey: {simulated['photos']} photos of {html.escape(simulated['resolution'])} px "
+            f"({simulated['tag_views']} tag views) of the shell built with a {injected['kind']} of "
+            f"{injected['amplitude_mm']:g} mm, rendered in {simulated['render_s']:.1f} s and measured in "
+            f"{simulated['measure_s']:.1f} s; compared with the injected truth on the {truth['nodes_compared']} measured "
+            f"nodes:</p><table id=survey-truth>{body}</table>")

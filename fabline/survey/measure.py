@@ -30,12 +30,14 @@ PREVIEW_WIDTH = 1600
 
 @dataclass
 class MeasureOptions:
-    """Tolerance (mm), the registration's reference nodes ('all', 'supports' or ids), views a node needs."""
+    """Tolerance (mm), the registration's reference nodes ('all', 'supports' or ids), views a node needs,
+    and scale bars: (tag, tag, distance between their centres in mm) measured on site, which fix the scale."""
 
     tolerance_mm: float = 20.0
     reference: str | list[str] = "all"
     min_views: int = 2
     pictures: bool = True
+    scale_bars: tuple[tuple[int, int, float], ...] = ()
 
 
 def list_photos(folder: str | os.PathLike) -> list[Path]:
@@ -95,12 +97,22 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
     options = options or MeasureOptions()
     model = network.in_mm()
     check_tag_map(tag_map, model)
+    check_scale_bars(options.scale_bars, tag_map)
     detections, problems = detect_photos(photos, camera, set(tag_map.node_of_tag))
     observations = [Observation(k, d.tag_id, camera.normalise(d.corners)) for k, found in detections.items() for d in found]
     if not observations:
         detail = f" ({problems[0]['problem']}" + (f"; {len(problems) - 1} more problem(s))" if len(problems) > 1 else ")") if problems else ""
         raise FablineError(f"no tags of the tag map were found in any usable photo{detail}")
     reconstruction = bundle_adjust(observations, camera, tag_map.tag_size_mm)
+    scale = None
+    if options.scale_bars:
+        unmeasured = [t for bar in options.scale_bars for t in bar[:2] if t not in reconstruction.tag_poses]
+        if unmeasured:
+            raise FablineError(f"--scale-bar: tag {unmeasured[0]} was not measured (seen in no photo that joined)")
+        factor, misfits = reconstruction.scale_to_bars(list(options.scale_bars))
+        scale = {"source": "scale bars", "factor": round(factor, 9),
+                 "bars": [{"tags": [a, b], "distance_mm": length, "misfit_mm": round(misfit, 4)}
+                          for (a, b, length), misfit in zip(options.scale_bars, misfits)]}
     for k in reconstruction.unregistered_photos:
         problems.append({"file": str(photos[k]), "problem": f"{photos[k]}: shares too few tags with the other photos (left out)"})
     for k, tag in reconstruction.rejected:
@@ -139,12 +151,25 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
     passed = distance <= options.tolerance_mm
     record = _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviation, distance, sigma, views, passed,
                      rotation, translation, fit_rms, reconstruction, photos, detections, problems, wrong)
+    record["scale"] = scale or {"source": f"tag size {tag_map.tag_size_mm:g} mm", "factor": 1.0, "bars": []}
     out_dir = Path(out_dir)
     write_json(out_dir / "survey.json", record)
     if options.pictures:
         write_deviation_map(model, record, out_dir / "deviation_map.png")
         write_detection_pictures(photos, detections, out_dir / "detections")
     return record
+
+
+def check_scale_bars(bars, tag_map: TagMap) -> None:
+    """Raise naming the bar at fault: a tag the map lacks, a bar from a tag to itself, a length that is not positive."""
+    for a, b, length in bars:
+        for tag in (a, b):
+            if tag not in tag_map.node_of_tag:
+                raise FablineError(f"--scale-bar {a} {b} {length:g}: tag {tag} is not in the tag map")
+        if a == b:
+            raise FablineError(f"--scale-bar {a} {b} {length:g}: a bar needs two different tags")
+        if not np.isfinite(length) or length <= 0:
+            raise FablineError(f"--scale-bar {a} {b} {length:g}: the distance must be a positive number of mm")
 
 
 def wrong_tags(measured: np.ndarray, node_ids: list[str], model: Network, tolerance_mm: float) -> dict[str, str]:

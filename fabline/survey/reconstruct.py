@@ -47,6 +47,24 @@ class Reconstruction:
     rejected: list[tuple[int, int]] = field(default_factory=list)
     unregistered_photos: list[int] = field(default_factory=list)
 
+    def scale_to_bars(self, bars: list[tuple[int, int, float]]) -> tuple[float, list[float]]:
+        """Rescale the survey so measured distances between tag centres (tag, tag, mm) hold; return the factor and misfits.
+
+        Reprojection is unchanged when all positions and the tag size scale together, so this is the
+        adjustment's own solution with the tag size left free and the bars as hard constraints (several
+        bars: the least-squares factor). Tag-centre covariances scale with the positions.
+        """
+        measured = np.array([np.linalg.norm(self.tag_poses[a][3:] - self.tag_poses[b][3:]) for a, b, _ in bars])
+        lengths = np.array([length for _, _, length in bars], dtype=float)
+        factor = float(np.dot(measured, lengths) / np.dot(measured, measured))
+        scaling = np.diag([1.0, 1.0, 1.0, factor, factor, factor])
+        for photo in self.camera_translations:
+            self.camera_translations[photo] = factor * self.camera_translations[photo]
+        for tag, pose in self.tag_poses.items():
+            self.tag_poses[tag] = np.concatenate([pose[:3], factor * pose[3:]])
+            self.tag_covariances[tag] = scaling @ self.tag_covariances[tag] @ scaling
+        return factor, (factor * measured - lengths).tolist()
+
     def points_below_tags(self, offset: float) -> tuple[list[int], np.ndarray, np.ndarray]:
         """Tag ids, the points `offset` behind each tag centre along its normal (N, 3), their covariances (N, 3, 3).
 

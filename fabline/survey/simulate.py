@@ -268,6 +268,7 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
         photo_records.append({"file": f"photos/{name}", "rotation": np.round(rvec.ravel(), 9).tolist(),
                               "translation_mm": np.round(translation, 4).tolist(),
                               "rendered": sorted(int(tags[n]) for n in pixels), "visible": visible})
+    centre_of_node = {tag_map.node_of_tag[t]: centres[n] for n, t in enumerate(tags)}
     camera_path, tagmap_path = out_dir / "camera.json", out_dir / "tagmap.json"
     save_camera(camera, camera_path)
     save_tag_map(tag_map, tagmap_path)
@@ -276,7 +277,8 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
         "deviation": {"kind": "sag", "amplitude_mm": spec.sag_mm},
         "camera": "camera.json", "tag_map": "tagmap.json",
         "nodes": {nid: {"design_mm": np.round(design[i], 4).tolist(), "built_mm": np.round(built[i], 4).tolist(),
-                        "deviation_mm": np.round(deviation[i], 4).tolist(), "tag": tag_map.tag_of_node.get(nid)}
+                        "deviation_mm": np.round(deviation[i], 4).tolist(), "tag": tag_map.tag_of_node.get(nid),
+                        "tag_centre_mm": (np.round(centre_of_node[nid], 4).tolist() if nid in centre_of_node else None)}
                   for i, nid in enumerate(ids)},
         "photos": photo_records,
     }

@@ -1,0 +1,128 @@
+"""The job's survey stage: a synthetic photo set of the job's own shell, measured like real photos, checked against truth.
+
+With `survey.simulate` the job renders photos of its network deformed by the survey simulator's sag field,
+measures them with `measure_survey` exactly as a real photo set is measured, and compares the measured
+deviations with the injected ones. With `survey.result` the report shows an existing `survey.json` instead.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable
+
+import numpy as np
+
+from fabline.errors import FablineError
+from fabline.fileio import read_json
+
+if TYPE_CHECKING:
+    from fabline.model import Network
+
+SURVEY_FOLDER = "survey"
+"""The survey's folder inside the job's output folder: photos/, camera.json, tagmap.json, truth.json, survey.json."""
+
+
+def parse_resolution(text: str) -> tuple[int, int]:
+    """'4000x2667' -> (4000, 2667) pixels; malformed or smaller than 64 x 64 is a FablineError."""
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise FablineError(f"{text!r}: expected WIDTHxHEIGHT in pixels, e.g. 4000x2667") from None
+    if width < 64 or height < 64:
+        raise FablineError(f"{text!r}: must be at least 64x64 pixels")
+    return width, height
+
+
+def simulate_and_measure(network: "Network", folder: Path, settings: dict[str, Any],
+                         say: Callable[[str], None] = lambda text: None) -> dict[str, Any]:
+    """Render the photo set into `folder` (replacing an earlier survey there), measure it, compare with the truth.
+
+    `settings` is a checked `[survey]` table with `simulate = true`; returns the report's survey entry.
+    """
+    from fabline.survey import (MeasureOptions, SyntheticSpec, list_photos, load_camera, load_tag_map, measure_survey,
+                                simulate_survey)
+
+    width, height = parse_resolution(settings["resolution"])
+    spec = SyntheticSpec(photos=settings["photos"], width=width, height=height, focal_px=width * 5 / 6,
+                         coverage=settings["coverage"], sag_mm=settings["sag_mm"], seed=settings["seed"])
+    fresh = folder.with_name(folder.name + ".new")  # photos of an earlier, larger set must not be measured
+    shutil.rmtree(fresh, ignore_errors=True)
+    started = time.perf_counter()
+    truth = simulate_survey(network, fresh, spec)
+    shutil.rmtree(folder, ignore_errors=True)
+    fresh.rename(folder)
+    rendered = time.perf_counter()
+    views = sum(len(photo["visible"]) for photo in truth["photos"])
+    say(f"survey: {spec.photos} photos of {width} x {height} px with {views} tag views rendered in "
+        f"{rendered - started:.1f} s -> {folder / 'photos'}")
+    options = MeasureOptions(tolerance_mm=settings["tolerance_mm"], reference=settings["reference"])
+    try:
+        record = measure_survey(list_photos(folder / "photos"), network, load_camera(folder / "camera.json"),
+                                load_tag_map(folder / "tagmap.json"), folder, options)
+    except FablineError as exc:
+        raise FablineError(f"survey: measuring the simulated photo set in {folder}: {exc}") from None
+    entry = survey_entry(record, folder / "survey.json")
+    entry["simulated"] = {"photos": spec.photos, "resolution": settings["resolution"], "coverage": spec.coverage,
+                          "sag_mm": spec.sag_mm, "seed": spec.seed, "tag_views": views,
+                          "truth": str(folder / "truth.json"), "render_s": round(rendered - started, 3),
+                          "measure_s": round(time.perf_counter() - rendered, 3)}
+    entry["truth"] = compare_with_truth(record, truth, network)
+    return entry
+
+
+def compare_with_truth(record: dict[str, Any], truth: dict[str, Any], network: "Network") -> dict[str, Any]:
+    """Measured against injected deviations on every measured node.
+
+    The truth is seen through the survey's own registration (the built positions rigidly fitted to the
+    design on the same reference nodes), so what remains is the measuring error alone; with the supports
+    as reference and a sag that is zero there, that fit is the identity and the truth is the injected field.
+    """
+    from fabline.survey import register
+
+    ids = list(record["nodes"])
+    measured = np.array([record["nodes"][n]["deviation_mm"] for n in ids], dtype=float).reshape(-1, 3)
+    design = np.array([truth["nodes"][n]["design_mm"] for n in ids], dtype=float).reshape(-1, 3)
+    built = np.array([truth["nodes"][n]["built_mm"] for n in ids], dtype=float).reshape(-1, 3)
+    reference = record["registration"]["reference"]
+    if reference == "all":
+        mask = np.ones(len(ids), dtype=bool)
+    elif reference == "supports":
+        mask = np.array([network.nodes[n].kind == "support" for n in ids], dtype=bool)
+    else:
+        mask = np.isin(ids, reference)
+    rotation, translation, _ = register(built, design, mask)
+    true_deviation = built @ rotation.T + translation - design
+    error = np.linalg.norm(measured - true_deviation, axis=1)
+    true_distance = np.linalg.norm(true_deviation, axis=1)
+    true_pass = true_distance <= record["tolerance_mm"]
+    measured_pass = np.array([record["nodes"][n]["pass"] for n in ids], dtype=bool)
+    return {"injected": truth["deviation"], "nodes_compared": len(ids),
+            "rms_error_mm": round(float(np.sqrt(np.mean(error ** 2))), 4),
+            "max_error_mm": round(float(error.max()), 4), "worst_node": ids[int(np.argmax(error))],
+            "true_rms_deviation_mm": round(float(np.sqrt(np.mean(true_distance ** 2))), 4),
+            "true_max_deviation_mm": round(float(true_distance.max()), 4),
+            "true_failed": int((~true_pass).sum()), "pass_fail_agreement": int((true_pass == measured_pass).sum())}
+
+
+def survey_entry(record: dict[str, Any], path: Path) -> dict[str, Any]:
+    """The report's survey entry for a `fabline.survey/1` record read from (or written to) `path`."""
+    picture = path.with_name("deviation_map.png")
+    try:
+        return {"file": str(path), "deviation_map": str(picture) if picture.is_file() else None,
+                "tolerance_mm": record["tolerance_mm"], "reference": record["registration"]["reference"],
+                "registration_rms_mm": record["registration"]["rms_mm"], "summary": record["summary"],
+                "not_seen": record["not_seen"], "problems": [p["problem"] for p in record["problems"]],
+                "simulated": None, "truth": None}
+    except (KeyError, TypeError) as exc:
+        raise FablineError(f"{path}: not a complete fabline.survey/1 record (missing {exc})") from None
+
+
+def load_survey_result(path: str | Path) -> dict[str, Any]:
+    """The report's survey entry for an existing `survey.json` (from `fabline survey measure`)."""
+    path = Path(path)
+    record = read_json(path)
+    if not isinstance(record, dict) or record.get("schema") != "fabline.survey/1":
+        raise FablineError(f"{path}: not a fabline.survey/1 file (schema {record.get('schema') if isinstance(record, dict) else None!r})")
+    return survey_entry(record, path)
