@@ -163,6 +163,15 @@ def test_toolpath_leaving_the_bed_through_an_arc_is_refused(cli, job):
     assert float(re.search(r"spans x (-?[\d.]+)\.\.", err).group(1)) == pytest.approx(-10.0, abs=0.01)
 
 
+def test_a_failing_later_sheet_leaves_no_file_of_the_sheets_made_before_it(cli, job):
+    """Sheets are made in worker processes; the first failing one names itself and nothing is written."""
+    folder, nesting, partset = job
+    nesting.sheets.append(Sheet("S2", 4000.0, 2000.0, [Placement("A", -30.0, 500.0)]))
+    save_nesting(nesting, folder / "nesting.json")
+    err = _bad(cli, folder)
+    assert "sheet S2: part A" in err and "outside the bed" in err
+
+
 @pytest.mark.parametrize("machine", ["grbl-laser", "grbl-plotter", "rs274-mill"])
 def test_every_builtin_profile_exports_programs_that_check_clean(cli, job, machine):
     folder, _, _ = job

@@ -36,7 +36,7 @@ def test_example_job_parses_with_defaults_filled_in():
     assert spec.machine["ports"] == [f"sim://grbl-{k}" for k in range(1, 7)]
     assert spec.stages == ("unroll", "nest", "export", "stream", "survey", "report")
     assert spec.survey == {"result": None, "simulate": True, "photos": 12, "resolution": "3600x2400", "coverage": 0.7,
-                           "sag_mm": 40.0, "seed": 1, "tolerance_mm": 20.0, "reference": "all"}
+                           "sag_mm": 40.0, "seed": 1, "tolerance_mm": 20.0, "reference": "all", "scale_bars": 2}
     assert spec.output_folder == (REPO / "out" / "pavilion").resolve()
 
 
@@ -92,6 +92,7 @@ def test_required_keys(tmp_path):
     ("[survey]\nsimulate = true\ntolerance_mm = 0", "job.toml: survey.tolerance_mm: must be positive, got 0.0"),
     ("[survey]\nsimulate = true\nreference = \"corners\"",
      "job.toml: survey.reference: 'corners' must be 'all' or 'supports'"),
+    ("[survey]\nsimulate = true\nscale_bars = 3", "job.toml: survey.scale_bars: must be 0, 1 or 2, got 3"),
     ("[survey]\nphotos = 8", "job.toml: survey.photos: only with survey.simulate = true"),
     ("survey = 3", "job.toml: survey: expected a table, got integer"),
     ("stages = [\"survey\", \"report\"]", "job.toml: stages: 'survey' needs survey.simulate = true"),
@@ -113,8 +114,8 @@ def test_survey_settings_and_stages(tmp_path):
     """`survey.simulate` adds the survey stage to the default stages (after stream, before report), defaults filled in."""
     spec = load_job_file(write(tmp_path, GOOD + "\n[survey]\nsimulate = true\nphotos = 8\n"))
     assert spec.stages == ("unroll", "nest", "export", "stream", "survey", "report")
-    assert spec.survey == {"result": None, "simulate": True, "photos": 8, "resolution": "4000x2667", "coverage": 0.7,
-                           "sag_mm": 25.0, "seed": 1, "tolerance_mm": 20.0, "reference": "all"}
+    assert spec.survey == {"result": None, "simulate": True, "photos": 8, "resolution": "3600x2400", "coverage": 0.7,
+                           "sag_mm": 25.0, "seed": 1, "tolerance_mm": 20.0, "reference": "all", "scale_bars": 0}
     spec = load_job_file(write(tmp_path, 'stages = ["report", "survey"]\n' + GOOD + "\n[survey]\nsimulate = true\n"))
     assert spec.stages == ("survey", "report")
     assert load_job_file(write(tmp_path, GOOD)).survey == {"result": None, "simulate": False}

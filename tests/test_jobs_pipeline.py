@@ -42,6 +42,7 @@ resolution = "1200x800"
 coverage = 1.5
 sag_mm = 25.0
 tolerance_mm = 10.0
+scale_bars = 2
 [output]
 folder = "out"
 """
@@ -207,6 +208,11 @@ def test_report_survey_figures_agree_with_the_injected_truth(run):
     assert rms_error < 1.5, "the survey recovers the sag to about a millimetre"
     comparison = data["truth"]
     assert comparison["nodes_compared"] == len(ids)
+    bars = data["scale"]["bars"]  # simulated tape measurements: the true distances between the tags' centres
+    centre = {node["tag"]: np.array(node["tag_centre_mm"]) for node in truth["nodes"].values()}
+    assert len(bars) == 2 and data["simulated"]["scale_bars"] == [{k: b[k] for k in ("tags", "distance_mm")} for b in bars]
+    for bar in bars:
+        assert bar["distance_mm"] == pytest.approx(np.linalg.norm(centre[bar["tags"][0]] - centre[bar["tags"][1]]), abs=1e-3)
     assert comparison["rms_error_mm"] == pytest.approx(rms_error, abs=2e-3)
     assert comparison["max_error_mm"] == pytest.approx(error.max(), abs=2e-3)
     assert comparison["true_rms_deviation_mm"] == pytest.approx(np.sqrt(np.mean(true_distance ** 2)), abs=2e-3)

@@ -6,6 +6,7 @@ import argparse
 import json
 import secrets
 import sys
+import threading
 from pathlib import Path
 
 from fabline.errors import FablineError
@@ -63,9 +64,12 @@ def run_job_command(args: argparse.Namespace) -> int:
     """Run every stage of the job and print where the report is."""
     from fabline.jobs.pipeline import run_job
 
+    said = threading.Lock()  # the machines report from their own threads: one whole line at a time
+
     def say(text: str) -> None:
         if not args.quiet:
-            print(text, flush=True)
+            with said:
+                print(text, flush=True)
 
     def confirm(k: int, count: int, sheet: str) -> None:
         input(f"load sheet {k + 1} of {count} ({sheet}) on the machine, then press Enter ")

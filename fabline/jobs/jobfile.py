@@ -56,11 +56,11 @@ SCHEMA: dict[str, Any] = {
     "output": {"folder": Key(str, required=True), "report": Key(str, default="report.html")},
     "survey": {"result": Key(str), "simulate": Key(bool, default=False), "photos": Key(int), "resolution": Key(str),
                "coverage": Key(float), "sag_mm": Key(float), "seed": Key(int), "tolerance_mm": Key(float),
-               "reference": Key(str)},
+               "reference": Key(str), "scale_bars": Key(int)},
 }
 
-SIMULATED_SURVEY_DEFAULTS = {"photos": 12, "resolution": "4000x2667", "coverage": 0.7, "sag_mm": 25.0, "seed": 1,
-                             "tolerance_mm": 20.0, "reference": "all"}
+SIMULATED_SURVEY_DEFAULTS = {"photos": 12, "resolution": "3600x2400", "coverage": 0.7, "sag_mm": 25.0, "seed": 1,
+                             "tolerance_mm": 20.0, "reference": "all", "scale_bars": 0}
 """The `[survey]` keys of a simulated survey (`simulate = true`) and their defaults; they mean nothing without it."""
 
 
@@ -230,7 +230,8 @@ def _check_survey(survey: dict[str, Any], where: str) -> dict[str, Any]:
                           ("coverage", 0 < checked["coverage"] <= 2, "must be in (0, 2]"),
                           ("sag_mm", checked["sag_mm"] >= 0, "must not be negative"),
                           ("seed", checked["seed"] >= 0, "must not be negative"),
-                          ("tolerance_mm", checked["tolerance_mm"] > 0, "must be positive")):
+                          ("tolerance_mm", checked["tolerance_mm"] > 0, "must be positive"),
+                          ("scale_bars", 0 <= checked["scale_bars"] <= 2, "must be 0, 1 or 2")):
         if not ok:
             raise FablineError(f"{where}: survey.{key}: {rule}, got {checked[key]}")
     if checked["reference"] not in ("all", "supports"):

@@ -147,7 +147,7 @@ def _survey_section(survey: dict[str, Any] | None) -> str:
             ("fail", s["failed"]), ("tolerance mm", f"{survey['tolerance_mm']:g}"),
             ("RMS deviation mm", s["rms_deviation_mm"]), ("max deviation mm", s["max_deviation_mm"]),
             ("worst nodes", ", ".join(s["worst"])), ("not seen", s["not_seen"]),
-            ("reprojection RMS px", s["reprojection_rms_px"]),
+            ("reprojection RMS px", s["reprojection_rms_px"]), ("scale from", _scale_source(survey.get("scale"))),
             ("registration", f"rigid on {survey['reference'] if isinstance(survey['reference'], str) else 'chosen'} "
                              f"nodes, RMS {survey['registration_rms_mm']} mm")]
     parts.append("<table id=survey>" + "".join(f"<tr><td>{e(k)}</td><td>{e(str(v))}</td></tr>" for k, v in rows)
@@ -162,6 +162,14 @@ def _survey_section(survey: dict[str, Any] | None) -> str:
         parts.append("<p class=note>Problems: " + e("; ".join(survey["problems"][:10]))
                      + (f"; and {len(survey['problems']) - 10} more" if len(survey["problems"]) > 10 else "") + ".</p>")
     return "".join(parts)
+
+
+def _scale_source(scale: dict[str, Any] | None) -> str:
+    """Where the survey's scale came from: the printed tag size, or scale bars with the factor they applied."""
+    if not scale or not scale.get("bars"):
+        return scale["source"] if scale else "tag size"
+    bars = "; ".join(f"tags {b['tags'][0]}-{b['tags'][1]} {b['distance_mm'] / 1000:.3f} m" for b in scale["bars"])
+    return f"{len(scale['bars'])} scale bar(s) ({bars}), factor {scale['factor']}"
 
 
 def _truth_table(truth: dict[str, Any], simulated: dict[str, Any], summary: dict[str, Any]) -> str:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import shutil
 import time
+from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
@@ -57,7 +58,9 @@ def simulate_and_measure(network: "Network", folder: Path, settings: dict[str, A
     views = sum(len(photo["visible"]) for photo in truth["photos"])
     say(f"survey: {spec.photos} photos of {width} x {height} px with {views} tag views rendered in "
         f"{rendered - started:.1f} s -> {folder / 'photos'}")
-    options = MeasureOptions(tolerance_mm=settings["tolerance_mm"], reference=settings["reference"])
+    bars = scale_bars(truth, settings["scale_bars"])
+    options = MeasureOptions(tolerance_mm=settings["tolerance_mm"], reference=settings["reference"],
+                             scale_bars=tuple(bars))
     try:
         record = measure_survey(list_photos(folder / "photos"), network, load_camera(folder / "camera.json"),
                                 load_tag_map(folder / "tagmap.json"), folder, options)
@@ -66,10 +69,31 @@ def simulate_and_measure(network: "Network", folder: Path, settings: dict[str, A
     entry = survey_entry(record, folder / "survey.json")
     entry["simulated"] = {"photos": spec.photos, "resolution": settings["resolution"], "coverage": spec.coverage,
                           "sag_mm": spec.sag_mm, "seed": spec.seed, "tag_views": views,
+                          "scale_bars": [{"tags": [a, b], "distance_mm": length} for a, b, length in bars],
                           "truth": str(folder / "truth.json"), "render_s": round(rendered - started, 3),
                           "measure_s": round(time.perf_counter() - rendered, 3)}
     entry["truth"] = compare_with_truth(record, truth, network)
     return entry
+
+
+def scale_bars(truth: dict[str, Any], count: int, min_photos: int = 3) -> list[tuple[int, int, float]]:
+    """`count` (0 to 2) simulated tape measurements on site: the true distance between the tag centres farthest
+    apart along x, then along y, among the tags that are in full view in at least `min_photos` photos."""
+    if not count:
+        return []
+    seen = Counter(int(tag) for photo in truth["photos"] for tag in photo["visible"])
+    candidates = [(node["tag"], node["tag_centre_mm"]) for node in truth["nodes"].values()
+                  if node["tag"] is not None and seen[node["tag"]] >= min_photos]
+    if len(candidates) < 2:
+        raise FablineError(f"survey.scale_bars: fewer than 2 tags are in full view in {min_photos} photos; "
+                           "take more photos or set scale_bars = 0")
+    tags = [tag for tag, _ in candidates]
+    centres = np.array([centre for _, centre in candidates], dtype=float)
+    bars = []
+    for axis in range(count):
+        a, b = int(np.argmin(centres[:, axis])), int(np.argmax(centres[:, axis]))
+        bars.append((tags[a], tags[b], round(float(np.linalg.norm(centres[a] - centres[b])), 3)))
+    return bars
 
 
 def compare_with_truth(record: dict[str, Any], truth: dict[str, Any], network: "Network") -> dict[str, Any]:
@@ -112,7 +136,8 @@ def survey_entry(record: dict[str, Any], path: Path) -> dict[str, Any]:
     try:
         return {"file": str(path), "deviation_map": str(picture) if picture.is_file() else None,
                 "tolerance_mm": record["tolerance_mm"], "reference": record["registration"]["reference"],
-                "registration_rms_mm": record["registration"]["rms_mm"], "summary": record["summary"],
+                "registration_rms_mm": record["registration"]["rms_mm"], "scale": record.get("scale"),
+                "summary": record["summary"],
                 "not_seen": record["not_seen"], "problems": [p["problem"] for p in record["problems"]],
                 "simulated": None, "truth": None}
     except (KeyError, TypeError) as exc:

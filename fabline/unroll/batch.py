@@ -102,22 +102,22 @@ def straight_parts(segments: list[Segment], options: UnrollOptions) -> list[Part
 
     holes, hole_count = _seam_holes(segments, a, start_seam, end_seam, options)
 
-    parts = []
-    node_ids, slot_nodes, slot_edges = nodes["ids"], slots["nodes"], slots["edges"]
-    stroke_at = np.concatenate([[0], np.cumsum(node_stroke_count)])
-    hole_at = np.concatenate([[0], np.cumsum(hole_count)])
+    # the per-part assembly below only slices Python lists with Python ints, the cheapest way to build objects
+    node_ids = nodes["ids"]
+    stroke_at = np.concatenate([[0], np.cumsum(node_stroke_count)]).tolist()
+    hole_at = np.concatenate([[0], np.cumsum(hole_count)]).tolist()
+    slot_list = [Slot(n, c, e) for n, c, e in zip(slots["nodes"], slot_contours, slots["edges"])]
     mark_list = list(marks)
-    contour_list = list(slot_contours)
-    node_s = [round(v, 4) for v in (node_x - a[node_seg]).tolist()]
+    node_s = np.round(node_x - a[node_seg], 4).tolist()
+    node_rows = [{"id": n, "s": s} for n, s in zip(node_ids, node_s)]
+    slot_bounds, node_bounds = slot_range.tolist(), node_range.tolist()
+    parts = []
     for k, segment in enumerate(segments):
-        strip = segment.strip
-        s0, s1, n0, n1 = slot_range[k], slot_range[k + 1], node_range[k], node_range[k + 1]
+        s0, s1, n0, n1 = slot_bounds[k], slot_bounds[k + 1], node_bounds[k], node_bounds[k + 1]
         text = node_strokes[stroke_at[n0]:stroke_at[n1]] + label_strokes.get(k, [])
         parts.append(Part(
-            segment.id, "strip", outlines[k], lamella=strip.lamella, holes=holes[hole_at[k]:hole_at[k + 1]],
-            slots=[Slot(n, c, e) for n, c, e in zip(slot_nodes[s0:s1], contour_list[s0:s1], slot_edges[s0:s1])],
-            marks=mark_list[n0:n1], text=text,
-            nodes=[{"id": n, "s": s} for n, s in zip(node_ids[n0:n1], node_s[n0:n1])],
+            segment.id, "strip", outlines[k], lamella=segment.strip.lamella, holes=holes[hole_at[k]:hole_at[k + 1]],
+            slots=slot_list[s0:s1], marks=mark_list[n0:n1], text=text, nodes=node_rows[n0:n1],
             label=labels[k], grain=True, meta=segment_meta(segment, None)))
     return parts
 

@@ -80,25 +80,29 @@ def _split_run(strip: Strip, options: UnrollOptions, start: float, end: float, j
                join_end: Join | None, avoid: set[tuple[str, str]]) -> list[Segment]:
     """Greedy seams: each segment as long as the usable sheet length allows, each seam in a free node interval."""
     usable, half = options.usable_length, options.overlap / 2.0
-    candidates = seam_candidates(strip, options, start, end)
+    at, intervals = seam_candidates(strip, options, start, end)
+    free = np.array([interval not in avoid for interval in intervals], dtype=bool)
     segments, current, join = [], start, join_start
     while end - current > usable:
-        fits = [c for c in candidates if current + half < c.x - half and c.x + half <= current + usable]
-        preferred = [c for c in fits if c.interval not in avoid] or fits
-        if not preferred:
+        fits = (current + half < at - half) & (at + half <= current + usable)
+        preferred = np.flatnonzero(fits & free) if (fits & free).any() else np.flatnonzero(fits)
+        if not preferred.size:
             raise FablineError(
                 f"lamella {strip.lamella}, strip {strip.id}: no seam fits between x = {current:.0f} and "
                 f"{current + usable:.0f} mm: no node interval there leaves {options.overlap:g} mm of overlap clear "
                 f"of slots and marks (usable sheet length {usable:g} mm)")
-        seam = preferred[-1]
+        chosen = int(preferred[-1])
+        seam = Join("seam", float(at[chosen]), interval=intervals[chosen])
         segments.append(Segment(strip, current, seam.x + half, start_join=join, end_join=seam))
         current, join = seam.x - half, seam
     segments.append(Segment(strip, current, end, start_join=join, end_join=join_end))
     return segments
 
 
-def seam_candidates(strip: Strip, options: UnrollOptions, start: float, end: float) -> list[Join]:
-    """Midpoints of node intervals inside (start, end) whose overlap keeps a web clear of every slot and node mark."""
+def seam_candidates(strip: Strip, options: UnrollOptions, start: float,
+                    end: float) -> tuple[np.ndarray, list[tuple[str, str]]]:
+    """Midpoints of node intervals inside (start, end) whose overlap keeps a web clear of every slot and node mark,
+    and those intervals' node pairs (arrays rather than Join objects: a strip has many candidates, few seams)."""
     order = np.argsort(strip.node_x)
     x = strip.node_x[order]
     ids = [strip.node_ids[k] for k in order]
@@ -112,7 +116,8 @@ def seam_candidates(strip: Strip, options: UnrollOptions, start: float, end: flo
         clear &= nearest >= keep_out_slot
     clear &= np.abs(middle[:, None] - x[None, :]).min(axis=1) >= keep_out_mark
     clear &= (middle - half > start) & (middle + half < end)
-    return [Join("seam", float(middle[k]), interval=(ids[k], ids[k + 1])) for k in np.flatnonzero(clear)]
+    chosen = np.flatnonzero(clear).tolist()
+    return middle[chosen], [(ids[k], ids[k + 1]) for k in chosen]
 
 
 def node_text_reach(options: UnrollOptions, node_ids: list[str]) -> float:
