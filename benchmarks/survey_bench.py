@@ -2,8 +2,9 @@
 
 Prints detection time per photo (fabline and, when installed, pupil-apriltags), the whole survey time,
 tags found against tags visible, false tags, and the RMS of recovered against injected deviations
-(supports as reference without and with a scale bar between the two farthest support tags; all nodes).
-Run: python benchmarks/survey_bench.py [--model FILE] [--photos 32] [--size 6000x4000] [--out DIR]
+(supports as reference: with small tags kept out of the scale (the default), with every tag setting it,
+and with a scale bar between the two farthest support tags; all nodes as reference).
+Run: python benchmarks/survey_bench.py [--model FILE] [--photos 32] [--size 6000x4000] [--out DIR [--reuse]]
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from fabline.fileio import read_json  # noqa: E402
 from fabline.model import Network, load_network  # noqa: E402
 from fabline.survey import (MeasureOptions, SyntheticSpec, detect_tags, list_photos, load_camera, load_tag_map,  # noqa: E402
                             measure_survey, read_gray, rigid_fit, simulate_survey)
@@ -62,6 +64,7 @@ def main() -> int:
     parser.add_argument("--photos", type=int, default=32)
     parser.add_argument("--size", default="6000x4000")
     parser.add_argument("--out", help="folder for the photo set and the survey (default: a temporary folder)")
+    parser.add_argument("--reuse", action="store_true", help="survey the photo set already rendered in --out (skip rendering)")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
     network = load_network(args.model) if args.model else pavilion_model()
@@ -69,9 +72,13 @@ def main() -> int:
     spec = SyntheticSpec(photos=args.photos, width=width, height=height, focal_px=width * 5 / 6,
                          every=1 if len(network.nodes) <= 587 else 2)
     rows = []
-    start = time.perf_counter()
-    truth = simulate_survey(network, out / "set", spec)
-    rows.append(("render photo set", f"{time.perf_counter() - start:.1f} s", f"{args.photos} photos {width}x{height}"))
+    if args.reuse and (out / "set" / "truth.json").is_file():
+        truth = read_json(out / "set" / "truth.json")
+        rows.append(("render photo set", "reused", f"{len(truth['photos'])} photos in {out / 'set'}"))
+    else:
+        start = time.perf_counter()
+        truth = simulate_survey(network, out / "set", spec)
+        rows.append(("render photo set", f"{time.perf_counter() - start:.1f} s", f"{args.photos} photos {width}x{height}"))
 
     photos = list_photos(out / "set" / "photos")
     sample = photos[:3]
@@ -94,6 +101,7 @@ def main() -> int:
     start = time.perf_counter()
     record = measure_survey(photos, network, camera, tag_map, out / "survey", MeasureOptions(reference="supports"))
     rows.append(("whole survey (measure)", f"{time.perf_counter() - start:.1f} s", "detect + adjust + register + pictures"))
+    small = record["scale"]["observations_without_scale"]
 
     visible = sum(len(p["visible"]) for p in truth["photos"])
     found = sum(len(set(map(int, p["visible"])) & set(r["tags"])) for p, r in zip(truth["photos"], record["photos"]))
@@ -103,7 +111,15 @@ def main() -> int:
     recovered = np.array([record["nodes"][n]["deviation_mm"] for n in ids])
     injected = np.array([truth["nodes"][n]["deviation_mm"] for n in ids])
     rms = float(np.sqrt(np.mean(np.sum((recovered - injected) ** 2, axis=1))))
-    rows.append(("deviation error, RMS", f"{rms:.3f} mm", f"{len(ids)} of {len(network.nodes)} nodes, reference = supports"))
+    rows.append(("deviation error, RMS", f"{rms:.3f} mm", f"{len(ids)} of {len(network.nodes)} nodes, reference = supports, "
+                 f"{small} observations with cells < {record['scale']['min_cell_px']:g} px kept out of the scale"))
+    record_every = measure_survey(photos, network, camera, tag_map, out / "survey-every",
+                                  MeasureOptions(reference="supports", pictures=False, scale_min_cell_px=0.0))
+    ids_every = list(record_every["nodes"])
+    recovered_every = np.array([record_every["nodes"][n]["deviation_mm"] for n in ids_every])
+    injected_every = np.array([truth["nodes"][n]["deviation_mm"] for n in ids_every])
+    rms_every = float(np.sqrt(np.mean(np.sum((recovered_every - injected_every) ** 2, axis=1))))
+    rows.append(("deviation error, RMS", f"{rms_every:.3f} mm", f"{len(ids_every)} nodes, reference = supports, every tag sets the scale"))
     built = np.array([truth["nodes"][n]["built_mm"] for n in ids])
     design = np.array([truth["nodes"][n]["design_mm"] for n in ids])
     rotation, translation = rigid_fit(built, design)

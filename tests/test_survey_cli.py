@@ -71,6 +71,7 @@ def test_measure_prints_a_summary_and_writes_the_survey(cli, model_file, simulat
     assert "nodes measured from" in out and "RMS deviation" in out
     record = json.loads((tmp_path / "survey.json").read_text())
     assert record["tolerance_mm"] == 15 and record["registration"]["reference"] == "all"
+    assert record["scale"]["min_cell_px"] == 3.5 and record["scale"]["observations_without_scale"] >= 0
     truth = json.loads((simulated / "truth.json").read_text())
     ids = list(record["nodes"])
     measured = np.array([record["nodes"][n]["measured_mm"] for n in ids])
@@ -129,6 +130,8 @@ def test_a_scale_bar_corrects_a_wrong_tag_size(cli, model_file, simulated, tmp_p
       "--scale-bar", "0", "4", "0"], "--scale-bar 0 4 0: the distance must be a positive number of mm"),
     (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out",
       "--scale-bar", "0", "4", "1.5m"], "--scale-bar 0 4 1.5m: expected two tag ids and a distance in mm"),
+    (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out",
+      "--scale-min-cell", "-1"], "--scale-min-cell -1: must be a number of px, 0 or more"),
     (["survey", "calibrate", "{tmp}", "-o", "{tmp}/cam.json"], "no photos"),
     (["survey", "simulate", "--model", "{model}", "-o", "{tmp}/out", "--size", "big"], "--size 'big': expected WxH"),
 ])

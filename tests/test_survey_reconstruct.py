@@ -166,3 +166,56 @@ def test_a_scale_bar_fixes_the_scale_when_the_tag_size_is_wrong():
     cam = (tag_object_points(TAG_MM) @ rotation_matrices(result.tag_poses[obs.tag][None, :3])[0].T
            + result.tag_poses[obs.tag][3:]) @ result.camera_rotations[photo].T + result.camera_translations[photo]
     assert np.abs(cam[:, :2] / cam[:, 2:] - obs.normalised).max() < 1e-7
+
+
+def _shrink(obs: Observation, relative: float) -> Observation:
+    """The observation with its corners pulled towards their mean by `relative`, as detection does to tags small in the photo."""
+    centre = obs.normalised.mean(axis=0)
+    return Observation(obs.photo, obs.tag, centre + (1 - relative) * (obs.normalised - centre), obs.scale_free)
+
+
+def _similarity_scale(recovered: np.ndarray, truth: np.ndarray) -> float:
+    """The scale of the best similarity from truth to recovered points (ratio of RMS spreads about the centroids)."""
+    return float(np.sqrt(np.sum((recovered - recovered.mean(axis=0)) ** 2) / np.sum((truth - truth.mean(axis=0)) ** 2)))
+
+
+def test_scale_free_observations_of_shrunk_tags_do_not_bias_the_scale():
+    """Half the observations shrunk by 2e-3 (tiny tags): marked scale-free they still place tags, but the scale stays true."""
+    rng = np.random.default_rng(7)
+    camera, observations, centres, _, _ = _scene(rng, photos=10, tags=40)
+    small = rng.random(len(observations)) < 0.5
+    shrunk = [_shrink(o, 2e-3) if s else o for o, s in zip(observations, small)]
+    biased = bundle_adjust(shrunk, camera, TAG_MM)
+    ids = sorted(biased.tag_poses)
+    scale = _similarity_scale(np.array([biased.tag_poses[t][3:] for t in ids]), centres[ids])
+    assert scale == pytest.approx(1 + 1e-3, abs=3e-4)  # the shrunk half makes every tag look farther: all grows
+    marked = [Observation(o.photo, o.tag, o.normalised, bool(s)) for o, s in zip(shrunk, small)]
+    result = bundle_adjust(marked, camera, TAG_MM)
+    assert result.scale_free_observations == int(small.sum()) and not result.rejected
+    assert sorted(result.tag_poses) == ids
+    recovered = np.array([result.tag_poses[t][3:] for t in ids])
+    assert _similarity_scale(recovered, centres[ids]) == pytest.approx(1.0, abs=2e-5)
+    rotation, translation = rigid_fit(recovered, centres[ids])
+    assert np.abs(recovered @ rotation.T + translation - centres[ids]).max() < 0.05
+    # a tag seen only in scale-free views is still placed (by the other tags' cameras), to the same precision
+    only_small = [t for t in ids if all(s for o, s in zip(marked, small) if o.tag == t)]
+    assert not only_small or np.abs(recovered[[ids.index(t) for t in only_small]] @ rotation.T + translation
+                                    - centres[only_small]).max() < 0.05
+
+
+def test_scale_free_is_ignored_where_it_would_leave_a_tag_or_the_survey_without_scale():
+    rng = np.random.default_rng(8)
+    camera, observations, centres, _, _ = _scene(rng, photos=6, tags=15)
+    every = [Observation(o.photo, o.tag, o.normalised, True) for o in observations]
+    result = bundle_adjust(every, camera, TAG_MM)
+    assert result.scale_free_observations == 0  # nothing else would set the scale: all set it
+    ids = sorted(result.tag_poses)
+    assert _similarity_scale(np.array([result.tag_poses[t][3:] for t in ids]), centres[ids]) == pytest.approx(1.0, abs=1e-6)
+    # a tag seen once keeps its size (one view cannot place it otherwise); the other marks stand
+    once = observations[0].tag
+    single = [o for o in observations if o.tag != once or o.photo == observations[0].photo]
+    marked = [Observation(o.photo, o.tag, o.normalised, o.tag == once or o.photo == 1) for o in single]
+    result = bundle_adjust(marked, camera, TAG_MM)
+    assert result.scale_free_observations == sum(o.photo == 1 and o.tag != once for o in single)
+    assert np.linalg.norm(result.tag_poses[once][3:] - result.tag_poses[sorted(result.tag_poses)[-1]][3:]) == pytest.approx(
+        np.linalg.norm(centres[once] - centres[sorted(result.tag_poses)[-1]]), abs=1e-3)

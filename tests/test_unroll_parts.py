@@ -184,13 +184,13 @@ def same_parts(reference, batched) -> None:
 @pytest.mark.parametrize("case", ["pavilion", "star-joint"])
 def test_batched_straight_strips_equal_the_one_by_one_construction(case, enneper):
     from fabline.geometry import analyse
-    from fabline.unroll.batch import is_straight, straight_parts
+    from fabline.unroll.batch import straight_flags, straight_parts
     from fabline.unroll.pieces import segment_part
     from fabline.unroll.seams import split_strip
     from fabline.unroll.stations import strip_stations
 
     network, opts = (enneper, UnrollOptions()) if case == "pavilion" else (star_network(), UnrollOptions())
     segments = [s for strip in strip_stations(analyse(network), opts) for s in split_strip(strip, opts, 20.0)]
-    straight = [s for s in segments if is_straight(s, opts)]
+    straight = [s for s, flag in zip(segments, straight_flags(segments, opts)) if flag]
     assert len(straight) > 0.8 * len(segments)
     same_parts([segment_part(s, opts) for s in straight], straight_parts(straight, opts))

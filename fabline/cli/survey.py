@@ -67,6 +67,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     measure.add_argument("--min-views", type=int, default=2, help="photos a tag must be seen in (default 2)")
     measure.add_argument("--scale-bar", nargs=3, action="append", default=[], metavar=("TAG_A", "TAG_B", "DIST_MM"),
                          help="distance between two tag centres measured on site; fixes the scale (repeatable)")
+    measure.add_argument("--scale-min-cell", type=float, default=3.5, metavar="PX",
+                         help="tags whose cells are narrower than this in a photo do not set the scale there "
+                              "(their detected size is biased); 0 lets all set it (default 3.5)")
     measure.set_defaults(func=_measure)
 
 
@@ -182,7 +185,8 @@ def _measure(args: argparse.Namespace) -> int:
     tag_map = load_tag_map(args.tags) if args.tags else make_tag_map(network)
     reference = args.reference if args.reference in ("all", "supports") else [n.strip() for n in args.reference.split(",") if n.strip()]
     options = MeasureOptions(tolerance_mm=args.tolerance, reference=reference, min_views=args.min_views,
-                             scale_bars=tuple(_scale_bar(values) for values in args.scale_bar))
+                             scale_bars=tuple(_scale_bar(values) for values in args.scale_bar),
+                             scale_min_cell_px=args.scale_min_cell)
     record = measure_survey(list_photos(args.photos), network, load_camera(args.camera), tag_map, args.output, options)
     for problem in record["problems"]:
         print(f"warning: {problem['problem']}")

@@ -188,6 +188,11 @@ def _intersect(line1, line2) -> np.ndarray:
     return p1 + s * d1
 
 
+def cell_width_px(corners: np.ndarray) -> float:
+    """The tag's narrowest cell width in the photo, px: its shortest detected side over the 8 cells of the black square."""
+    return float(np.min(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1)) / TAG_CELLS)
+
+
 def tag_object_points(tag_size: float) -> np.ndarray:
     """The four corners (4, 3) in the tag's own frame (x right, y up, z out of the face), OpenCV order."""
     h = tag_size / 2

@@ -18,7 +18,7 @@ from fabline.fileio import atomic_output, write_json
 from fabline.model import Network
 from fabline.progress import progress
 from fabline.survey.camera import Camera
-from fabline.survey.detect import TagDetection, detect_tags, read_gray
+from fabline.survey.detect import TagDetection, cell_width_px, detect_tags, read_gray
 from fabline.survey.reconstruct import Observation, bundle_adjust
 from fabline.survey.register import register
 from fabline.survey.tagmap import TagMap, check_tag_map
@@ -31,13 +31,18 @@ PREVIEW_WIDTH = 1600
 @dataclass
 class MeasureOptions:
     """Tolerance (mm), the registration's reference nodes ('all', 'supports' or ids), views a node needs,
-    and scale bars: (tag, tag, distance between their centres in mm) measured on site, which fix the scale."""
+    and scale bars: (tag, tag, distance between their centres in mm) measured on site, which fix the scale.
+
+    `scale_min_cell_px`: observations of tags whose narrowest cell is smaller than this in the photo place
+    cameras and tags but do not set the scale (detection shrinks such tags by up to 1e-3; 0 uses all).
+    """
 
     tolerance_mm: float = 20.0
     reference: str | list[str] = "all"
     min_views: int = 2
     pictures: bool = True
     scale_bars: tuple[tuple[int, int, float], ...] = ()
+    scale_min_cell_px: float = 3.5
 
 
 def list_photos(folder: str | os.PathLike) -> list[Path]:
@@ -98,8 +103,11 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
     model = network.in_mm()
     check_tag_map(tag_map, model)
     check_scale_bars(options.scale_bars, tag_map)
+    if not options.scale_min_cell_px >= 0:
+        raise FablineError(f"--scale-min-cell {options.scale_min_cell_px:g}: must be a number of px, 0 or more")
     detections, problems = detect_photos(photos, camera, set(tag_map.node_of_tag))
-    observations = [Observation(k, d.tag_id, camera.normalise(d.corners)) for k, found in detections.items() for d in found]
+    observations = [Observation(k, d.tag_id, camera.normalise(d.corners), cell_width_px(d.corners) < options.scale_min_cell_px)
+                    for k, found in detections.items() for d in found]
     if not observations:
         detail = f" ({problems[0]['problem']}" + (f"; {len(problems) - 1} more problem(s))" if len(problems) > 1 else ")") if problems else ""
         raise FablineError(f"no tags of the tag map were found in any usable photo{detail}")
@@ -113,6 +121,10 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
         scale = {"source": "scale bars", "factor": round(factor, 9),
                  "bars": [{"tags": [a, b], "distance_mm": length, "misfit_mm": round(misfit, 4)}
                           for (a, b, length), misfit in zip(options.scale_bars, misfits)]}
+    small = sum(o.scale_free for o in observations)
+    if small and not reconstruction.scale_free_observations:
+        problems.append({"problem": f"every tag seen in two or more photos has cells narrower than {options.scale_min_cell_px:g} px: "
+                                    f"they set the scale anyway (expect a scale error of up to 1e-3; take closer photos or use --scale-bar)"})
     for k in reconstruction.unregistered_photos:
         problems.append({"file": str(photos[k]), "problem": f"{photos[k]}: shares too few tags with the other photos (left out)"})
     for k, tag in reconstruction.rejected:
@@ -152,6 +164,8 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
     record = _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviation, distance, sigma, views, passed,
                      rotation, translation, fit_rms, reconstruction, photos, detections, problems, wrong)
     record["scale"] = scale or {"source": f"tag size {tag_map.tag_size_mm:g} mm", "factor": 1.0, "bars": []}
+    record["scale"].update(min_cell_px=options.scale_min_cell_px,
+                           observations_without_scale=reconstruction.scale_free_observations)
     out_dir = Path(out_dir)
     write_json(out_dir / "survey.json", record)
     if options.pictures:

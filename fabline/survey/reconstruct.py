@@ -1,7 +1,10 @@
 """Multi-view reconstruction of tag poses: chained PnP and triangulation, then a sparse bundle adjustment.
 
 Unknowns are every camera pose (except the first, which fixes the frame) and every tag pose; each tag
-is a square of known size, which fixes the scale. Observations are the tags' detected corners,
+is a square of known size, which fixes the scale. Observations marked scale-free (tags small in the
+photo, whose detected size is biased) still place cameras and tags but do not set the scale: their
+residual is projected off its derivative with respect to the tag's size (a free size per observation,
+eliminated in closed form). Observations are the tags' detected corners,
 undistorted once to normalised coordinates (the intrinsics are known), residuals are in pixels.
 A Levenberg-Marquardt solver with a soft-L1 robust loss and an analytic sparse Jacobian minimises them,
 solving each step through the Schur complement on the camera poses (scipy's least_squares with its
@@ -27,11 +30,15 @@ OUTLIER_PX = 2.0
 
 @dataclass
 class Observation:
-    """Tag `tag` seen in photo `photo` with its corners (4, 2) in undistorted normalised coordinates."""
+    """Tag `tag` seen in photo `photo` with its corners (4, 2) in undistorted normalised coordinates.
+
+    `scale_free`: use the corners for the tag's direction and orientation only, not its apparent size.
+    """
 
     photo: int
     tag: int
     normalised: np.ndarray
+    scale_free: bool = False
 
 
 @dataclass
@@ -46,6 +53,7 @@ class Reconstruction:
     rms_px: float
     rejected: list[tuple[int, int]] = field(default_factory=list)
     unregistered_photos: list[int] = field(default_factory=list)
+    scale_free_observations: int = 0
 
     def scale_to_bars(self, bars: list[tuple[int, int, float]]) -> tuple[float, list[float]]:
         """Rescale the survey so measured distances between tag centres (tag, tag, mm) hold; return the factor and misfits.
@@ -229,10 +237,14 @@ def _project(params: np.ndarray, n_free: int, cam_index: np.ndarray, tag_index: 
 
 
 def bundle_adjust(observations: list[Observation], camera: Camera, tag_size: float) -> Reconstruction:
-    """Adjust all camera and tag poses to the observed corners; reject outliers; estimate covariances."""
+    """Adjust all camera and tag poses to the observed corners; reject outliers; estimate covariances.
+
+    Scale-free observations are honoured for tags seen in two or more photos (one view alone cannot place
+    a tag without its size) and only while some observation is left to set the scale.
+    """
     model = tag_object_points(tag_size)
     first, cameras, tags, unjoined = initial_poses(observations, tag_size)
-    used = [o for o in observations if o.photo in cameras and o.tag in tags]
+    used = _scale_free_where_possible([o for o in observations if o.photo in cameras and o.tag in tags])
     photo_ids = [first] + sorted(p for p in cameras if p != first)
     tag_ids = sorted({o.tag for o in used})
     params = np.concatenate([np.concatenate([_rvec(cameras[p][0]), cameras[p][1]]) for p in photo_ids[1:]]
@@ -251,7 +263,7 @@ def bundle_adjust(observations: list[Observation], camera: Camera, tag_size: flo
         params = np.concatenate([params[:6 * (len(photo_ids) - 1)]]
                                 + [params[6 * (len(photo_ids) - 1) + 6 * k:][:6] for k, t in enumerate(tag_ids) if t in still_seen])
         tag_ids = [t for t in tag_ids if t in still_seen]
-        used = kept
+        used = _scale_free_where_possible(kept)
     n_free = len(photo_ids) - 1
     dof = max(residual.size - len(params), 1)
     variance = float(np.sum(residual ** 2) / dof)
@@ -266,7 +278,18 @@ def bundle_adjust(observations: list[Observation], camera: Camera, tag_size: flo
         tag_covariances=dict(zip(tag_ids, covariances)),
         observation_count={t: int(counts[k]) for k, t in enumerate(tag_ids)},
         rms_px=float(np.sqrt(np.mean(errors[errors <= max(OUTLIER_PX, 5 * 1.4826 * np.median(errors))] ** 2))),
-        rejected=rejected, unregistered_photos=unjoined)
+        rejected=rejected, unregistered_photos=unjoined, scale_free_observations=sum(o.scale_free for o in used))
+
+
+def _scale_free_where_possible(observations: list[Observation]) -> list[Observation]:
+    """The observations with `scale_free` kept only where the tag has other views and some observation still sets the scale."""
+    views: dict[int, int] = {}
+    for obs in observations:
+        views[obs.tag] = views.get(obs.tag, 0) + 1
+    free = [obs.scale_free and views[obs.tag] >= 2 for obs in observations]
+    if all(free):
+        free = [False] * len(observations)
+    return [Observation(o.photo, o.tag, o.normalised, f) for o, f in zip(observations, free)]
 
 
 def _solve(used, photo_ids, tag_ids, params, model, focal):
@@ -276,6 +299,7 @@ def _solve(used, photo_ids, tag_ids, params, model, focal):
     cam_index = np.array([photo_pos[o.photo] for o in used])
     tag_index = np.array([tag_pos[o.tag] for o in used])
     observed = np.array([o.normalised for o in used])
+    scale_free = np.array([o.scale_free for o in used], dtype=bool)
     n_free = len(photo_ids) - 1
 
     def evaluate(x: np.ndarray, with_jacobian: bool):
@@ -284,12 +308,29 @@ def _solve(used, photo_ids, tag_ids, params, model, focal):
         residual = ((projected - observed) * focal).reshape(len(used), 8)
         if derivatives is not None:
             derivatives = (derivatives * focal[None, None, :, None]).reshape(len(used), 8, 12)
+        if scale_free.any():
+            size = _size_directions(x, n_free, cam_index[scale_free], tag_index[scale_free], model, focal)
+            residual[scale_free] -= size * np.einsum("fr,fr->f", size, residual[scale_free])[:, None]
+            if derivatives is not None:
+                derivatives[scale_free] -= size[:, :, None] * np.einsum("fr,frc->fc", size, derivatives[scale_free])[:, None, :]
         return residual, derivatives
 
     x, blocks = _levenberg_marquardt(params, evaluate, cam_index, tag_index, n_free, len(tag_ids))
     residual, _ = evaluate(x, False)
     errors = np.sqrt(np.mean(residual ** 2, axis=1))
     return x, blocks, residual, cam_index, tag_index, errors
+
+
+def _size_directions(params, n_free, cam_index, tag_index, model, focal, step: float = 1e-4) -> np.ndarray:
+    """Unit directions (F, 8) in which the observations' residuals move when the tag's size changes (central difference).
+
+    Projecting a residual and its Jacobian off this direction is the linearised elimination of a free
+    size per observation (variable projection), so the observation carries no information on the scale.
+    """
+    larger = _project(params, n_free, cam_index, tag_index, model * (1 + step))
+    smaller = _project(params, n_free, cam_index, tag_index, model * (1 - step))
+    direction = ((larger - smaller) * focal).reshape(len(cam_index), 8)
+    return direction / np.linalg.norm(direction, axis=1, keepdims=True)
 
 
 def _robust_cost(residual: np.ndarray) -> float:

@@ -23,13 +23,26 @@ from fabline.unroll.strokes import TextBlock, gather, layout_block, split_rows
 _QUARTERS = np.column_stack([np.cos(np.arange(5) * np.pi / 2.0), np.sin(np.arange(5) * np.pi / 2.0)])
 
 
-def is_straight(segment: Segment, options: UnrollOptions) -> bool:
-    """True when the segment is certainly cut straight: the largest in-plane curvature k over it (samples one
-    beyond each end included) keeps it within k L^2 / 8 < tolerance of its chord, as `FlatCentreline.build` checks."""
-    xs = segment.strip.curve.s_at_samples
-    lo, hi = np.searchsorted(xs, (segment.start, segment.end))
-    k_n = segment.strip.geometry.k_n[max(lo - 1, 0):hi + 1]
-    return float(np.abs(k_n).max()) * (segment.end - segment.start) ** 2 / 8.0 < options.straight_tolerance
+def straight_flags(segments: list[Segment], options: UnrollOptions) -> np.ndarray:
+    """Per segment, True when it is certainly cut straight: the largest in-plane curvature k over it (samples one
+    beyond each end included) keeps it within k L^2 / 8 < tolerance of its chord, as `FlatCentreline.build` checks.
+
+    One `maximum.reduceat` over all strips' |k_n| (each followed by a 0 sentinel) with interleaved [lo, hi) bounds.
+    """
+    if not segments:
+        return np.zeros(0, dtype=bool)
+    curvature, bounds, base, seen = [], [], 0, {}
+    for segment in segments:
+        strip = segment.strip
+        if id(strip) not in seen:
+            seen[id(strip)] = base
+            curvature.extend([np.abs(strip.geometry.k_n), np.zeros(1)])
+            base += len(strip.geometry.k_n) + 1
+        lo, hi = np.searchsorted(strip.curve.s_at_samples, (segment.start, segment.end)).tolist()
+        bounds += [seen[id(strip)] + max(lo - 1, 0), seen[id(strip)] + min(hi + 1, len(strip.geometry.k_n))]
+    k_max = np.maximum.reduceat(np.concatenate(curvature), bounds)[::2]
+    length = np.array([s.end - s.start for s in segments])
+    return k_max * length ** 2 / 8.0 < options.straight_tolerance
 
 
 def straight_parts(segments: list[Segment], options: UnrollOptions) -> list[Part]:

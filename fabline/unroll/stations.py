@@ -140,10 +140,11 @@ def _solve_crossings(geos: list[LamellaGeometry], geometry: NetworkGeometry, nod
     nodes = [p[0] for p in pairs]
     li, ki, lj, kj = (np.array([p[c] for p in pairs], dtype=int) for c in range(1, 5))
     normals = np.array([geometry.network.nodes[n].normal for n in nodes], dtype=float)
-    t_i = np.array([geos[a].node_tangents[k] for a, k in zip(li, ki)])
-    t_j = np.array([geos[a].node_tangents[k] for a, k in zip(lj, kj)])
-    tau_i0 = np.array([node_tau[a][k] for a, k in zip(li, ki)])
-    tau_j0 = np.array([node_tau[a][k] for a, k in zip(lj, kj)])
+    # every lamella's node tangents and parameters in one table, row = first row of the lamella + node index
+    first_row = np.cumsum([0] + [len(geo.node_ids) for geo in geos[:-1]])
+    tangents, taus = np.concatenate([geo.node_tangents for geo in geos]), np.concatenate(node_tau)
+    t_i, t_j = tangents[first_row[li] + ki], tangents[first_row[lj] + kj]
+    tau_i0, tau_j0 = taus[first_row[li] + ki], taus[first_row[lj] + kj]
     offsets = np.array([o for _, o in sides])
     count = len(sides)
     # every pair crossed with every side combination: index = pair * count^2 + side_i * count + side_j
@@ -188,10 +189,9 @@ def _solve_crossings(geos: list[LamellaGeometry], geometry: NetworkGeometry, nod
 def _marks_between_slots(strip: Strip) -> None:
     """A paired strip's node mark lies midway between the slots it gets at that node."""
     index = {nid: k for k, nid in enumerate(strip.node_ids)}
-    total = np.zeros(len(strip.node_ids))
-    count = np.zeros(len(strip.node_ids))
-    np.add.at(total, [index[n] for n in strip.slot_nodes], strip.slot_x)
-    np.add.at(count, [index[n] for n in strip.slot_nodes], 1)
+    at = [index[n] for n in strip.slot_nodes]
+    total = np.bincount(at, weights=strip.slot_x, minlength=len(strip.node_ids))
+    count = np.bincount(at, minlength=len(strip.node_ids))
     slotted = count > 0
     strip.node_x = np.where(slotted, total / np.maximum(count, 1), strip.node_x)
 

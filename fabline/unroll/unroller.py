@@ -18,7 +18,7 @@ from fabline.geometry.darboux import NetworkGeometry, analyse
 from fabline.geometry.offsets import OffsetCurve
 from fabline.model.network import Network
 from fabline.progress import progress
-from fabline.unroll.batch import is_straight, straight_parts
+from fabline.unroll.batch import straight_flags, straight_parts
 from fabline.unroll.hardware import HardwareSizes, checkerboard, clamp, singularity_joints, washers
 from fabline.unroll.options import UnrollOptions
 from fabline.unroll.parts import Part, PartSet
@@ -89,7 +89,7 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
 
 def _segment_parts(segments: list[Segment], options: UnrollOptions) -> list[Part]:
     """One part per segment, in order: straight ones built together (batch), curved ones one by one."""
-    straight = [is_straight(segment, options) for segment in segments]
+    straight = straight_flags(segments, options).tolist()
     batched = iter(straight_parts([s for s, flag in zip(segments, straight) if flag], options))
     return [next(batched) if flag else segment_part(segment, options)
             for segment, flag in zip(progress(segments, "parts", total=len(segments)), straight)]
