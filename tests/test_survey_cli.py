@@ -71,7 +71,7 @@ def test_measure_prints_a_summary_and_writes_the_survey(cli, model_file, simulat
     assert "nodes measured from" in out and "RMS deviation" in out
     record = json.loads((tmp_path / "survey.json").read_text())
     assert record["tolerance_mm"] == 15 and record["registration"]["reference"] == "all"
-    assert record["scale"]["min_cell_px"] == 3.5 and record["scale"]["observations_without_scale"] >= 0
+    assert record["scale"]["min_cell_px"] == 4.0 and record["scale"]["observations_without_scale"] >= 0
     truth = json.loads((simulated / "truth.json").read_text())
     ids = list(record["nodes"])
     measured = np.array([record["nodes"][n]["measured_mm"] for n in ids])

@@ -67,9 +67,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     measure.add_argument("--min-views", type=int, default=2, help="photos a tag must be seen in (default 2)")
     measure.add_argument("--scale-bar", nargs=3, action="append", default=[], metavar=("TAG_A", "TAG_B", "DIST_MM"),
                          help="distance between two tag centres measured on site; fixes the scale (repeatable)")
-    measure.add_argument("--scale-min-cell", type=float, default=3.5, metavar="PX",
+    measure.add_argument("--scale-min-cell", type=float, default=4.0, metavar="PX",
                          help="tags whose cells are narrower than this in a photo do not set the scale there "
-                              "(their detected size is biased); 0 lets all set it (default 3.5)")
+                              "(their detected size is biased); 0 lets all set it (default 4)")
     measure.set_defaults(func=_measure)
 
 

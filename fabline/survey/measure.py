@@ -42,7 +42,7 @@ class MeasureOptions:
     min_views: int = 2
     pictures: bool = True
     scale_bars: tuple[tuple[int, int, float], ...] = ()
-    scale_min_cell_px: float = 3.5
+    scale_min_cell_px: float = 4.0
 
 
 def list_photos(folder: str | os.PathLike) -> list[Path]:
