@@ -279,3 +279,57 @@ def test_a_survey_result_that_is_not_a_survey_is_one_line_exit_2_nothing_written
     assert err == (f"fabline run: error: built.toml: survey.result: {tmp_path / 'survey.json'}: not a fabline.survey/1 "
                    "file (schema 'fabline.nesting/1')\n")
     assert not (tmp_path / "out").exists()
+
+
+INTERRUPTED_JOB = """
+name = "interrupted"
+description = "Ctrl-C while sheets are being cut, then --resume."
+stages = ["unroll", "nest", "export", "stream"]
+[model]
+design = "enneper"
+[model.options]
+size = [1.5, 1.5]
+spacing = 0.5
+[stock]
+sheet = "1200x500"
+[machine]
+time_scale = 40.0
+ports = ["sim://ctrl-c-1?log={log}1", "sim://ctrl-c-2?log={log}2"]
+[output]
+folder = "out"
+"""
+
+
+def test_ctrl_c_stops_every_machine_safely_and_resume_cuts_each_line_exactly_once(tmp_path):
+    """A Ctrl-C in the terminal reaches fabline and every link process; the run stops with a one-line hint
+    and exit 130, and `--resume` finishes the job: each program line executed once, in order, on one machine."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    log = tmp_path / "executed.log"
+    job = tmp_path / "job.toml"
+    job.write_text(INTERRUPTED_JOB.format(log=log), encoding="utf-8")
+    command = [sys.executable, "-c", "import sys; from fabline.cli import main; sys.exit(main())", "run", str(job)]
+    first = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             preexec_fn=lambda: (os.setpgrp(), signal.signal(signal.SIGINT, signal.SIG_DFL)))
+    journals = tmp_path / "out" / "gcode"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and sum(j.stat().st_size for j in journals.glob("*.journal")) < 20_000:
+        time.sleep(0.05)
+    os.killpg(first.pid, signal.SIGINT)  # what the terminal does on Ctrl-C: the whole process group
+    out, err = first.communicate(timeout=60)
+    assert first.returncode == 130, err
+    assert "Traceback" not in err and err.strip().endswith("--resume continues where they stopped")
+    assert " aborted in " in out
+    done = sum(len(executed_program_lines(Path(f"{log}{k}"))) for k in (1, 2))
+
+    second = subprocess.run(command + ["--resume"], capture_output=True, text=True, timeout=300)
+    assert second.returncode == 0, second.stderr
+    programs = sorted(journals.glob("*.gcode"))
+    wires = {p.name: [line.wire.decode().strip() for line in load_program(p).lines] for p in programs}
+    executed = executed_program_lines(Path(f"{log}1")) + executed_program_lines(Path(f"{log}2"))
+    assert 0 < done < len(executed)  # the interrupted run cut part of the job, the resumed one the rest
+    assert sorted(executed) == sorted(line for lines in wires.values() for line in lines)  # none twice, none skipped

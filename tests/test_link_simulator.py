@@ -154,3 +154,31 @@ def test_jog_cancel_stops_a_jog_and_keeps_the_position(host):
     host.simulator.receive(JOG_CANCEL)
     report = classify(host.status()).status
     assert report.state == "Idle" and 0 < report.mpos[0] < 50
+
+
+def test_settings_configure_the_simulated_machine_like_its_profile():
+    from fabline.export import load_machine
+
+    settings = load_machine("grbl-laser").controller_settings()
+    simulator = GrblSimulator(time_scale=1.0, settings=settings)
+    try:
+        simulator.attach()
+        host = Host(simulator)
+        simulator.receive(b"$$\n")
+        reported = dict(line[1:].split("=") for line in host.read(len(simulator.settings) + 1) if line.startswith("$"))
+        assert float(reported["110"]) == 12000 and float(reported["120"]) == 800 and reported["32"] == "1"
+        simulator.receive(b"G1X100Y100F6000\n")
+        assert host.read(1) == ["ok"]
+        time.sleep(0.2)
+        assert classify(host.status()).status.feed == pytest.approx(6000, abs=1)  # not Grbl's default 500 mm/min
+    finally:
+        simulator.close()
+
+
+def test_unknown_settings_are_refused_by_name():
+    from serial import SerialException, serial_for_url
+
+    with pytest.raises(ValueError, match=r"\$999"):
+        GrblSimulator(settings={999: 1.0})
+    with pytest.raises(SerialException, match=r"\$999"):
+        serial_for_url("sim://bad-settings?settings=110:12000,999:1")

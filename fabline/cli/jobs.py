@@ -79,7 +79,12 @@ def run_job_command(args: argparse.Namespace) -> int:
     spec = load_job_file(args.job)
     real_machine = any(not port.startswith("sim://") for port in spec.machine["ports"])
     interactive = real_machine and not args.yes and sys.stdin.isatty()
-    result = run_job(spec, say, confirm if interactive else None, resume=args.resume)
+    try:
+        result = run_job(spec, say, confirm if interactive else None, resume=args.resume)
+    except KeyboardInterrupt:
+        print(f"fabline run: interrupted; the machines stopped safely and their journals are kept: "
+              f"fabline run {args.job} --resume continues where they stopped", file=sys.stderr)
+        return 130
     total = sum(result.timings.values())
     if result.report_path:
         print(f"report: {result.report_path} (JSON: {result.report_path.with_suffix('.json')}); {total:.1f} s")

@@ -74,6 +74,13 @@ class MachineProfile:
         """Command templates with `{power}`, `{depth}` and the profile's [vars] filled in, numbers fixed-precision."""
         return _render(self, templates, tuple(sorted(values.items())))
 
+    def controller_settings(self) -> dict[int, float]:
+        """The Grbl `$N` settings this profile assumes (max rates, acceleration, bed, S range, laser mode), so
+        that a simulated controller can be set up as the machine the program was written for."""
+        return {11: self.junction_deviation, 110: self.rapid_rate, 111: self.rapid_rate, 120: self.acceleration,
+                121: self.acceleration, 130: self.bed_width, 131: self.bed_height, 30: self.s_max, 31: self.s_min,
+                32: 1 if self.laser_mode else 0}
+
     def number(self, value: float) -> str:
         """A number in the profile's fixed precision, without a negative zero."""
         return f"{round(value, self.decimals) + 0.0:.{self.decimals}f}"

@@ -9,6 +9,7 @@ stage's files are written atomically by that stage.
 from __future__ import annotations
 
 import os
+import signal
 import threading
 import time
 from dataclasses import dataclass, field
@@ -195,11 +196,17 @@ def _survey(result: JobResult, say: Say) -> None:
 
 
 def machine_ports(spec: JobSpec) -> list[str]:
-    """The job's ports; a simulator URL gets the job's time scale unless it names its own."""
+    """The job's ports; a simulator URL gets the job's time scale and the machine profile's controller
+    settings (max rates, acceleration, bed) unless it names its own."""
+    from fabline.export import load_machine
+
+    settings = ",".join(f"{key}:{value:g}" for key, value in load_machine(spec.machine["profile"]).controller_settings().items())
     ports = []
     for port in spec.machine["ports"]:
-        if port.startswith("sim://") and "time_scale=" not in port:
-            port += ("&" if "?" in port else "?") + f"time_scale={spec.machine['time_scale']:g}"
+        if port.startswith("sim://"):
+            for option, value in (("time_scale", f"{spec.machine['time_scale']:g}"), ("settings", settings)):
+                if f"{option}=" not in port:
+                    port += ("&" if "?" in port else "?") + f"{option}={value}"
         ports.append(port)
     return ports
 
@@ -207,18 +214,23 @@ def machine_ports(spec: JobSpec) -> list[str]:
 def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, str], None] | None,
                 resume: bool) -> None:
     """Cut every sheet: each machine takes the next sheet when it is free (one sheet at a time per machine);
-    after a failure no new sheet starts, the ones running finish, and the first error is raised."""
-    from fabline.link import default_journal_path
+    after a failure no new sheet starts, the ones running finish, and the first error is raised. Each sheet
+    streams from a process of its own, so that machines stream on all CPU cores; Ctrl-C stops them safely."""
+    import multiprocessing
 
-    from fabline.jobs.streaming import SheetStream
+    from fabline.jobs.streaming import journal_summary, stream_in_process
+    from fabline.link import default_journal_path
 
     sheets = list(enumerate(result.sheet_files))
     count = len(sheets)
     entries: dict[int, dict] = {}
     errors: list[FablineError] = []
+    running: set = set()
     lock = threading.Lock()
+    context = multiprocessing.get_context("spawn")  # no fork of a process that runs threads
 
     def machine(port: str) -> None:
+        shown = port.split("?", 1)[0]  # sim:// options (time scale, controller settings) are in the report
         while True:
             with lock:
                 if not sheets or errors:
@@ -229,25 +241,44 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
             if not resume:
                 default_journal_path(sheet["gcode"]).unlink(missing_ok=True)
             started = time.perf_counter()
-            stream = SheetStream(port, sheet["gcode"], lambda done, position: None)
-            try:
-                outcome = stream.run()
-            except FablineError as exc:
-                outcome = f"stopped: {exc}"
+            receiver, sender = context.Pipe(duplex=False)
+            link = context.Process(target=stream_in_process, args=(port, sheet["gcode"], sender), daemon=True)
+            with lock:
+                signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})  # inherited: a Ctrl-C waits for the handler
+                link.start()
+                running.add(link)
+            link.join()
+            with lock:
+                running.discard(link)
+            if receiver.poll():
+                outcome, summary = receiver.recv()
+            else:
+                outcome = f"stopped: the link process ended with exit code {link.exitcode}"
+                summary = journal_summary(port, sheet["gcode"])
             entry = {"sheet": sheet["sheet"], "program": sheet["gcode"], "outcome": outcome,
-                     "seconds": round(time.perf_counter() - started, 3), **stream.summary()}
+                     "seconds": round(time.perf_counter() - started, 3), **summary}
             with lock:
                 entries[k] = entry
                 if outcome != "finished":
-                    errors.append(FablineError(f"stream: sheet {sheet['sheet']} on {port}: {outcome}"))
-            say(f"stream: sheet {k + 1} of {count} ({sheet['sheet']}) on {port}: {entry['lines']} lines {outcome} "
-                f"in {entry['seconds']:.1f} s")
+                    errors.append(FablineError(f"stream: sheet {sheet['sheet']} on {shown}: {outcome}"))
+            say(f"stream: sheet {k + 1} of {count} ({sheet['sheet']}) on {shown}: {entry['executed']} of {entry['lines']} lines "
+                f"{outcome} in {entry['seconds']:.1f} s")
 
     threads = [threading.Thread(target=machine, args=(port,), daemon=True) for port in machine_ports(result.spec)]
     for thread in threads:
         thread.start()
-    for thread in threads:
-        thread.join()
+    try:
+        for thread in threads:
+            thread.join()
+    except KeyboardInterrupt:  # stop every machine safely (its journal resumes the sheet), start no new sheet
+        with lock:
+            sheets.clear()
+            for link in running:
+                os.kill(link.pid, signal.SIGINT)
+        for thread in threads:
+            thread.join()
+        result.stream = [entries[k] for k in sorted(entries)]
+        raise
     result.stream = [entries[k] for k in sorted(entries)]
     if errors:
         raise errors[0]

@@ -3,15 +3,18 @@
 The journal lives beside the program (`<program>.journal`); a sheet whose journal is unfinished is
 resumed (nothing repeated, nothing skipped), one whose journal says finished is not sent again.
 `pause`, `resume` and `cancel` may be called from another thread while `run` streams.
+`stream_in_process` runs one sheet in a process of its own (the main job's machines stream in parallel).
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import threading
 from pathlib import Path
 from typing import Callable
 
+from fabline.errors import FablineError
 from fabline.link import Progress, Streamer, default_journal_path, load_program, read_journal
 
 OnProgress = Callable[[int, "tuple[float, ...] | None"], None]
@@ -77,3 +80,24 @@ class SheetStream:
         """The streaming log's figures for the report."""
         return {"port": self.port, "lines": self.total, "executed": self.executed, "journal": str(self.journal_path),
                 "resumed_from": self.resumed_from}
+
+
+def stream_in_process(port: str, program: str, connection) -> None:
+    """Process target: stream one sheet, stop it safely on SIGINT (Ctrl-C: feed hold, reset, journal kept)
+    and send (outcome in words, summary) through `connection`."""
+    stream = SheetStream(port, program, lambda done, position: None)
+    signal.signal(signal.SIGINT, lambda signum, frame: stream.stop())
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by the parent until the handler is in place
+    try:
+        outcome = stream.run()
+    except FablineError as exc:
+        outcome = f"stopped: {exc}"
+    connection.send((outcome, stream.summary()))
+
+
+def journal_summary(port: str, program: str | os.PathLike) -> dict:
+    """A sheet's streaming summary as its journal tells it, for a link process that died before reporting."""
+    journal = default_journal_path(Path(program))
+    state = read_journal(journal) if journal.is_file() else None
+    return {"port": port, "lines": state.total if state else 0, "executed": state.done if state else 0,
+            "journal": str(journal), "resumed_from": state.resumed_at if state else None}

@@ -17,6 +17,8 @@ Vector = tuple[float, float, float]
 MAX_LINE_NUMBER = 9_999_999
 MAX_TOOL_NUMBER = 255
 _NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)")
+_WORD = re.compile(r"([A-Z])([+-]?(?:\d+\.?\d*|\.\d+))")
+_WELL_FORMED = re.compile(r"(?:[A-Z][+-]?(?:\d+\.?\d*|\.\d+))*")
 _PLANES = {"G17": (0, 1, 2), "G18": (2, 0, 1), "G19": (1, 2, 0)}
 _G_GROUPS = {
     0: "motion", 1: "motion", 2: "motion", 3: "motion", 80: "motion",
@@ -30,6 +32,7 @@ _G_GROUPS = {
 _M_GROUPS = {0: "stop", 1: "stop", 2: "stop", 30: "stop", 3: "spindle", 4: "spindle", 5: "spindle",
              7: "coolant", 8: "coolant", 9: "coolant"}
 _VALUE_LETTERS = "FIJKLNPRSTXYZ"
+_MODAL_FIELDS = {"motion", "coord", "plane", "units", "distance", "feed_mode", "spindle", "coolant"}
 
 
 class GcodeError(Exception):
@@ -134,6 +137,8 @@ class Block:
 
 def split_words(line: str) -> list[tuple[str, float]]:
     """Split a compact uppercase line into (letter, value) words, failing like the firmware (error 1, 2)."""
+    if _WELL_FORMED.fullmatch(line):
+        return [(letter, float(value)) for letter, value in _WORD.findall(line)]
     words, position = [], 0
     while position < len(line):
         letter = line[position]
@@ -180,20 +185,11 @@ def execute(line: str, modal: ModalState, position: Vector) -> Block:
 
     units = commands.get("units", modal.units)
     scale = 25.4 if units == "G20" else 1.0
-    new = replace(
-        modal,
-        motion=commands.get("motion", modal.motion),
-        coord=commands.get("coord", modal.coord),
-        plane=commands.get("plane", modal.plane),
-        units=units,
-        distance=commands.get("distance", modal.distance),
-        feed_mode=commands.get("feed_mode", modal.feed_mode),
-        spindle=commands.get("spindle", modal.spindle),
-        coolant=commands.get("coolant", modal.coolant),
-        tool=int(values.get("T", modal.tool)),
-        feed=values.get("F", modal.feed),
-        speed=values.get("S", modal.speed),
-    )
+    changes = {group: code for group, code in commands.items() if group in _MODAL_FIELDS and getattr(modal, group) != code}
+    for letter, name in (("T", "tool"), ("F", "feed"), ("S", "speed")):
+        if letter in values and values[letter] != getattr(modal, name):
+            changes[name] = int(values[letter]) if letter == "T" else values[letter]
+    new = replace(modal, **changes) if changes else modal  # most lines change no modal state
     axes = {letter: values[letter] * scale for letter in "XYZ" if letter in values}
     used = set("FNST") | set("XYZ")
     dwell = 0.0

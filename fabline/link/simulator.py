@@ -26,6 +26,7 @@ BANNER = f"Grbl {VERSION} ['$' for help]"
 HELP = "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]"
 PLANNER_BLOCKS = 15
 LINE_BUFFER_SIZE = 80
+_REALTIME_BYTES = (b"?", b"!", b"~", b"\x18")
 _INT_SETTINGS = {0, 1, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 26, 30, 31, 32}
 DEFAULT_SETTINGS: dict[int, float] = {
     0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010, 12: 0.002, 13: 0, 20: 0, 21: 0, 22: 0,
@@ -91,10 +92,13 @@ class GrblSimulator:
     """A GRBL 1.1h controller in a background thread; `time_scale` > 1 makes motion run faster."""
 
     def __init__(self, *, time_scale: float = 1.0, executed_log: str | Path | None = None,
-                 faults: Faults | None = None, tick: float = 0.001):
+                 faults: Faults | None = None, tick: float = 0.001, settings: dict[int, float] | None = None):
         self.time_scale = time_scale
         self.faults = faults or Faults()
-        self.settings = dict(DEFAULT_SETTINGS)
+        unknown = sorted(set(settings or {}) - set(DEFAULT_SETTINGS))
+        if unknown:
+            raise ValueError(f"unknown Grbl setting(s) {', '.join(f'${n}' for n in unknown)}")
+        self.settings = {**DEFAULT_SETTINGS, **(settings or {})}
         self.position: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.received = 0
         self.connection = 0
@@ -130,6 +134,16 @@ class GrblSimulator:
     def receive(self, data: bytes) -> None:
         """Bytes from the host. Real-time bytes act at once; others queue in the 128-byte receive buffer."""
         with self._lock:
+            faults = self.faults
+            if (not faults.drop_at and not faults.corrupt_at and faults.stall_at is None and not self._critical
+                    and data.isascii() and not any(byte in data for byte in _REALTIME_BYTES)):
+                room = RX_BUFFER_SIZE - len(self._rx)  # the common case, taken in one step: plain line bytes
+                self.received += len(data)
+                self.overflowed += max(0, len(data) - room)
+                self._rx += data[:room]
+                if b"\n" in data[:room]:
+                    self._input_arrived.set()
+                return
             for byte in data:
                 if self.faults.drop_at and self.received >= self.faults.drop_at[0]:
                     self.faults.drop_at.pop(0)

@@ -163,7 +163,6 @@ class Streamer:
         self.blocks = program.plan(ModalState(), (0.0, 0.0, 0.0))
         previous = self._previous_job(resume, start_line)
         self.on_progress = on_progress
-        self._abort.clear()
         self._open()
         try:
             if check:
@@ -175,6 +174,7 @@ class Streamer:
                 self.journal.close()
         finally:
             self._close()
+            self._abort.clear()  # an abort asked for before or during this run stopped it; the next run starts afresh
 
     def _previous_job(self, resume: bool, start_line: int | None) -> JournalState | None:
         """The journal of the job being resumed, checked against the program; None for a new job."""
