@@ -3,7 +3,9 @@
     python benchmarks/export_bench.py [--nesting nesting.json] [--machine grbl-laser] [--sheets N] [--no-peers]
 
 Without --nesting it uses the synthetic pavilion job (fabline.export.samplejob.pavilion_job: 700 strips,
-1400 washers, 350 clamps). Travel and estimated machine time are compared for the same kerf-offset
+1400 washers, 350 clamps). The export is timed as a whole (wall and CPU seconds of all processes), then
+stage by stage in one process (CPU seconds), which shows where the time goes. Travel and estimated
+machine time are compared for the same kerf-offset
 toolpaths in three orders: the nesting's plain part order, fabline's (nearest neighbour + 2-opt with start
 points), and vpype's `linesort` (greedy, and with --two-opt), the peer from PyPI (`bench` extra).
 """
@@ -24,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fabline.export import (OPERATIONS, ToolpathOptions, export_job, load_job, load_machine,  # noqa: E402
                             sheet_toolpaths, summarise)
+from fabline.export import dxf, toolpath  # noqa: E402
 from fabline.export.contours import reverse  # noqa: E402
 from fabline.export.gcode import sheet_program  # noqa: E402
 from fabline.export.samplejob import pavilion_job  # noqa: E402
@@ -52,6 +55,39 @@ def timed(function, *args, **kwargs):
 def _cpu_with_workers() -> float:
     times = os.times()
     return times.user + times.system + times.children_user + times.children_system
+
+
+def stage_times(nesting, parts, profile) -> dict[str, float]:
+    """CPU seconds of each export stage over all sheets, run in this one process; the ordering steps inside
+    the toolpaths are timed on their own as well."""
+    seconds: dict[str, float] = defaultdict(float)
+
+    def clocked(name, function):
+        def run(*args, **kwargs):
+            start = time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                seconds[name] += time.process_time() - start
+        return run
+
+    inner = {"  nearest neighbour": "_nearest_neighbour", "  2-opt": "_two_opt", "  start points": "_restart"}
+    originals = {attribute: getattr(toolpath, attribute) for attribute in inner.values()}
+    for label, attribute in inner.items():
+        setattr(toolpath, attribute, clocked(label, originals[attribute]))
+    try:
+        options = ToolpathOptions(kerf=profile.kerf)
+        for sheet in nesting.sheets:
+            paths = clocked("toolpaths (kerf, order, starts)", sheet_toolpaths)(sheet, parts, options)
+            _, moves = clocked("G-code text", sheet_program)(paths, profile)
+            clocked("motion summary", summarise)(moves, profile.acceleration, profile.junction_deviation)
+            clocked("DXF per sheet", dxf.drawing_text)([sheet], parts)
+        clocked("DXF all sheets", dxf.drawing_text)(nesting.sheets, parts)
+    finally:
+        for attribute, function in originals.items():
+            setattr(toolpath, attribute, function)
+    order = ["toolpaths (kerf, order, starts)", *inner, "G-code text", "motion summary", "DXF per sheet", "DXF all sheets"]
+    return {name: seconds[name] for name in order}
 
 
 def vpype_order(paths: list[Toolpath], two_opt: bool) -> list[Toolpath]:
@@ -109,6 +145,13 @@ def main(argv: list[str] | None = None) -> int:
             _, wall, cpu = timed(export_job, nesting, parts, profile, ToolpathOptions(kerf=profile.kerf),
                                  dxf_dir, gcode_dir, "bench")
             print(f"{label:<34}{wall:>8.2f}{cpu:>8.2f}")
+
+    print("\nwhere the CPU time goes (one process, CPU seconds)")
+    stages = stage_times(nesting, parts, profile)
+    total = sum(v for k, v in stages.items() if not k.startswith(" "))
+    for label, seconds in stages.items():
+        print(f"{label:<34}{seconds:>8.2f}{seconds / total * 100:>7.0f}%")
+    print(f"{'total':<34}{total:>8.2f}")
 
     sheets = nesting.sheets[: args.sheets] if args.sheets else nesting.sheets
     orders = {"plain (nesting order)": lambda s: sheet_toolpaths(s, parts, ToolpathOptions(kerf=profile.kerf, optimise=False)),

@@ -2,7 +2,8 @@
 
 Everything is computed and checked first and written only at the end, each file atomically, so a bad
 input leaves nothing behind. Sheets are independent: each one's toolpaths, G-code and DXF drawing are made
-in a worker process, the all-sheets drawing in another, so a many-sheet job uses every core.
+in a worker process, the all-sheets drawing in another, so a many-sheet job uses every core. The parts
+go to each worker once, when it starts (where processes fork, without pickling), not with every task.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from fabline.progress import progress
 from fabline.unroll.parts import Part, load_parts
 
 WORKERS = len(os.sched_getaffinity(0))   # processes making sheets and drawings at once
+_WORKER_PARTS: dict[str, Part] = {}       # in a worker process: the parts of the job it works for
 
 
 @dataclass
@@ -79,11 +81,11 @@ def export_job(nesting: Nesting, parts: dict[str, Part], profile: MachineProfile
                                f"{profile.source}: bed)")
         check_placements(sheet, parts, source)
     count = len(nesting.sheets)
-    pool = ProcessPoolExecutor(max_workers=max(1, min(WORKERS, count + (dxf_dir is not None))))
+    pool = ProcessPoolExecutor(max_workers=max(1, min(WORKERS, count + (dxf_dir is not None))),
+                               initializer=_start_worker, initargs=(parts,))
     try:
-        overview = (pool.submit(dxf.drawing_text, nesting.sheets, parts) if dxf_dir is not None else None)
-        futures = [pool.submit(_export_sheet, sheet, number, count, {p.part: parts[p.part] for p in sheet.placements},
-                               profile, options, name, source, dxf_dir is not None)
+        overview = (pool.submit(_drawing_text, nesting.sheets) if dxf_dir is not None else None)
+        futures = [pool.submit(_export_sheet, sheet, number, count, profile, options, name, source, dxf_dir is not None)
                    for number, sheet in enumerate(nesting.sheets, start=1)]
         results, outputs = [], {}
         for future in progress(futures, "export", count):
@@ -105,9 +107,22 @@ def export_job(nesting: Nesting, parts: dict[str, Part], profile: MachineProfile
     return ExportResult(results, [str(p) for p in outputs], profile.name, options.kerf)
 
 
-def _export_sheet(sheet: Sheet, number: int, count: int, parts: dict[str, Part], profile: MachineProfile,
-                  options: ToolpathOptions, name: str, source: str, drawing: bool) -> tuple[SheetExport, str | None]:
-    """One sheet's toolpaths (checked against the bed), G-code with its header and summary, and DXF text if asked."""
+def _start_worker(parts: dict[str, Part]) -> None:
+    """Set up a worker process with the job's parts."""
+    _WORKER_PARTS.clear()
+    _WORKER_PARTS.update(parts)
+
+
+def _drawing_text(sheets: list[Sheet]) -> str:
+    """In a worker: the DXF text of `sheets`."""
+    return dxf.drawing_text(sheets, _WORKER_PARTS)
+
+
+def _export_sheet(sheet: Sheet, number: int, count: int, profile: MachineProfile, options: ToolpathOptions,
+                  name: str, source: str, drawing: bool) -> tuple[SheetExport, str | None]:
+    """In a worker: one sheet's toolpaths (checked against the bed), G-code with its header and summary, and DXF
+    text if asked."""
+    parts = _WORKER_PARTS
     paths = sheet_toolpaths(sheet, parts, options, source)
     _check_bed(paths, profile, f"{source}: sheet {sheet.id}")
     body, moves = sheet_program(paths, profile)
