@@ -19,8 +19,13 @@ def atomic_output(path: str | os.PathLike, mode: str = "w") -> Iterator[Any]:
     Readers never see a half-written file, and a failed run leaves no output behind.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    if path.is_dir():
+        raise FablineError(f"{path}: is a folder, expected a file name")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise FablineError(f"{path}: cannot write: {exc.strerror}") from None
     umask = os.umask(0)
     os.umask(umask)
     os.chmod(tmp, 0o666 & ~umask)
@@ -30,6 +35,10 @@ def atomic_output(path: str | os.PathLike, mode: str = "w") -> Iterator[Any]:
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, path)
+    except OSError as exc:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise FablineError(f"{path}: cannot write: {exc.strerror}") from None
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -57,3 +66,23 @@ def read_json(path: str | os.PathLike) -> Any:
         return json.loads(text)
     except json.JSONDecodeError as exc:
         raise FablineError(f"{path}:{exc.lineno}:{exc.colno}: malformed JSON: {exc.msg}") from None
+
+
+def check_outputs(files: tuple = (), folders: tuple = ()) -> None:
+    """Check up front that the output files and folders can be written (a file name is not a folder, a folder
+    is not a file, the place takes files), so that a command fails before it computes or writes anything.
+    Nothing is created; None entries (options not given) are skipped."""
+    for path in [Path(f) for f in files if f]:
+        if path.is_dir():
+            raise FablineError(f"{path}: is a folder, expected a file name")
+        folders += (path.parent,)
+    for folder in [Path(f) for f in folders if f]:
+        existing = folder
+        while not existing.exists() and existing != existing.parent:
+            existing = existing.parent
+        if not existing.is_dir():
+            raise FablineError(f"{folder}: cannot be an output folder: {existing} is a file")
+        try:
+            tempfile.TemporaryFile(dir=existing).close()  # it takes files (not read-only, not /proc)
+        except OSError as exc:
+            raise FablineError(f"{folder}: cannot write there: {exc.strerror}") from None

@@ -228,3 +228,25 @@ def test_resume_when_the_host_died_during_a_feed_hold(job, sim_url):
     speed_up(url)
     assert Streamer(url, status_interval=0.05).run(program, resume=True).completed
     assert executed_file_lines(log) == expected_lines(program)
+
+
+def test_a_new_run_never_overwrites_an_interrupted_one_by_accident(job, sim_url):
+    """After an interrupted run, a plain new run is refused (it would cut the done lines twice); --restart starts
+    over with a fresh journal, and a later --resume continues the latest run, not an older, longer one."""
+    program, log = job
+    lines = load_program(program).lines
+    late, early = lines[len(lines) * 2 // 3].file_line, lines[len(lines) // 4].file_line
+    with pytest.raises(StreamInterrupted):
+        Streamer(sim_url(error_line=late), status_interval=0.05).run(program)
+    with pytest.raises(FablineError, match=r"stopped after file line \d+ without finishing; continue it with --resume"):
+        Streamer(sim_url(), status_interval=0.05).run(program)
+    get_simulator(sim_url()[6:].split("?")[0]).faults.error_line = early
+    with pytest.raises(StreamInterrupted):
+        Streamer(sim_url(), status_interval=0.05).run(program, restart=True)
+    state = read_journal(f"{program}.journal")
+    assert state.done < len(lines) // 4 + 2  # the journal tells the latest run, which stopped early
+    before = len(executed_file_lines(log))
+    result = Streamer(sim_url(), status_interval=0.05).run(program, resume=True)
+    assert result.completed
+    executed = executed_file_lines(log)[before:]
+    assert executed == expected_lines(program)[-len(executed):] and executed[0] <= early  # nothing skipped

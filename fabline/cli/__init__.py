@@ -34,6 +34,10 @@ def main(argv: list[str] | None = None) -> int:
     except FablineError as exc:
         print(f"fabline {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a path the user named that cannot be read or written, found where no stage looked
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"fabline {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"fabline {args.command}: interrupted", file=sys.stderr)
         return 130

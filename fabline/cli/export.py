@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from fabline.errors import FablineError
+from fabline.fileio import check_outputs
 from fabline.export import ToolpathOptions, check_gcode, export_nesting, load_machine
 
 
@@ -39,10 +41,11 @@ def run_export(args: argparse.Namespace) -> int:
     kerf = profile.kerf if args.kerf is None else args.kerf
     for name, value, low in (("--kerf", kerf, 0.0), ("--lead-in", args.lead_in, 0.0), ("--tabs", args.tabs, 0),
                              ("--tab-width", args.tab_width, 1e-9)):
-        if value < low:
-            raise FablineError(f"{name}: must be at least {low:g}, got {value}")
+        if not low <= value < math.inf:
+            raise FablineError(f"{name}: must be a finite number, at least {low:g}, got {value}")
     options = ToolpathOptions(kerf=kerf, lead_in=args.lead_in, tabs=args.tabs, tab_width=args.tab_width,
                               optimise=not args.no_optimise)
+    check_outputs(folders=(args.dxf, args.gcode))
     result = export_nesting(args.nesting, profile, options, args.dxf, args.gcode)
     print(f"machine {result.machine}, kerf {result.kerf:.3f} mm")
     print(f"{'sheet':<12}{'parts':>6}{'cut m':>10}{'mark m':>10}{'travel m':>10}{'time':>10}")

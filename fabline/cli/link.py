@@ -31,6 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     stream.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
     stream.add_argument("--check", action="store_true", help="run the program through GRBL check mode ($C) first")
     stream.add_argument("--resume", action="store_true", help="continue an interrupted job from its journal")
+    stream.add_argument("--restart", action="store_true",
+                        help="start over from the first line although an earlier run of this program was interrupted")
     stream.add_argument("--unlock", action="store_true", help="clear an alarm ($X) left by an interrupted job")
     stream.add_argument("--from-line", type=int, metavar="N", help="with --resume: restart at file line N")
     stream.add_argument("--journal", help="journal file (default: <gcode>.journal)")
@@ -80,7 +82,7 @@ def _stream(args: argparse.Namespace) -> int:
     with _keyboard(streamer, interactive), _abort_on_interrupt(streamer):
         try:
             result = streamer.run(args.gcode, on_progress=show, journal=journal, resume=args.resume, check=args.check,
-                                  unlock=args.unlock, start_line=args.from_line)
+                                  unlock=args.unlock, start_line=args.from_line, restart=args.restart)
         finally:
             bar.close()
     if not result.completed:

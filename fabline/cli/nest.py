@@ -7,6 +7,7 @@ import os
 from pathlib import Path
 
 from fabline.errors import FablineError
+from fabline.fileio import check_outputs
 from fabline.nest import (NestOptions, StockItem, load_nesting, load_stock, nest, parse_sheet_size, parts_path,
                           save_nesting, save_stock, stock_after, validate_nesting, write_sheet_svgs)
 from fabline.unroll import load_parts
@@ -50,6 +51,7 @@ def run_nest(args: argparse.Namespace) -> int:
         raise FablineError(f"--remnant-min {args.remnant_min!r}: expected WIDTHxHEIGHT in mm, e.g. 400x200") from None
     stock = load_stock(args.stock) if args.stock else [StockItem("sheet", *parse_sheet_size(args.sheet))]
     partset = load_parts(args.parts)
+    check_outputs(files=(args.output, args.stock_out), folders=(args.svg,))
     relative = os.path.relpath(Path(args.parts).resolve(), Path(args.output).resolve().parent)
     try:
         result = nest(partset, stock, options, parts_file=relative)

@@ -112,6 +112,8 @@ def _detect(args: argparse.Namespace) -> int:
                            reprojection_px=round(error, 4))
             entry["tags"].append(tag)
         report.append(entry)
+    if failures == len(report) == 1:
+        raise FablineError(report[0]["error"])
     if args.json:
         print(json.dumps(report, indent=1))
     else:
@@ -121,7 +123,7 @@ def _detect(args: argparse.Namespace) -> int:
                 continue
             print(f"{entry['file']}: {len(entry['tags'])} tag(s) {', '.join(str(t['id']) for t in entry['tags'])}")
     if failures == len(report):
-        raise FablineError(report[0]["error"] if len(report) == 1 else "no photo could be read")
+        raise FablineError("no photo could be read")
     return 0
 
 

@@ -7,6 +7,7 @@ import json
 import sys
 
 from fabline.errors import FablineError
+from fabline.fileio import check_outputs
 from fabline.model import load_network
 from fabline.unroll import SINGULARITY_MODES, UnrollOptions, get_material, limits, parse_profile, save_parts, unroll_network
 from fabline.unroll.preview import write_previews
@@ -62,6 +63,7 @@ def _material_arguments(parser: argparse.ArgumentParser) -> None:
 def run_unroll(args: argparse.Namespace) -> int:
     """Unroll, write the parts (and previews), print the lamella table; warnings to stderr."""
     network = load_network(args.model)
+    check_outputs(files=(args.output,), folders=(args.svg,))
     options = UnrollOptions(
         profile=parse_profile(args.profile), material=get_material(args.material, args.materials),
         pair_spacing=args.pair_spacing, slot_clearance=args.slot_clearance, slot_width=args.slot_width,

@@ -4,6 +4,7 @@ The two lamellas of a pair run o = +-d/2 beside the network curve: p(tau) = c(ta
 Darboux sideways vector. Since du/ds = -k_g t + tau_g n, their length element is
 ds_o = sqrt((1 - o k_g)^2 + (o tau_g)^2) ds, so node distances differ from the centreline's by about
 o times the integral of k_g. Splines extrapolate a little past the curve's ends, where end slots may lie.
+A network's lamellas are evaluated together through `SplineTable`, so no step loops over lamellas.
 """
 
 from __future__ import annotations
@@ -14,21 +15,95 @@ import numpy as np
 
 from fabline.geometry.darboux import CurveFit, LamellaGeometry
 
+_GAUSS_X, _GAUSS_W = np.polynomial.legendre.leggauss(5)  # as CurveFit.arc_length integrates
 
-def offset_points(fit: CurveFit, tau: np.ndarray, offset: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
-    """Points c + o u at parameters `tau`, and the centreline's derivative c' there.
 
-    c' is the offset curve's derivative up to the relative terms o k_g and o tau_g (about 1 % for a pair),
-    which is all a Gauss-Newton step needs; two spline evaluations instead of the full Darboux frame.
+class SplineTable:
+    """The cubic splines of many lamella fits in one coefficient table, to evaluate (fit, parameter) queries in bulk.
+
+    The same piecewise polynomials as each `CurveFit.spline` (extrapolating from the end pieces), with
+    `CurveFit.arc_length` and `parameter_at` in batched form: one set of array operations for all lamellas
+    instead of a scipy call per lamella and step.
     """
-    tau = np.asarray(tau, dtype=float)
-    value, first = fit.spline(tau), fit.spline(tau, 1)
-    d1 = first[:, :3]
-    t = d1 / np.linalg.norm(d1, axis=1)[:, None]
-    n = value[:, 3:] - np.einsum("ij,ij->i", value[:, 3:], t)[:, None] * t
-    n /= np.linalg.norm(n, axis=1)[:, None]
-    offset = np.broadcast_to(np.asarray(offset, dtype=float), tau.shape)
-    return value[:, :3] + offset[:, None] * np.cross(n, t), d1
+
+    def __init__(self, fits: list[CurveFit]) -> None:
+        pieces = np.array([len(fit.tau) - 1 for fit in fits])
+        self.first_piece = np.cumsum(pieces) - pieces           # fit f's pieces: first_piece[f] + 0 .. pieces[f] - 1
+        self.first_knot = self.first_piece + np.arange(len(fits))  # fit f's knots: first_knot[f] + 0 .. pieces[f]
+        self.pieces = pieces
+        self.knots = np.concatenate([fit.tau for fit in fits])
+        self.s_at_knots = np.concatenate([fit.s_at_samples for fit in fits])
+        self._coefficients = np.concatenate([fit.spline.c for fit in fits], axis=1)  # (4 powers, highest first; pieces; 6)
+        # one increasing key for all pieces: fit f's parameters shifted by f times more than any fit spans
+        self._span = float(max(fit.tau[-1] - fit.tau[0] for fit in fits)) + 1.0
+        self._start = np.array([fit.tau[0] for fit in fits])
+        left = np.concatenate([fit.tau[:-1] for fit in fits])
+        self._piece_keys = left - np.repeat(self._start, pieces) + np.repeat(np.arange(len(fits)) * self._span, pieces)
+        # the same for arc lengths (each fit's from 0), to find the piece holding a length
+        self._s_span = float(self.s_at_knots.max()) + 1.0
+        self._knot_s_keys = self.s_at_knots + np.repeat(np.arange(len(fits)) * self._s_span, pieces + 1)
+
+    def local_piece(self, fit: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Index within its fit of the polynomial piece each parameter falls in (end pieces continued outwards)."""
+        key = tau - self._start[fit] + fit * self._span
+        piece = np.searchsorted(self._piece_keys, key, side="right") - 1 - self.first_piece[fit]
+        return np.clip(piece, 0, self.pieces[fit] - 1)
+
+    def evaluate(self, fit: np.ndarray, piece: np.ndarray, tau: np.ndarray, derivative: int = 0) -> np.ndarray:
+        """Spline values (N, 6: point and normal) or their first derivative at tau, on the given local pieces."""
+        return _horner(self._coefficients[:, self.first_piece[fit] + piece],
+                       tau - self.knots[self.first_knot[fit] + piece], derivative)
+
+    def arc_length(self, fit: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`CurveFit.arc_length` of many queries: the length from the fit's start, the local piece, and the part of
+        the length within that piece (5-point Gauss-Legendre on the spline speed, as CurveFit integrates)."""
+        piece = self.local_piece(fit, tau)
+        knot = self.first_knot[fit] + piece
+        lo = self.knots[knot]
+        half, mid = (tau - lo) / 2.0, (tau + lo) / 2.0
+        gauss = mid[:, None] + half[:, None] * _GAUSS_X[None, :]            # (N, 5), all on the query's piece
+        coefficients = self._coefficients[:, self.first_piece[fit] + piece, None, :3]  # (4, N, 1, 3)
+        speed = np.linalg.norm(_horner(coefficients, gauss - lo[:, None], 1), axis=-1)
+        within = half * (speed @ _GAUSS_W)
+        return self.s_at_knots[knot] + within, piece, within
+
+    def parameter_at(self, fit: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """`CurveFit.parameter_at` of many queries: the parameter at arc length s, by Newton steps from the chord."""
+        key = s + fit * self._s_span
+        knot = np.clip(np.searchsorted(self._knot_s_keys, key, side="right") - 1, self.first_knot[fit],
+                       self.first_knot[fit] + self.pieces[fit] - 1)
+        s0, s1 = self.s_at_knots[knot], self.s_at_knots[knot + 1]
+        fraction = np.clip((s - s0) / (s1 - s0), 0.0, 1.0)
+        tau = self.knots[knot] + fraction * (self.knots[knot + 1] - self.knots[knot])
+        for _ in range(3):
+            length, piece, _ = self.arc_length(fit, tau)
+            tau = tau - (length - s) / np.linalg.norm(self.evaluate(fit, piece, tau, 1)[:, :3], axis=1)
+        low, high = self.knots[self.first_knot[fit]], self.knots[self.first_knot[fit] + self.pieces[fit]]
+        return np.clip(tau, low, high)
+
+    def offset_points(self, fit: np.ndarray, tau: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Points c + o u at parameters `tau` of the given fits, and the centreline's derivative c' there.
+
+        c' is the offset curve's derivative up to the relative terms o k_g and o tau_g (about 1 % for a pair),
+        which is all a Gauss-Newton step needs; two spline evaluations instead of the full Darboux frame.
+        """
+        piece = self.local_piece(fit, tau)
+        coefficients = self._coefficients[:, self.first_piece[fit] + piece]
+        dx = tau - self.knots[self.first_knot[fit] + piece]
+        value, d1 = _horner(coefficients, dx, 0), _horner(coefficients[..., :3], dx, 1)
+        t = d1 / np.linalg.norm(d1, axis=1)[:, None]
+        n = value[:, 3:] - np.einsum("ij,ij->i", value[:, 3:], t)[:, None] * t
+        n /= np.linalg.norm(n, axis=1)[:, None]
+        return value[:, :3] + offset[:, None] * np.cross(n, t), d1
+
+
+def _horner(coefficients: np.ndarray, dx: np.ndarray, derivative: int) -> np.ndarray:
+    """Cubic pieces (4 powers, highest first; ...; columns) or their derivative at offsets dx (...) from their knots."""
+    c3, c2, c1, c0 = coefficients
+    dx = dx[..., None]
+    if derivative == 0:
+        return ((c3 * dx + c2) * dx + c1) * dx + c0
+    return (3.0 * c3 * dx + 2.0 * c2) * dx + c1
 
 
 @dataclass
@@ -55,41 +130,44 @@ class OffsetCurve:
     def length(self) -> float:
         return float(self.s_at_samples[-1])
 
-    def arc_length(self, tau: np.ndarray) -> np.ndarray:
-        """Arc length from the curve's start to each parameter (negative before it, past `length` after it)."""
-        fit = self.geometry.fit
-        tau = np.asarray(tau, dtype=float)
-        k = np.clip(np.searchsorted(fit.tau, tau, side="right") - 1, 0, len(fit.tau) - 2)
-        s_k, step = self.geometry.s[k], np.diff(self.geometry.s)[k]
-        along = fit.arc_length(tau) - s_k
-        ratio_here = self.ratio[k] + (self.ratio[k + 1] - self.ratio[k]) * along / step
-        return self.s_at_samples[k] + along * (self.ratio[k] + ratio_here) / 2.0
+
+def offset_arc_lengths(table: SplineTable, curves: list[OffsetCurve], fit_of_curve: np.ndarray, curve: np.ndarray,
+                       tau: np.ndarray) -> np.ndarray:
+    """Arc length along offset curve curves[curve[i]] (beside fit fit_of_curve[curve[i]] of `table`) from its start
+    to parameter tau[i], for many queries at once (negative before the start, past `length` after the end).
+
+    Within a sample interval the length element ratio is taken as linear in the centreline's arc length.
+    """
+    fit = fit_of_curve[curve]
+    _, piece, along = table.arc_length(fit, tau)
+    knot = table.first_knot[fit] + piece
+    step = table.s_at_knots[knot + 1] - table.s_at_knots[knot]
+    sizes = np.array([len(c.ratio) for c in curves])
+    row = (np.cumsum(sizes) - sizes)[curve] + piece
+    ratio = np.concatenate([c.ratio for c in curves])
+    s_at = np.concatenate([c.s_at_samples for c in curves])
+    ratio_here = ratio[row] + (ratio[row + 1] - ratio[row]) * along / step
+    return s_at[row] + along * (ratio[row] + ratio_here) / 2.0
 
 
-def closest_approach(fits: list[CurveFit], first: np.ndarray, tau_first: np.ndarray, offset_first: np.ndarray,
+def closest_approach(table: SplineTable, first: np.ndarray, tau_first: np.ndarray, offset_first: np.ndarray,
                      second: np.ndarray, tau_second: np.ndarray, offset_second: np.ndarray,
                      iterations: int = 6, reach: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Where offset curve i of `fits[first[i]]` comes closest to offset curve i of `fits[second[i]]`, near the guesses.
+    """Where the offset curve beside fit first[i] of `table` comes closest to the one beside fit second[i], near the guesses.
 
     Solves all crossings together by Gauss-Newton on |p(a) - q(b)|^2 (Jacobian from the centrelines, see
-    `offset_points`: each step shrinks the error about a hundredfold), evaluating each fit once per
-    iteration for all its queries. Parameters stay within `reach` of each curve's ends. Returns both
+    `SplineTable.offset_points`: each step shrinks the error about a hundredfold), all queries of all fits in
+    one evaluation per iteration. Parameters stay within `reach` of each curve's ends. Returns both
     parameters and the remaining gap (mm): a crossing of curves on one surface has a gap near zero.
     """
     index = np.concatenate([first, second])
     tau = np.concatenate([tau_first, tau_second]).astype(float)
     offset = np.concatenate([offset_first, offset_second]).astype(float)
-    order = np.argsort(index, kind="stable")
-    groups = np.split(order, np.flatnonzero(np.diff(index[order])) + 1)
-    low = np.array([fits[i].tau[0] for i in index]) - reach
-    high = np.array([fits[i].tau[-1] for i in index]) + reach
+    low = table.knots[table.first_knot[index]] - reach
+    high = table.knots[table.first_knot[index] + table.pieces[index]] + reach
     m = len(first)
-    points = np.empty((len(index), 3))
-    derivs = np.empty((len(index), 3))
     for step in range(iterations + 1):
-        for group in groups:
-            if group.size:
-                points[group], derivs[group] = offset_points(fits[index[group[0]]], tau[group], offset[group])
+        points, derivs = table.offset_points(index, tau, offset)
         gap = points[:m] - points[m:]
         if step == iterations:
             break

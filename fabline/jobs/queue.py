@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from fabline.errors import FablineError
+from fabline.fileio import check_outputs
 
 FINAL_STATES = frozenset({"failed", "cancelled", "done"})
 TRANSITIONS: dict[str, frozenset[str]] = {
@@ -133,8 +134,12 @@ class JobQueue:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
+        check_outputs(files=(self.path,))
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._db = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, check_same_thread=False)
+        try:
+            self._db = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, check_same_thread=False)
+        except sqlite3.OperationalError as exc:
+            raise FablineError(f"{self.path}: cannot open the runner database: {exc}") from None
         self._db.row_factory = sqlite3.Row
         try:
             self._db.execute("PRAGMA journal_mode=WAL")

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fabline.errors import FablineError
+from fabline.fileio import check_outputs
 
 JOURNAL_FORMAT = "fabline.link-journal/1"
 
@@ -67,6 +68,7 @@ class Journal:
 
     def open(self) -> "Journal":
         """Open for appending (creating the file and its folder if needed)."""
+        check_outputs(files=(self.path,))
         self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
             self._handle = open(self.path, "a", encoding="ascii", newline="\n")
@@ -138,6 +140,8 @@ def read_journal(path: str | os.PathLike) -> JournalState:
                 raise FablineError(f"{path}:{number}: journal mixes two different programs")
             state.sha256, state.total = record["sha256"], record["lines"]
             state.finished, state.stopped, state.error, state.alarm = False, None, None, None
+            state.sent = state.acked = state.done = 0  # a run starts from nothing; a resume record says otherwise
+            state.resumed_at = None
         elif event == "sent":
             state.sent = max(state.sent, record["n"] + 1)
         elif event == "ok":

@@ -28,6 +28,7 @@ from typing import Callable
 import serial
 
 from fabline.errors import FablineError
+from fabline.fileio import check_outputs
 from fabline.link.codes import explain_alarm, explain_error
 from fabline.link.gcode import ModalState
 from fabline.link.journal import Journal, JournalState, default_journal_path, read_journal
@@ -149,10 +150,11 @@ class Streamer:
     # ----- the job -----------------------------------------------------------------------------------
     def run(self, program: Program | str | os.PathLike, *, on_progress: Callable[[Progress], None] | None = None,
             journal: str | os.PathLike | None = None, resume: bool = False, check: bool = False,
-            unlock: bool = False, start_line: int | None = None) -> StreamResult:
+            unlock: bool = False, start_line: int | None = None, restart: bool = False) -> StreamResult:
         """Stream `program`; `resume` continues an interrupted job from its journal; `check` runs GRBL check
         mode ($C) over the whole program first; `unlock` clears an alarm ($X) left by an interrupted job;
-        `start_line` (a file line) overrides where a resume restarts when the journal cannot tell."""
+        `start_line` (a file line) overrides where a resume restarts when the journal cannot tell. A new run
+        refuses to start over an interrupted one of the same program unless `restart` says so."""
         if not isinstance(program, Program):
             path = Path(program)
             program = load_program(path)
@@ -161,7 +163,7 @@ class Streamer:
             raise FablineError("a journal path is needed to stream a program that was not read from a file")
         self.program, self.journal_path = program, Path(journal)
         self.blocks = program.plan(ModalState(), (0.0, 0.0, 0.0))
-        previous = self._previous_job(resume, start_line)
+        previous = self._previous_job(resume, start_line, restart)
         self.on_progress = on_progress
         self._open()
         try:
@@ -176,11 +178,20 @@ class Streamer:
             self._close()
             self._abort.clear()  # an abort asked for before or during this run stopped it; the next run starts afresh
 
-    def _previous_job(self, resume: bool, start_line: int | None) -> JournalState | None:
-        """The journal of the job being resumed, checked against the program; None for a new job."""
+    def _previous_job(self, resume: bool, start_line: int | None, restart: bool) -> JournalState | None:
+        """The journal of the job being resumed, checked against the program; None for a new job, whose
+        journal starts afresh (an interrupted run of this program is not overwritten by accident)."""
         if not resume:
             if start_line is not None:
                 raise FablineError("--from-line needs --resume")
+            if self.journal_path.is_file():
+                state = read_journal(self.journal_path)
+                if state.sha256 == self.program.sha256 and not state.finished and not restart:
+                    raise FablineError(
+                        f"{self.journal_path}: an earlier run of {self.program.name} stopped after file line "
+                        f"{self._file_line(state.done - 1) if state.done else 'none'} without finishing; "
+                        "continue it with --resume, or start the sheet over with --restart")
+                self.journal_path.unlink()
             return None
         state = read_journal(self.journal_path)
         if state.sha256 != self.program.sha256:
@@ -462,7 +473,14 @@ class Streamer:
         self._connect_port()
         self._detect()
         if self.exchange_log_path is not None:
-            self._log = open(self.exchange_log_path, "a", encoding="ascii", errors="replace")
+            try:
+                check_outputs(files=(self.exchange_log_path,))
+                Path(self.exchange_log_path).parent.mkdir(parents=True, exist_ok=True)
+                self._log = open(self.exchange_log_path, "a", encoding="ascii", errors="replace")
+            except (FablineError, OSError) as exc:
+                self._close_port()
+                raise FablineError(f"{self.exchange_log_path}: cannot write the exchange log: "
+                                   f"{getattr(exc, 'strerror', None) or exc}") from None
             self._exchange("#", f"connected to {self.url}: Grbl {self.version or '1.1'}, rx buffer {self.rx_buffer}")
 
     def _connect_port(self) -> None:

@@ -13,8 +13,8 @@ import numpy as np
 
 from fabline.unroll.options import TEXT_GAP, UnrollOptions
 from fabline.unroll.parts import Part, Slot
-from fabline.unroll.pieces import (ARROW_LENGTH, SEAM_HOLE_COLUMNS, SEAM_HOLE_ROWS, is_seam, label_spot,
-                                   segment_label, segment_meta)
+from fabline.unroll.pieces import (ARROW_LENGTH, LABEL_TIE_MM, MIN_LABEL_HEIGHT, SEAM_HOLE_COLUMNS, SEAM_HOLE_ROWS,
+                                   is_seam, segment_label, segment_meta)
 from fabline.unroll.flat import QUARTER_ARC_BULGE
 from fabline.unroll.seams import Segment
 from fabline.unroll.stations import FAMILY_EDGE
@@ -31,16 +31,14 @@ def straight_flags(segments: list[Segment], options: UnrollOptions) -> np.ndarra
     """
     if not segments:
         return np.zeros(0, dtype=bool)
-    curvature, bounds, base, seen = [], [], 0, {}
-    for segment in segments:
-        strip = segment.strip
-        if id(strip) not in seen:
-            seen[id(strip)] = base
-            curvature.extend([np.abs(strip.geometry.k_n), np.zeros(1)])
-            base += len(strip.geometry.k_n) + 1
-        lo, hi = np.searchsorted(strip.curve.s_at_samples, (segment.start, segment.end)).tolist()
-        bounds += [seen[id(strip)] + max(lo - 1, 0), seen[id(strip)] + min(hi + 1, len(strip.geometry.k_n))]
-    k_max = np.maximum.reduceat(np.concatenate(curvature), bounds)[::2]
+    curvature, bounds, base = [], [], 0
+    for strip, group in _by_strip(segments):
+        k_n = strip.geometry.k_n
+        lo, hi = np.searchsorted(strip.curve.s_at_samples, [(s.start, s.end) for s in group]).T
+        bounds.append(np.column_stack([base + np.maximum(lo - 1, 0), base + np.minimum(hi + 1, len(k_n))]).ravel())
+        curvature += [np.abs(k_n), np.zeros(1)]
+        base += len(k_n) + 1
+    k_max = np.maximum.reduceat(np.concatenate(curvature), np.concatenate(bounds))[::2]
     length = np.array([s.end - s.start for s in segments])
     return k_max * length ** 2 / 8.0 < options.straight_tolerance
 
@@ -94,24 +92,20 @@ def straight_parts(segments: list[Segment], options: UnrollOptions) -> list[Part
     baseline = edge_y - sign * TEXT_GAP - np.where(sign > 0, height, 0.0)
     blocked_lo = np.where(right, node_x - TEXT_GAP, node_x - r_node)
     blocked_hi = np.where(right, node_x + r_node, node_x + TEXT_GAP)
-    ids = gather(id_block, which)  # each id is laid out once and engraved on up to four strips
-    id_points = ids.points * height
-    id_points[:, 0] += (node_x - a[node_seg] + dx)[ids.owner]
-    id_points[:, 1] += baseline[node_seg][ids.owner]
-    node_strokes = split_rows(id_points, ids.starts)
+    # each id is laid out once and engraved on up to four strips
+    ids = gather(id_block, which, height, np.column_stack([node_x - a[node_seg] + dx, baseline[node_seg]]))
+    node_strokes = split_rows(ids.points, ids.starts)
     node_stroke_count = np.bincount(ids.stroke_owner, minlength=len(which))
 
-    # labels: placed per segment (a short loop over each segment's few spans), drawn together
+    # labels: the widest stretch between seam overlaps and node ids, for all segments at once
     labels = [segment_label(s) for s in segments]
     label_block = layout_block(labels)
-    spots = []
-    for k, segment in enumerate(segments):
-        lo, hi = node_range[k], node_range[k + 1]
-        blocked = [(a[k], a[k] + options.overlap) if start_seam[k] else (a[k], a[k]),
-                   (b[k] - options.overlap, b[k]) if end_seam[k] else (b[k], b[k])]
-        blocked += zip(blocked_lo[lo:hi].tolist(), blocked_hi[lo:hi].tolist())
-        spots.append(label_spot(float(label_block.widths[k]), a[k], b[k], blocked, height))
-    label_strokes = _labels(spots, label_block, a, edge_y, slot_end_y)
+    starting, ending = np.flatnonzero(start_seam), np.flatnonzero(end_seam)
+    span_seg = np.concatenate([starting, ending, node_seg])
+    span_lo = np.concatenate([a[starting], b[ending] - options.overlap, blocked_lo])
+    span_hi = np.concatenate([a[starting] + options.overlap, b[ending], blocked_hi])
+    anchor, size = label_spots(label_block.widths, a, b, span_seg, span_lo, span_hi, height)
+    label_strokes = _labels(anchor, size, label_block, a, edge_y, slot_end_y)
 
     holes, hole_count = _seam_holes(segments, a, start_seam, end_seam, options)
 
@@ -139,35 +133,45 @@ def _gather(segments: list[Segment], field: str) -> dict:
     """Slots ("slot_x") or nodes ("node_x") of every segment, concatenated in segment order, with their segment index.
 
     A feature belongs to the segment whose [start, end) holds it; features in a gap between segments (at a
-    singularity joint) belong to none.
+    singularity joint) belong to none. One searchsorted per strip, then index arrays over all strips' features.
     """
-    xs, seg, ids, edges, slotted = [], [], [], [], []
-    k = 0
-    while k < len(segments):
-        strip = segments[k].strip
-        last = k
-        while last + 1 < len(segments) and segments[last + 1].strip is strip:
-            last += 1
-        values = getattr(strip, field)
-        with_slot = set(strip.slot_nodes)
-        bounds = np.searchsorted(values, [(s.start, s.end) for s in segments[k:last + 1]])
-        for offset, (lo, hi) in enumerate(bounds.tolist()):
-            xs.append(values[lo:hi])
-            seg.append(np.full(hi - lo, k + offset))
-            if field == "slot_x":
-                ids.extend(strip.slot_nodes[lo:hi])
-                edges.extend(strip.slot_edges[lo:hi])
-            else:
-                chosen = strip.node_ids[lo:hi]
-                ids.extend(chosen)
-                slotted.extend(n in with_slot for n in chosen)
-        k = last + 1
-    out = {"x": np.concatenate(xs), "segment": np.concatenate(seg).astype(int)}
+    values, names, flags, lows, highs, offset = [], [], [], [], [], 0
+    for strip, group in _by_strip(segments):
+        strip_values = getattr(strip, field)
+        bounds = np.searchsorted(strip_values, [(s.start, s.end) for s in group]) + offset
+        lows.append(bounds[:, 0])
+        highs.append(bounds[:, 1])
+        values.append(strip_values)
+        if field == "slot_x":
+            names += strip.slot_nodes
+            flags += strip.slot_edges
+        else:
+            with_slot = set(strip.slot_nodes)
+            names += strip.node_ids
+            flags += [n in with_slot for n in strip.node_ids]
+        offset += len(strip_values)
+    low, high = np.concatenate(lows), np.concatenate(highs)
+    counts = high - low
+    index = np.repeat(low - (np.cumsum(counts) - counts), counts) + np.arange(counts.sum())
+    out = {"x": np.concatenate(values)[index], "segment": np.repeat(np.arange(len(segments)), counts)}
+    chosen = index.tolist()
     if field == "slot_x":
-        out.update(nodes=ids, edges=edges)
+        out.update(nodes=[names[i] for i in chosen], edges=[flags[i] for i in chosen])
     else:
-        out.update(ids=ids, slotted=np.array(slotted, dtype=bool))
+        out.update(ids=[names[i] for i in chosen], slotted=np.array(flags, dtype=bool)[index])
     return out
+
+
+def _by_strip(segments: list[Segment]) -> list[tuple]:
+    """The segments in runs of one strip each (a strip's segments follow each other): (strip, its segments)."""
+    runs, k = [], 0
+    while k < len(segments):
+        last = k
+        while last + 1 < len(segments) and segments[last + 1].strip is segments[k].strip:
+            last += 1
+        runs.append((segments[k].strip, segments[k:last + 1]))
+        k = last + 1
+    return runs
 
 
 def _ranges(owner: np.ndarray, count: int) -> np.ndarray:
@@ -176,30 +180,35 @@ def _ranges(owner: np.ndarray, count: int) -> np.ndarray:
 
 
 def _outlines(a, b, slot_seg, slot_x, slot_top, h, half, depth) -> list[np.ndarray]:
-    """Every segment's notched rectangle, as `flat._straight_outline` builds it, from one sorted vertex table."""
+    """Every segment's notched rectangle, as `flat._straight_outline` builds it, in one vertex table.
+
+    Per segment the rows run (0,-y) | bottom notches by increasing x | (L,-y) (L,y) | top notches by decreasing x |
+    (0,y) (0,-y); slots come sorted by segment and x, so each vertex's row follows from counts alone.
+    """
     y = h / 2.0
     count = len(a)
+    bottom = ~slot_top
+    bottoms = np.bincount(slot_seg[bottom], minlength=count)
+    tops = np.bincount(slot_seg[slot_top], minlength=count)
+    slots_before = np.cumsum(bottoms + tops) - bottoms - tops
+    base = 5 * np.arange(count) + 4 * slots_before              # first row of each segment
+    table = np.zeros((5 * count + 4 * len(slot_x), 3))
+    fixed = base[:, None] + np.column_stack([np.zeros(count, int), 1 + 4 * bottoms, 2 + 4 * bottoms,
+                                             3 + 4 * (bottoms + tops), 4 + 4 * (bottoms + tops)])
     length = b - a
-    # fixed vertices: (0,-y) | bottom notches | (L,-y) (L,y) | top notches | (0,y) (0,-y)
-    fixed_x = np.column_stack([np.zeros(count), length, length, np.zeros(count), np.zeros(count)])
-    fixed_y = np.tile([-y, -y, y, y, -y], (count, 1))
-    fixed_section = np.tile([0, 2, 3, 5, 6], (count, 1))
-    rel = slot_x - a[slot_seg]
-    notch_sign = np.where(slot_top, 1.0, -1.0)
-    nx = rel[:, None] + notch_sign[:, None] * half * np.array([1.0, 1.0, -1.0, -1.0])
-    ny = notch_sign[:, None] * np.array([y, y - depth + half, y - depth + half, y])
-    nb = np.tile([0.0, -1.0, 0.0, 0.0], (len(rel), 1))
-    order_key = np.where(slot_top, -rel, rel)  # bottom edge runs towards +x, the top edge back towards -x
-    rows_seg = np.concatenate([np.repeat(np.arange(count), 5), np.repeat(slot_seg, 4)])
-    section = np.concatenate([fixed_section.ravel(), np.repeat(np.where(slot_top, 4, 1), 4)])
-    along = np.concatenate([np.zeros(5 * count), np.repeat(order_key, 4)])
-    within = np.concatenate([np.zeros(5 * count), np.tile(np.arange(4), len(rel))])
-    order = np.lexsort((within, along, section, rows_seg))
-    table = np.column_stack([np.concatenate([fixed_x.ravel(), nx.ravel()]),
-                             np.concatenate([fixed_y.ravel(), ny.ravel()]),
-                             np.concatenate([np.zeros(5 * count), nb.ravel()])])[order]
-    starts = np.searchsorted(rows_seg[order], np.arange(count))
-    return split_rows(table, starts)
+    table[fixed, 0] = np.column_stack([np.zeros(count), length, length, np.zeros(count), np.zeros(count)])
+    table[fixed, 1] = [-y, -y, y, y, -y]
+    # a slot's place along its edge: its rank among its segment's slots of that edge (the top edge runs backwards)
+    bottom_rank = np.cumsum(bottom) - 1 - (np.cumsum(bottoms) - bottoms)[slot_seg]
+    top_rank = np.cumsum(slot_top) - 1 - (np.cumsum(tops) - tops)[slot_seg]
+    first = base[slot_seg] + np.where(slot_top, 3 + 4 * bottoms[slot_seg] + 4 * (tops[slot_seg] - 1 - top_rank),
+                                      1 + 4 * bottom_rank)
+    rows = first[:, None] + np.arange(4)
+    sign = np.where(slot_top, 1.0, -1.0)[:, None]
+    table[rows, 0] = (slot_x - a[slot_seg])[:, None] + sign * half * np.array([1.0, 1.0, -1.0, -1.0])
+    table[rows, 1] = sign * np.array([y, y - depth + half, y - depth + half, y])
+    table[rows, 2] = [0.0, -1.0, 0.0, 0.0]
+    return split_rows(table, base)
 
 
 def _slot_contours(x: np.ndarray, top: np.ndarray, h: float, half: float, depth: float) -> np.ndarray:
@@ -214,17 +223,62 @@ def _slot_contours(x: np.ndarray, top: np.ndarray, h: float, half: float, depth:
     return contours
 
 
-def _labels(spots: list, block: TextBlock, a: np.ndarray, edge_y: np.ndarray,
+def label_spots(widths: np.ndarray, a: np.ndarray, b: np.ndarray, span_seg: np.ndarray, span_lo: np.ndarray,
+                span_hi: np.ndarray, height: float) -> tuple[np.ndarray, np.ndarray]:
+    """`pieces.label_spot` for every segment at once: per segment the label's centre station (NaN where no label
+    fits) and cap height, from the segments' ranges [a, b] and the blocked spans (segment, lo, hi) in any order.
+
+    The free stretches lie between the spans sorted along each segment; each one starts at the farthest end of
+    the spans before it (a running maximum within the segment, taken over integer ranks so it stays exact).
+    """
+    count = len(a)
+    lo, hi = np.maximum(a[span_seg], span_lo), np.minimum(b[span_seg], span_hi)
+    keep = (span_hi > a[span_seg]) & (span_lo < b[span_seg])
+    seg, lo, hi = span_seg[keep], lo[keep], hi[keep]
+    order = np.lexsort((hi, lo, seg))
+    seg, lo, hi = seg[order], lo[order], hi[order]
+    by_end = np.lexsort((hi, seg))                       # ranks of the span ends, increasing segment by segment
+    rank = np.empty(len(seg), dtype=int)
+    rank[by_end] = np.arange(len(seg))
+    reached = np.maximum.accumulate(rank) if len(seg) else rank
+    first_of_segment = np.r_[True, seg[1:] != seg[:-1]] if len(seg) else np.zeros(0, dtype=bool)
+    before = np.where(first_of_segment, -np.inf, hi[by_end][np.r_[0, reached[:-1]]] if len(seg) else hi)
+    cursor = np.maximum(a[seg] + TEXT_GAP, before)
+    last = np.full(count, -np.inf)
+    np.maximum.at(last, seg, hi)
+    closing = np.maximum(a + TEXT_GAP, last)
+    # free stretches: before each span that starts past the cursor, then from the last cursor to the end
+    gap = lo > cursor
+    ends = b - TEXT_GAP > closing
+    free_seg = np.concatenate([seg[gap], np.flatnonzero(ends)])
+    free_lo = np.concatenate([cursor[gap], closing[ends]])
+    free_hi = np.concatenate([lo[gap], (b - TEXT_GAP)[ends]])
+    free_order = np.concatenate([np.flatnonzero(gap), np.full(int(ends.sum()), len(seg))])
+    order = np.lexsort((free_order, free_seg))
+    free_seg, free_lo, free_hi = free_seg[order], free_lo[order], free_hi[order]
+    width = free_hi - free_lo
+    widest = np.full(count, -np.inf)
+    np.maximum.at(widest, free_seg, width)
+    candidate = np.flatnonzero(width >= widest[free_seg] - LABEL_TIE_MM)
+    owner, first = np.unique(free_seg[candidate], return_index=True)   # the first of equally wide stretches
+    chosen = candidate[first]
+    room = free_hi[chosen] - free_lo[chosen] - 2.0 * TEXT_GAP
+    fitted = np.where(room > 0, np.minimum(height, room / (widths[owner] + ARROW_LENGTH + 1.0)), 0.0)
+    anchor, size = np.full(count, np.nan), np.zeros(count)
+    fits = fitted >= MIN_LABEL_HEIGHT
+    anchor[owner[fits]] = (free_lo[chosen] + free_hi[chosen])[fits] / 2.0
+    size[owner[fits]] = fitted[fits]
+    return anchor, size
+
+
+def _labels(anchor: np.ndarray, size: np.ndarray, block: TextBlock, a: np.ndarray, edge_y: np.ndarray,
             slot_end_y: np.ndarray) -> dict[int, list[np.ndarray]]:
     """Per segment with a label spot: the label's strokes, then its arrow's shaft and head (as `pieces._label`)."""
-    placed = np.array([k for k, spot in enumerate(spots) if spot is not None], dtype=int)
+    placed = np.flatnonzero(~np.isnan(anchor))
     if not placed.size:
         return {}
-    count = len(spots)
-    anchor, size = np.zeros(count), np.zeros(count)
-    anchor[placed] = [spots[k][0] for k in placed]
-    size[placed] = [spots[k][1] for k in placed]
-    anchor -= a
+    count = len(anchor)
+    anchor = np.where(np.isnan(anchor), 0.0, anchor) - a
     mid_y = (slot_end_y + edge_y) / 2.0
     start = anchor - (block.widths + 1.0 + ARROW_LENGTH) * size / 2.0
     points = block.points * size[block.owner][:, None]

@@ -84,12 +84,17 @@ def washers(node: str, arm_angles_deg: list[float], sizes: HardwareSizes) -> lis
     Angles are taken relative to the first lamella and rounded to half a degree, the washer's tolerance.
     """
     angles = tuple(sorted({round((a - arm_angles_deg[0]) % 180.0 * 2.0) / 2.0 % 180.0 for a in arm_angles_deg}))
+    outline, hole, label = _washer_shape(angles, sizes)
+    return [Part(f"W-{node}-{side}", "washer", outline, holes=[hole], label=label,
+                 meta={"node": node, "arm_angles_deg": list(angles), "side": side}) for side in ("T", "B")]
+
+
+@lru_cache(maxsize=1024)
+def _washer_shape(angles: tuple[float, ...], sizes: HardwareSizes) -> tuple[np.ndarray, np.ndarray, str]:
+    """Outline, bolt hole and label of the washer for one set of (rounded) arm angles, shared by all such washers."""
     outline = _star(angles, sizes.half_width, sizes.washer_reach)
     hole = _square(sizes.bolt_square, angles[1] / 2.0 if len(angles) > 1 else 0.0)
-    name = "/".join(f"{a:g}" for a in angles[1:])
-    meta = {"node": node, "arm_angles_deg": list(angles)}
-    return [Part(f"W-{node}-{side}", "washer", outline, holes=[hole], label=f"W {name}", meta={**meta, "side": side})
-            for side in ("T", "B")]
+    return outline, hole, "W " + "/".join(f"{a:g}" for a in angles[1:])
 
 
 def clamp(node: str, crossing_deg: float, sizes: HardwareSizes) -> Part:

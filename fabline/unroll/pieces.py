@@ -23,6 +23,7 @@ SEAM_HOLE_COLUMNS = np.array([-1.0, 0.0, 1.0]) / 3.0  # of the overlap, about th
 SEAM_HOLE_ROWS = np.array([-0.25, 0.25])              # of the height, about the centreline
 MIN_LABEL_HEIGHT = 1.5
 ARROW_LENGTH = 3.0  # the label's orientation arrow, in cap heights
+LABEL_TIE_MM = 1e-6  # free stretches this close in width count as equal: the label takes the first
 
 
 def segment_part(segment: Segment, options: UnrollOptions) -> Part:
@@ -179,7 +180,8 @@ def label_spot(width: float, a: float, b: float, blocked: list[tuple[float, floa
                height: float) -> tuple[float, float] | None:
     """Centre station and cap height of a label `width` cap heights wide (arrow included), or None if nothing fits.
 
-    The label goes in the middle of the widest stretch of [a, b] that no span in `blocked` takes, shrunk to fit.
+    The label goes in the middle of the widest stretch of [a, b] that no span in `blocked` takes, shrunk to fit;
+    of stretches equally wide (a regular grid has many) the first, so rounding noise cannot move it.
     """
     spans = sorted((max(a, lo), min(b, hi)) for lo, hi in blocked if hi > a and lo < b)
     free, cursor = [], a + TEXT_GAP
@@ -191,7 +193,8 @@ def label_spot(width: float, a: float, b: float, blocked: list[tuple[float, floa
         free.append((cursor, b - TEXT_GAP))
     if not free:
         return None
-    lo, hi = max(free, key=lambda span: span[1] - span[0])
+    widest = max(hi - lo for lo, hi in free)
+    lo, hi = next((lo, hi) for lo, hi in free if hi - lo >= widest - LABEL_TIE_MM)  # the first of equals, stably
     room = hi - lo - 2.0 * TEXT_GAP
     size = min(height, room / (width + ARROW_LENGTH + 1.0)) if room > 0 else 0.0
     return ((lo + hi) / 2.0, size) if size >= MIN_LABEL_HEIGHT else None

@@ -9,6 +9,7 @@ separate-joint mode a strip also ends `setback` before each singularity node and
 
 from __future__ import annotations
 
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -17,7 +18,7 @@ import numpy as np
 from fabline.errors import FablineError
 from fabline.unroll.options import TEXT_GAP, UnrollOptions
 from fabline.unroll.stations import Strip
-from fabline.unroll.strokes import text_widths
+from fabline.unroll.strokes import text_width
 
 
 @dataclass
@@ -81,17 +82,20 @@ def _split_run(strip: Strip, options: UnrollOptions, start: float, end: float, j
     """Greedy seams: each segment as long as the usable sheet length allows, each seam in a free node interval."""
     usable, half = options.usable_length, options.overlap / 2.0
     at, intervals = seam_candidates(strip, options, start, end)
-    free = np.array([interval not in avoid for interval in intervals], dtype=bool)
+    # the candidates that fit are those with current + half < at - half and at + half <= current + usable: a
+    # range of the sorted candidates, found by bisection; of them the last one free of the partner's seams
+    overlap_start, overlap_end = (at - half).tolist(), (at + half).tolist()
+    free = [k for k, interval in enumerate(intervals) if interval not in avoid]
     segments, current, join = [], start, join_start
     while end - current > usable:
-        fits = (current + half < at - half) & (at + half <= current + usable)
-        preferred = np.flatnonzero(fits & free) if (fits & free).any() else np.flatnonzero(fits)
-        if not preferred.size:
+        first, stop = bisect_right(overlap_start, current + half), bisect_right(overlap_end, current + usable)
+        last_free = bisect_left(free, stop) - 1
+        chosen = free[last_free] if last_free >= 0 and free[last_free] >= first else stop - 1
+        if chosen < first:
             raise FablineError(
                 f"lamella {strip.lamella}, strip {strip.id}: no seam fits between x = {current:.0f} and "
                 f"{current + usable:.0f} mm: no node interval there leaves {options.overlap:g} mm of overlap clear "
                 f"of slots and marks (usable sheet length {usable:g} mm)")
-        chosen = int(preferred[-1])
         seam = Join("seam", float(at[chosen]), interval=intervals[chosen])
         segments.append(Segment(strip, current, seam.x + half, start_join=join, end_join=seam))
         current, join = seam.x - half, seam
@@ -110,18 +114,23 @@ def seam_candidates(strip: Strip, options: UnrollOptions, start: float,
     half = options.overlap / 2.0
     keep_out_slot = half + options.slot / 2.0 + options.web
     keep_out_mark = half + node_text_reach(options, ids)
-    clear = np.ones(len(middle), dtype=bool)
+    clear = np.minimum(middle - x[:-1], x[1:] - middle) >= keep_out_mark  # the interval's own nodes are nearest
     if len(strip.slot_x):
-        nearest = np.abs(middle[:, None] - strip.slot_x[None, :]).min(axis=1)
-        clear &= nearest >= keep_out_slot
-    clear &= np.abs(middle[:, None] - x[None, :]).min(axis=1) >= keep_out_mark
+        clear &= _nearest_distance(middle, strip.slot_x) >= keep_out_slot
     clear &= (middle - half > start) & (middle + half < end)
     chosen = np.flatnonzero(clear).tolist()
     return middle[chosen], [(ids[k], ids[k + 1]) for k in chosen]
 
 
+def _nearest_distance(points: np.ndarray, sorted_values: np.ndarray) -> np.ndarray:
+    """Distance from each point to the nearest of the (non-empty, increasing) values: only its two neighbours count."""
+    after = np.minimum(np.searchsorted(sorted_values, points), len(sorted_values) - 1)
+    before = np.maximum(after - 1, 0)
+    return np.minimum(np.abs(points - sorted_values[before]), np.abs(points - sorted_values[after]))
+
+
 def node_text_reach(options: UnrollOptions, node_ids: list[str]) -> float:
     """How far a node's engraved id reaches from its mark along the strip (mm): the longest id plus a gap."""
-    widest = float(text_widths(node_ids).max()) if node_ids else 0.0
+    widest = max(map(text_width, node_ids), default=0.0)
     return widest * options.engrave_height + 2.0 * TEXT_GAP
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from fabline.errors import FablineError
 from fabline.geometry.darboux import LamellaGeometry, NetworkGeometry
-from fabline.geometry.offsets import OffsetCurve, closest_approach
+from fabline.geometry.offsets import OffsetCurve, SplineTable, closest_approach, offset_arc_lengths
 from fabline.unroll.options import UnrollOptions
 
 NEWTON_STEPS = 3  # from the tangent-plane guess (error ~ k d^2 < 1 mm) each step gains a factor ~100
@@ -79,33 +79,48 @@ def helix_stretch(geo: LamellaGeometry, options: UnrollOptions) -> np.ndarray | 
 
 
 def strip_stations(geometry: NetworkGeometry, options: UnrollOptions) -> list[Strip]:
-    """Every strip of the network with its node and slot positions; bad crossings raise naming node and lamellas."""
+    """Every strip of the network with its node and slot positions; bad crossings raise naming node and lamellas.
+
+    All lamellas are evaluated together (`SplineTable`): node parameters, crossings and arc lengths each in one
+    batch; only the Strip objects and their spacing checks are made one by one.
+    """
     geos = list(geometry.lamellas.values())
     sides = side_offsets(options)
-    node_tau = [geo.fit.parameter_at(geo.node_s) for geo in geos]
+    table = SplineTable([geo.fit for geo in geos])
+    node_counts = np.array([len(geo.node_ids) for geo in geos])
+    node_lamella = np.repeat(np.arange(len(geos)), node_counts)
+    node_tau = table.parameter_at(node_lamella, np.concatenate([geo.node_s for geo in geos]))
+    curves = [OffsetCurve.of(geo, offset, helix_stretch(geo, options)) for geo in geos for _, offset in sides]
+    fit_of_curve = np.repeat(np.arange(len(geos)), len(sides))
+    # every node on every strip: curve index = lamella * len(sides) + side, the lamella's nodes in order
+    per_curve = np.repeat(node_counts, len(sides))
+    curve_of_node = np.repeat(np.arange(len(curves)), per_curve)
+    lamella_rows = np.split(np.arange(len(node_tau)), np.cumsum(node_counts)[:-1])
+    node_row = np.concatenate([rows for rows in lamella_rows for _ in sides])
+    node_x = offset_arc_lengths(table, curves, fit_of_curve, curve_of_node, node_tau[node_row])
     singular = singular_nodes(geometry)
     joint_mode = options.singularity == "joint"
     pairs = _crossing_pairs(geos, geometry, singular if joint_mode else set(), options)
-    solved = _solve_crossings(geos, geometry, node_tau, pairs, sides, options)
+    slot_curve, slot_x, slot_node, slot_names, slot_edges = _solve_crossings(
+        geos, geometry, table, node_tau, pairs, sides, options, curves, fit_of_curve)
+    # a paired strip's node mark lies midway between the slots it gets at that node
+    node_first = np.cumsum(per_curve) - per_curve
+    row = node_first[slot_curve] + slot_node
+    total = np.bincount(row, weights=slot_x, minlength=len(node_x))
+    count = np.bincount(row, minlength=len(node_x))
+    paired = np.array([curve.offset != 0.0 for curve in curves])[curve_of_node]
+    node_x = np.where(paired & (count > 0), total / np.maximum(count, 1), node_x)
+    node_bounds = np.append(node_first, len(node_x)).tolist()
+    slot_bounds = np.searchsorted(slot_curve, np.arange(len(curves) + 1)).tolist()
     strips = []
-    for li, geo in enumerate(geos):
-        stretch = helix_stretch(geo, options)
-        for side_index, (side, offset) in enumerate(sides):
-            curve = OffsetCurve.of(geo, offset, stretch)
-            node_x = curve.arc_length(node_tau[li])
-            strip = Strip(geo, side, curve, list(geo.node_ids), node_x,
-                          joint_nodes={n for n in geo.node_ids if n in singular} if joint_mode else set())
-            entry = solved.get((li, side_index))
-            if entry is not None:
-                nodes, tau, edges = entry
-                x = curve.arc_length(tau)
-                order = np.argsort(x, kind="stable")
-                strip.slot_x, strip.slot_nodes = x[order], [nodes[k] for k in order]
-                strip.slot_edges = [edges[k] for k in order]
-                if offset != 0.0:
-                    _marks_between_slots(strip)
-            _check_slot_spacing(strip, options)
-            strips.append(strip)
+    for c, curve in enumerate(curves):
+        geo = geos[c // len(sides)]
+        lo, hi = slot_bounds[c], slot_bounds[c + 1]
+        strip = Strip(geo, sides[c % len(sides)][0], curve, list(geo.node_ids), node_x[node_bounds[c]:node_bounds[c + 1]],
+                      slot_names[lo:hi], slot_x[lo:hi], slot_edges[lo:hi],
+                      joint_nodes={n for n in geo.node_ids if n in singular} if joint_mode else set())
+        _check_slot_spacing(strip, options)
+        strips.append(strip)
     return strips
 
 
@@ -131,18 +146,21 @@ def _crossing_pairs(geos: list[LamellaGeometry], geometry: NetworkGeometry, skip
     return pairs
 
 
-def _solve_crossings(geos: list[LamellaGeometry], geometry: NetworkGeometry, node_tau: list[np.ndarray],
-                     pairs: list[tuple[str, int, int, int, int]], sides: list[tuple[str, float]],
-                     options: UnrollOptions) -> dict[tuple[int, int], tuple[list[str], np.ndarray, list[str]]]:
-    """Solve every strip-strip crossing; per (lamella index, side index): slot nodes, curve parameters, edges."""
+def _solve_crossings(geos: list[LamellaGeometry], geometry: NetworkGeometry, table: SplineTable, node_tau: np.ndarray,
+                     pairs: list[tuple[str, int, int, int, int]], sides: list[tuple[str, float]], options: UnrollOptions,
+                     curves: list[OffsetCurve], fit_of_curve: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str], list[str]]:
+    """Solve every strip-strip crossing: per slot its strip (curve index = lamella * len(sides) + side), arc length
+    along it, node index within the lamella, node id and edge; sorted by strip, then along it. `node_tau` holds
+    every lamella's node parameters in order."""
     if not pairs:
-        return {}
+        return np.zeros(0, dtype=int), np.zeros(0), np.zeros(0, dtype=int), [], []
     nodes = [p[0] for p in pairs]
     li, ki, lj, kj = (np.array([p[c] for p in pairs], dtype=int) for c in range(1, 5))
     normals = np.array([geometry.network.nodes[n].normal for n in nodes], dtype=float)
     # every lamella's node tangents and parameters in one table, row = first row of the lamella + node index
     first_row = np.cumsum([0] + [len(geo.node_ids) for geo in geos[:-1]])
-    tangents, taus = np.concatenate([geo.node_tangents for geo in geos]), np.concatenate(node_tau)
+    tangents, taus = np.concatenate([geo.node_tangents for geo in geos]), node_tau
     t_i, t_j = tangents[first_row[li] + ki], tangents[first_row[lj] + kj]
     tau_i0, tau_j0 = taus[first_row[li] + ki], taus[first_row[lj] + kj]
     offsets = np.array([o for _, o in sides])
@@ -160,7 +178,7 @@ def _solve_crossings(geos: list[LamellaGeometry], geometry: NetworkGeometry, nod
     b = (o_i - o_j * across_j) / sin_ij
     a = b * cos_ij + o_j * along_j
     reach = options.end + abs(offsets).max() * 2.0
-    tau_i, tau_j, gap = closest_approach([g.fit for g in geos], np.repeat(li, rep), np.repeat(tau_i0, rep) + a, o_i,
+    tau_i, tau_j, gap = closest_approach(table, np.repeat(li, rep), np.repeat(tau_i0, rep) + a, o_i,
                                          np.repeat(lj, rep), np.repeat(tau_j0, rep) + b, o_j, iterations=NEWTON_STEPS, reach=reach)
     bad = np.flatnonzero(gap > CROSSING_GAP_MM)
     if bad.size:
@@ -175,25 +193,12 @@ def _solve_crossings(geos: list[LamellaGeometry], geometry: NetworkGeometry, nod
     pair_of = np.arange(len(tau_i)) // rep
     lam = np.concatenate([np.repeat(li, rep), np.repeat(lj, rep)])
     key = lam * count + np.concatenate([side_i, side_j])
-    tau = np.concatenate([tau_i, tau_j])
+    x = offset_arc_lengths(table, curves, fit_of_curve, key, np.concatenate([tau_i, tau_j]))
+    node_index = np.concatenate([np.repeat(ki, rep), np.repeat(kj, rep)])
     edges = np.concatenate([np.array(edge_i)[pair_of], np.array(edge_j)[pair_of]])
     node_names = np.array(nodes, dtype=object)[np.tile(pair_of, 2)]
-    order = np.argsort(key, kind="stable")
-    out = {}
-    for group in np.split(order, np.flatnonzero(np.diff(key[order])) + 1):
-        lamella, side = divmod(int(key[group[0]]), count)
-        out[(lamella, side)] = (node_names[group].tolist(), tau[group], edges[group].tolist())
-    return out
-
-
-def _marks_between_slots(strip: Strip) -> None:
-    """A paired strip's node mark lies midway between the slots it gets at that node."""
-    index = {nid: k for k, nid in enumerate(strip.node_ids)}
-    at = [index[n] for n in strip.slot_nodes]
-    total = np.bincount(at, weights=strip.slot_x, minlength=len(strip.node_ids))
-    count = np.bincount(at, minlength=len(strip.node_ids))
-    slotted = count > 0
-    strip.node_x = np.where(slotted, total / np.maximum(count, 1), strip.node_x)
+    order = np.lexsort((x, key))
+    return key[order], x[order], node_index[order], node_names[order].tolist(), edges[order].tolist()
 
 
 def _check_slot_spacing(strip: Strip, options: UnrollOptions) -> None:

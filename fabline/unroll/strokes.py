@@ -103,8 +103,9 @@ def _glyph_table(alphabet: str) -> TextBlock:
                      np.array([g.width for g in glyphs]))
 
 
-def gather(block: TextBlock, which: np.ndarray, x0: np.ndarray | None = None) -> TextBlock:
-    """The strings block[which[i]] one after another (owner i), each shifted along x by x0[i]; widths per instance."""
+def gather(block: TextBlock, which: np.ndarray, scale: float = 1.0, shift: np.ndarray | None = None) -> TextBlock:
+    """The strings block[which[i]] one after another (owner i), each scaled by `scale` and then moved by shift[i]
+    (an (N, 2) array); widths per instance, unscaled."""
     strings = len(block.widths)
     point_count = np.bincount(block.owner, minlength=strings)
     stroke_count = np.bincount(block.stroke_owner, minlength=strings)
@@ -113,8 +114,10 @@ def gather(block: TextBlock, which: np.ndarray, x0: np.ndarray | None = None) ->
     row = np.cumsum(counts) - counts
     points = block.points[np.repeat(point_first[which] - row, counts) + np.arange(counts.sum())]
     instance = np.arange(len(which))
-    if x0 is not None:
-        points[:, 0] += np.repeat(x0, counts)
+    if scale != 1.0:
+        points *= scale
+    if shift is not None:
+        points += np.repeat(shift, counts, axis=0)
     first = np.cumsum(strokes) - strokes
     stroke_index = np.repeat(stroke_first[which] - first, strokes) + np.arange(strokes.sum())
     starts = block.starts[stroke_index] + np.repeat(row - point_first[which], strokes)
@@ -130,10 +133,10 @@ def _characters(texts: list[str]) -> tuple[TextBlock, np.ndarray, np.ndarray, np
     return table, glyph.ravel(), np.repeat(np.arange(len(texts)), lengths), lengths
 
 
-def text_widths(texts: list[str]) -> np.ndarray:
-    """Advance widths of many strings at cap height 1, without laying out their strokes."""
-    table, glyph, string, _ = _characters(texts)
-    return np.bincount(string, weights=table.widths[glyph], minlength=len(texts))
+@lru_cache(maxsize=65536)
+def text_width(text: str) -> float:
+    """Advance width of a string at cap height 1, without laying out its strokes (cached: node ids recur)."""
+    return sum(_glyph(char).width for char in text)
 
 
 def layout_block(texts: list[str]) -> TextBlock:
@@ -144,7 +147,8 @@ def layout_block(texts: list[str]) -> TextBlock:
     before = end - char_width                                       # advance from the block's start ...
     first = np.cumsum(lengths) - lengths
     start_of_string = np.repeat(before[first[lengths > 0]], lengths[lengths > 0])
-    chars = gather(table, glyph, before - start_of_string)          # ... made relative to each string's start
+    shift = np.column_stack([before - start_of_string, np.zeros(len(glyph))])
+    chars = gather(table, glyph, shift=shift)                       # ... made relative to each string's start
     widths = np.bincount(string, weights=char_width, minlength=len(texts))
     return TextBlock(chars.points, string[chars.owner], chars.starts, string[chars.stroke_owner], widths)
 
