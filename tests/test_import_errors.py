@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import json
+
 import ezdxf
 import numpy as np
 import pytest
 
-from fabline.model import load_network, save_network
+from fabline.model import load_network, network_to_dict, save_network
 from fabline.model.writers import write_dxf, write_obj
 from test_import_roundtrip import hypar_mesh, hypar_network
 
@@ -155,6 +157,13 @@ def bad_input(case: str, tmp_path, surface):
         write_obj(hypar_network(count=3), tmp_path / "curves.obj")
         return [tmp_path / "curves.obj", "--surface", surface, "--tolerance", "0"], \
             "--tolerance 0.0: must be a positive number of millimetres"
+    if case == "normals not perpendicular to the curves":
+        network = hypar_network(count=3)
+        network.lamellas[1].normals[:] = network.lamellas[1].curve[1] - network.lamellas[1].curve[0]  # along the curve
+        network.lamellas[1].normals /= np.linalg.norm(network.lamellas[1].normals, axis=1)[:, None]
+        path = tmp_path / "tilted.network.json"
+        _write(tmp_path, path.name, json.dumps(network_to_dict(network)))
+        return [path], f"{path}: lamella {network.lamellas[1].id}: normal 0 is not perpendicular to the curve"
     if case == "malformed JSON":
         path = _write(tmp_path, "m.json", '{\n "schema": "fabline.network/1",\n "units": "m",,\n}\n')
         return [path], f"{path}:3:"
@@ -165,7 +174,8 @@ CASES = ["malformed OBJ vertex", "malformed OBJ reference", "malformed DXF", "Na
          "self-overlapping curve", "curves that never cross", "a lamella that crosses nothing", "only one family",
          "duplicate lamella id", "four lamellas at one point", "a curve drawn twice", "missing normals", "mixed units: declared",
          "mixed units: surface scale", "mixed units: DXF surface", "unknown file type", "missing file",
-         "surface without faces", "mixed units: JSON", "zero tolerance", "malformed JSON"]
+         "surface without faces", "mixed units: JSON", "zero tolerance", "malformed JSON",
+         "normals not perpendicular to the curves"]
 
 
 @pytest.mark.parametrize("case", CASES)

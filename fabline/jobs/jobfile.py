@@ -8,6 +8,7 @@ string, got integer`). Paths in a job file are relative to the file's folder; ev
 from __future__ import annotations
 
 import inspect
+import math
 import os
 import re
 from dataclasses import dataclass, field
@@ -294,6 +295,8 @@ def _existing(base: Path, relative: str, where: str) -> Path:
 def _check_values(data: dict[str, Any], where: str) -> None:
     """Ranges and vocabularies: sheet size, profile, material, machine profile, positive numbers."""
     from fabline.export.machine import available_machines
+    from fabline.link import check_port
+    from fabline.nest.nester import ROTATION_STEPS
     from fabline.nest.stock import parse_sheet_size
     from fabline.unroll.materials import load_materials, parse_profile
 
@@ -318,5 +321,10 @@ def _check_values(data: dict[str, Any], where: str) -> None:
         if value is not None and not value > 0:
             raise FablineError(f"{where}: {key_path}: must be positive, got {value}")
     for key in ("kerf", "gap", "margin"):
-        if data["nest"][key] < 0:
-            raise FablineError(f"{where}: nest.{key}: must not be negative, got {data['nest'][key]}")
+        if not 0 <= data["nest"][key] < math.inf:
+            raise FablineError(f"{where}: nest.{key}: must be a finite number, not negative, got {data['nest'][key]}")
+    if data["nest"]["rotations"] not in ROTATION_STEPS:
+        raise FablineError(f"{where}: nest.rotations: must be one of {', '.join(map(str, ROTATION_STEPS))}, "
+                           f"got {data['nest']['rotations']}")
+    for port in data["machine"]["ports"]:
+        wrapped("machine.ports", check_port, port)

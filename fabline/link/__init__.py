@@ -1,6 +1,6 @@
 """The hardware link: stream G-code to GRBL 1.1 controllers over pyserial, journaled and resumable.
 
-Public surface: `Streamer` (with `Progress`, `StreamResult`, `StreamInterrupted`), `load_program`,
+Public surface: `Streamer` (with `Progress`, `StreamResult`, `StreamInterrupted`), `check_port`, `load_program`,
 `read_journal`/`default_journal_path`, the controller simulator (`GrblSimulator`, `Faults`,
 `SimulatorServer`, `executed_file_lines`) and the code tables. Importing this package registers the
 `sim://` URL scheme with pyserial, so `serial.serial_for_url("sim://grbl?time_scale=100")` works.
@@ -13,7 +13,7 @@ from fabline.link.journal import default_journal_path, read_journal
 from fabline.link.program import Program, load_program, parse_program
 from fabline.link.server import SimulatorServer, executed_file_lines
 from fabline.link.simulator import Faults, GrblSimulator
-from fabline.link.streamer import Progress, Streamer, StreamInterrupted, StreamResult
+from fabline.link.streamer import Progress, Streamer, StreamInterrupted, StreamResult, check_port
 
 if "fabline.link" not in serial.protocol_handler_packages:
     serial.protocol_handler_packages.append("fabline.link")
@@ -21,5 +21,5 @@ if "fabline.link" not in serial.protocol_handler_packages:
 __all__ = [
     "ALARM_CODES", "ERROR_CODES", "explain_alarm", "explain_error", "default_journal_path", "read_journal",
     "Program", "load_program", "parse_program", "Faults", "GrblSimulator", "SimulatorServer", "executed_file_lines", "Progress", "Streamer",
-    "StreamInterrupted", "StreamResult",
+    "StreamInterrupted", "StreamResult", "check_port",
 ]

@@ -16,6 +16,7 @@ line known to be executed after re-establishing the modal state. How it knows wh
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
 import re
@@ -88,6 +89,18 @@ class StreamInterrupted(FablineError):
 
 class _Lost(Exception):
     """The port failed (device vanished, socket closed)."""
+
+
+def check_port(url: str) -> None:
+    """Refuse a port URL whose scheme no pyserial handler (nor fabline's sim://) serves, before any work is done;
+    a device path or a URL with a known scheme passes (whether it opens is found out when it is opened)."""
+    scheme = url.split("://", 1)[0] if "://" in url else None
+    if scheme is None:
+        return
+    if not re.fullmatch(r"[a-z0-9_]+", scheme) or not any(
+            importlib.util.find_spec(f"{package}.protocol_{scheme}") for package in serial.protocol_handler_packages):
+        raise FablineError(f"port {url}: unknown scheme {scheme}:// (use a device such as /dev/ttyUSB0, or "
+                           "socket://, rfc2217://, loop:// or sim://)")
 
 
 class Streamer:

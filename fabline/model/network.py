@@ -78,6 +78,9 @@ class Network:
         return ids, xyz, normals
 
 
+MAX_NORMAL_TILT_DEG = 10.0  # surface normals along a lamella lie in its normal plane, up to sampling noise
+
+
 def validate(network: Network, source: str = "model") -> Network:
     """Check a network for the mistakes that would silently spoil fabrication; raise naming the element.
 
@@ -163,3 +166,10 @@ def _check_curve(lam: Lamella, where: str) -> None:
     bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
     if bad.size:
         raise FablineError(f"{where}: normal {bad[0]} is not a unit vector (length {norms[bad[0]]:.4g})")
+    tangents = np.vstack([steps[:1], steps[:-1] + steps[1:], steps[-1:]])
+    tangents /= np.linalg.norm(tangents, axis=1)[:, None]
+    tilt = np.degrees(np.arcsin(np.clip(np.abs(np.einsum("ij,ij->i", tangents, normals)), 0.0, 1.0)))
+    if tilt.max() > MAX_NORMAL_TILT_DEG:
+        k = int(np.argmax(tilt))
+        raise FablineError(f"{where}: normal {k} is not perpendicular to the curve ({tilt[k]:.1f} degrees off; the "
+                           f"surface normal along a lamella must be, within {MAX_NORMAL_TILT_DEG:g} degrees)")

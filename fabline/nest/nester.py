@@ -30,6 +30,7 @@ from fabline.unroll.parts import PartSet
 
 # Raster resolution for irregular parts: about 60 cells across the part, between these bounds (mm).
 FINEST_CELL, COARSEST_CELL, CELLS_ACROSS = 1.0, 5.0, 60.0
+ROTATION_STEPS = (1, 2, 4, 8, 12, 24, 36, 72)   # the rotation steps a part may take (360 / steps degrees)
 REMNANT_CELL = 20.0
 # Groups of at least this many identical parts are laid on a repeating pattern before the greedy fill.
 LATTICE_MIN_COPIES = 12
@@ -60,8 +61,8 @@ class NestOptions:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise FablineError(f"--{name} must be a non-negative number, got {value}")
-        if self.rotation_steps not in (1, 2, 4, 8, 12, 24, 36, 72):
-            raise FablineError(f"--rotations must be one of 1, 2, 4, 8, 12, 24, 36, 72, got {self.rotation_steps}")
+        if self.rotation_steps not in ROTATION_STEPS:
+            raise FablineError(f"--rotations must be one of {', '.join(map(str, ROTATION_STEPS))}, got {self.rotation_steps}")
         if self.time_limit <= 0:
             raise FablineError(f"--time-limit must be positive, got {self.time_limit}")
 

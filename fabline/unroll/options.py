@@ -96,6 +96,10 @@ class UnrollOptions:
         if self.usable_length <= 2.0 * self.overlap:
             raise FablineError(f"usable sheet length {self.usable_length:g} mm is not longer than two overlaps "
                                f"of {self.overlap:g} mm")
+        largest_hole = min(self.profile.h / 4.0, self.overlap / 6.0)  # half a hole of material around each of the six
+        if self.screw_hole > largest_hole:
+            raise FablineError(f"screw hole {self.screw_hole:g} mm does not fit a seam of the {self.profile.h:g} mm strip "
+                               f"with a {self.overlap:g} mm overlap (at most min(h/4, overlap/6) = {largest_hole:g} mm)")
         if self.singularity not in SINGULARITY_MODES:
             raise FablineError(f"singularity mode {self.singularity!r}: use one of {', '.join(SINGULARITY_MODES)}")
         if not 0 < self.min_crossing_angle <= 90:
