@@ -12,6 +12,7 @@ import uuid
 import pytest
 import serial
 
+from fabline.cli import main
 from fabline.link import executed_file_lines
 from fabline.link.protocol_sim import close_simulator
 
@@ -94,6 +95,22 @@ def test_bad_file_is_refused_before_the_port_is_touched(cli, gcode, simulator, t
     gcode.write_bytes(content)
     code, _, err = cli("stream", gcode, "--port", url())
     assert code == 2 and message in err and err.count("\n") == 1
+    assert written(tmp_path) == {"sheet-03.gcode"}
+
+
+@pytest.mark.parametrize("option, value, message", [
+    ("--baud", "0", "argument --baud: must be a positive whole number, got '0'"),
+    ("--baud", "fast", "argument --baud: must be a positive whole number, got 'fast'"),
+    ("--connect-timeout", "-1", "argument --connect-timeout: must be a positive number, got '-1'"),
+    ("--connect-timeout", "inf", "argument --connect-timeout: must be a positive number, got 'inf'"),
+])
+def test_option_that_is_not_a_positive_number_is_refused(capsys, gcode, simulator, tmp_path, option, value, message):
+    url, log = simulator
+    with pytest.raises(SystemExit) as stop:
+        main(["stream", str(gcode), "--port", url(), option, value])
+    out, err = capsys.readouterr()
+    assert stop.value.code == 2 and out == ""
+    assert err.splitlines()[-1] == f"fabline stream: error: {message}"
     assert written(tmp_path) == {"sheet-03.gcode"}
 
 

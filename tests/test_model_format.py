@@ -84,6 +84,8 @@ def _break(data, how):
         lam["nodes"][1] = "NOPE"
     elif how == "bad family":
         lam["family"] = "C"
+    elif how == "meta not an object":
+        data["meta"] = [1]
     return data
 
 
@@ -102,6 +104,7 @@ CASES = {
     "missing units": "missing 'units'",
     "unknown node": "refers to node NOPE",
     "bad family": "unknown family 'C'",
+    "meta not an object": "'meta' must be an object",
 }
 
 
@@ -126,3 +129,17 @@ def test_failed_design_writes_nothing(cli, tmp_path):
     code, _, stderr = cli("design", "enneper", "--size", "40x60", "-o", out)
     assert code == 2 and "overlaps itself" in stderr
     assert not out.exists() and not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("args, expected", [
+    (("enneper", "--spacing", "100"), "spacing 100 m leaves 1 node along a grid line"),
+    (("enneper", "--spacing", "0.0001"), "spacing 0.0001 m makes a 120001 x 89999 grid"),
+    (("helicoid", "--spacing", "1e-5"), "spacing 1e-05 m makes a"),
+    (("catenoid", "--count", "100000"), "count 100000 (height 3 m, waist 1 m) makes a"),
+    (("enneper", "--spacing", "nan"), "size, spacing and k_max must be positive finite numbers"),
+])
+def test_design_grid_too_coarse_or_too_large_is_one_line(cli, tmp_path, args, expected):
+    out = tmp_path / "never.json"
+    code, stdout, stderr = cli("design", *args, "-o", out)
+    assert code == 2 and stdout == "" and stderr.count("\n") == 1 and expected in stderr, stderr
+    assert not list(tmp_path.iterdir())

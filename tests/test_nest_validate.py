@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import copy
+import json
 
 import numpy as np
 import pytest
 
-from fabline.nest import CommonCut, Nesting, NestOptions, Placement, Sheet, StockItem, nest, validate_nesting
+from fabline.nest import (CommonCut, Nesting, NestOptions, Placement, Sheet, StockItem, nest, nesting_to_dict,
+                          validate_nesting)
 from fabline.nest.synthetic import pavilion_like_parts
 from fabline.unroll import Part, PartSet
 
@@ -116,3 +118,43 @@ def test_broken_real_nestings_are_caught(real_nesting, damage, expected):
         b.x, b.y, b.rotation = a.x + 70 + 1.0, a.y, a.rotation
     problems = validate_nesting(nesting, parts)
     assert any(expected in p for p in problems), problems
+
+
+def _mistype(data: dict, field: str) -> None:
+    sheet = data["sheets"][0]
+    if field == "sheets":
+        data["sheets"] = 5
+    elif field == "sheet":
+        data["sheets"][0] = "S1"
+    elif field == "placements":
+        sheet["placements"] = {"part": "A"}
+    elif field == "placement":
+        sheet["placements"][0] = 7
+    elif field == "x":
+        sheet["placements"][0]["x"] = "abc"
+    elif field == "rotation":
+        sheet["placements"][1]["rotation"] = None
+    elif field == "width":
+        del sheet["width"]
+    elif field == "kerf":
+        data["kerf"] = [0.2]
+    elif field == "common cut":
+        sheet["common_cuts"] = [{"parts": ["A", "B"], "start": [0, 0], "end": 5}]
+
+
+@pytest.mark.parametrize("field, expected", [
+    ("sheets", "'sheets' must be a list"), ("sheet", "sheets[0]: expected an object"),
+    ("placements", "sheet S1: 'placements' must be a list"), ("placement", "placements[0]: expected an object"),
+    ("x", "placements[0]: 'x' must be a finite number"), ("rotation", "placements[1]: 'rotation' must be a finite"),
+    ("width", "sheet S1: missing 'width'"), ("kerf", "'kerf' must be a finite number"),
+    ("common cut", "common_cuts[0]: 'end' must be [x, y]"),
+])
+def test_mistyped_nesting_field_is_named_on_one_line(cli, tmp_path, field, expected):
+    data = nesting_to_dict(two_rectangles(200)[0])
+    _mistype(data, field)
+    path = tmp_path / "nesting.json"
+    path.write_text(json.dumps(data))
+    code, stdout, stderr = cli("nest", "--check", path)
+    assert code == 2 and stdout == "" and stderr.count("\n") == 1, stderr
+    assert str(path) in stderr and expected in stderr, stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["nesting.json"]

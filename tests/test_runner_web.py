@@ -79,6 +79,23 @@ def test_the_server_binds_to_localhost_only_by_default():
     assert args.host == "127.0.0.1"
 
 
+@pytest.mark.parametrize("option, value, message", [
+    ("--port", "99999", "argument --port: must be a positive whole number, at most 65535, got '99999'"),
+    ("--port", "0", "argument --port: must be a positive whole number, at most 65535, got '0'"),
+    ("--scan", "-1", "argument --scan: must be a positive number, got '-1'"),
+    ("--scan", "nan", "argument --scan: must be a positive number, got 'nan'"),
+])
+def test_serve_refuses_an_option_that_is_not_a_positive_number(capsys, tmp_path, option, value, message):
+    from fabline.cli import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["runner", "serve", "--jobs", str(tmp_path / "jobs"), option, value])
+    out, err = capsys.readouterr()
+    assert stop.value.code == 2 and out == ""
+    assert err.splitlines()[-1] == f"fabline runner serve: error: {message}"
+    assert not list(tmp_path.iterdir())
+
+
 def test_page_in_headless_chromium_confirm_sheets_and_watch_progress_reach_done(served):
     if not os.path.exists(CHROMIUM):
         pytest.skip(f"{CHROMIUM} is missing (CI installs it: apt-get install -y chromium)")

@@ -132,6 +132,12 @@ def test_a_scale_bar_corrects_a_wrong_tag_size(cli, model_file, simulated, tmp_p
       "--scale-bar", "0", "4", "1.5m"], "--scale-bar 0 4 1.5m: expected two tag ids and a distance in mm"),
     (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out",
       "--scale-min-cell", "-1"], "--scale-min-cell -1: must be a number of px, 0 or more"),
+    *[(["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out",
+        option, value], message) for option, value, message in [
+        ("--tolerance", "0", "--tolerance 0: must be a distance in mm, more than 0"),
+        ("--tolerance", "-5", "--tolerance -5: must be a distance in mm, more than 0"),
+        ("--tolerance", "nan", "--tolerance nan: must be a distance in mm, more than 0"),
+        ("--min-views", "0", "--min-views 0: a tag must be seen in at least 2 photos")]],
     (["survey", "calibrate", "{tmp}", "-o", "{tmp}/cam.json"], "no photos"),
     (["survey", "simulate", "--model", "{model}", "-o", "{tmp}/out", "--size", "big"], "--size 'big': expected WxH"),
 ])
@@ -146,7 +152,7 @@ def test_bad_input_is_one_line_exit_2_nothing_written(cli, model_file, simulated
     (tmp_path / "ghost.json").write_text(json.dumps(ghost))
     fill = {"tmp": str(tmp_path), "sim": str(simulated), "model": str(model_file)}
     code, out, err = cli(*[a.format(**fill) for a in args])
-    assert code == 2
+    assert code == 2 and out == ""
     assert err.startswith("fabline survey: error: ") and message in err and err.count("\n") == 1
     assert not (tmp_path / "out").exists() and not (tmp_path / "cam.json").exists()
 

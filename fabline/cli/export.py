@@ -9,6 +9,8 @@ from fabline.errors import FablineError
 from fabline.fileio import check_outputs
 from fabline.export import ToolpathOptions, check_gcode, export_nesting, load_machine
 
+LISTED_PROBLEMS = 20  # gcode-check lists this many problems, then counts the rest
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add `export` and `gcode-check`."""
@@ -62,8 +64,10 @@ def run_export(args: argparse.Namespace) -> int:
 def run_check(args: argparse.Namespace) -> int:
     """Check one program; exit 1 when problems were found."""
     report = check_gcode(args.file, load_machine(args.machine))
-    for problem in report.problems:
+    for problem in report.problems[:LISTED_PROBLEMS]:
         print(f"{args.file}: {problem}")
+    if len(report.problems) > LISTED_PROBLEMS:
+        print(f"{args.file}: ... and {len(report.problems) - LISTED_PROBLEMS} more")
     s = report.summary
     print(f"{args.file}: {report.lines} lines, {s.moves} moves, cut {s.cut_length:.3f} mm, mark {s.mark_length:.3f} mm, "
           f"travel {s.travel:.3f} mm, estimated {_duration(s.time)} ({s.time:.1f} s)")

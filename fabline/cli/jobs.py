@@ -9,6 +9,7 @@ import sys
 import threading
 from pathlib import Path
 
+from fabline.cli.link import positive
 from fabline.errors import FablineError
 
 RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm")
@@ -29,13 +30,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     commands = runner.add_subparsers(dest="runner_command", metavar="ACTION", required=True)
     serve = commands.add_parser("serve", help="run the queue, the machines and the web page until interrupted")
     serve.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1, this computer only)")
-    serve.add_argument("--port", type=int, default=8080, help="web page port (default 8080)")
+    serve.add_argument("--port", type=positive(int, 65535), default=8080, help="web page port (default 8080)")
     serve.add_argument("--machine", action="append", default=[], metavar="NAME=PORT",
                        help="a machine and its port, repeatable (default: sim1=sim://sim1)")
     serve.add_argument("--token", help="the token for state-changing requests (default: a new random one, printed)")
     serve.add_argument("--auto-confirm", action="store_true",
                        help="start every sheet without an operator's confirmation (sheets fed automatically)")
-    serve.add_argument("--scan", type=float, default=2.0, help="seconds between scans of the jobs folder")
+    serve.add_argument("--scan", type=positive(float), default=2.0, help="seconds between scans of the jobs folder")
     serve.set_defaults(func=run_serve)
     submit = commands.add_parser("submit", help="queue a job file, or ready G-code programs (one per sheet)")
     submit.add_argument("job", nargs="?", help="a job file")

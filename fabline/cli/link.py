@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import os
 import select
 import signal
@@ -12,6 +13,7 @@ import termios
 import threading
 import tty
 import urllib.parse
+from typing import Callable
 
 from tqdm import tqdm
 
@@ -28,7 +30,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     stream.add_argument("gcode", help="G-code file")
     stream.add_argument("--port", required=True,
                         help="serial device or pyserial URL: /dev/ttyUSB0, socket://HOST:PORT, rfc2217://..., sim://grbl")
-    stream.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    stream.add_argument("--baud", type=positive(int), default=115200, help="baud rate (default 115200)")
     stream.add_argument("--check", action="store_true", help="run the program through GRBL check mode ($C) first")
     stream.add_argument("--resume", action="store_true", help="continue an interrupted job from its journal")
     stream.add_argument("--restart", action="store_true",
@@ -40,7 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     stream.add_argument("--mode", choices=MODES, default="counting",
                         help="character counting (default) or simple send-response")
     stream.add_argument("--status-rate", type=float, default=5.0, help="status reports per second (default 5)")
-    stream.add_argument("--connect-timeout", type=float, default=5.0, help="seconds to wait for GRBL (default 5)")
+    stream.add_argument("--connect-timeout", type=positive(float), default=5.0, help="seconds to wait for GRBL (default 5)")
     stream.add_argument("--reconnect-timeout", type=float, default=30.0,
                         help="seconds to wait for a dropped port to come back (default 30; 0 = stop at once)")
     stream.set_defaults(func=_stream)
@@ -56,6 +58,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--fault", action="append", default=[], metavar="KEY=VALUE",
                      help="inject a fault: drop_at=BYTES, corrupt_at=BYTES, error_line=N, alarm_line=N, stall_at=BYTES ...")
     sim.set_defaults(func=_grbl_sim)
+
+
+def positive(kind: type, most: float = math.inf) -> Callable[[str], int | float]:
+    """An argparse type: a finite number of `kind` (int or float) above 0 and at most `most`."""
+
+    def parse(text: str) -> int | float:
+        try:
+            value = kind(text)
+        except ValueError:
+            value = math.nan
+        if not (0 < value <= most and math.isfinite(value)):
+            bound = f", at most {most:g}" if most < math.inf else ""
+            raise argparse.ArgumentTypeError(
+                f"must be a positive {'whole number' if kind is int else 'number'}{bound}, got {text!r}")
+        return value
+
+    return parse
 
 
 def _stream(args: argparse.Namespace) -> int:

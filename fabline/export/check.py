@@ -39,11 +39,16 @@ class CheckReport:
 def check_gcode(path: str | os.PathLike, profile: MachineProfile) -> CheckReport:
     """Parse a G-code file and check it against `profile`; an unreadable file is a FablineError."""
     try:
-        text = open(path, encoding="ascii", errors="strict").read()
+        data = open(path, "rb").read()
     except FileNotFoundError:
         raise FablineError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FablineError(f"{path}: cannot read as ASCII G-code: {exc}") from None
+    except OSError as exc:
+        raise FablineError(f"{path}: cannot read: {exc}") from None
+    try:
+        text = data.decode("ascii")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise FablineError(f"{path}:{line}: byte 0x{data[exc.start]:02x} is not ASCII (G-code must be ASCII)") from None
     return check_program(text, profile, str(path))
 
 
@@ -72,6 +77,14 @@ def check_program(text: str, profile: MachineProfile, source: str = "program") -
     state.finish()
     report.summary = summarise(state.moves, profile.acceleration, profile.junction_deviation)
     return report
+
+
+def _non_negative(word, previous: float, where: str, problems: list[str]) -> float:
+    """An F, S or P word's value; a negative one, which GRBL refuses (error:4), is reported and `previous` kept."""
+    if word.value < 0:
+        problems.append(f"{where}: {word.letter}{word.value:g} is negative (GRBL refuses it: error:4)")
+        return previous
+    return float(word.value)
 
 
 class _State:
@@ -108,9 +121,9 @@ class _State:
             if word is not None and word not in self.profile.words:
                 problems.append(f"{where}: {word} is not supported by {self.profile.name}")
             if letter == "F":
-                self.feed = float(value)
+                self.feed = _non_negative(gcode.word, self.feed, where, problems)
             elif letter == "S":
-                self.speed = float(value)
+                self.speed = _non_negative(gcode.word, self.speed, where, problems)
             elif word in ("M3", "M4"):
                 self.spindle = True
                 self.stop_pending = True
@@ -122,7 +135,7 @@ class _State:
             elif word == "G91":
                 self.absolute = False
             elif word == "G4":
-                self.dwell += float(gcode.params["P"].value) if "P" in gcode.params else 0.0
+                self.dwell += _non_negative(gcode.params["P"], 0.0, where, problems) if "P" in gcode.params else 0.0
                 self.stop_pending = True
             elif letter == "G" and int(value) in MOTION_WORDS and value == int(value):
                 self.motion = int(value)
@@ -133,9 +146,9 @@ class _State:
             elif word.letter in "XYZIJ":
                 motion_params[word.letter] = float(word.value)
             elif word.letter == "F":
-                self.feed = float(word.value)
+                self.feed = _non_negative(word, self.feed, where, problems)
             elif word.letter == "S":
-                self.speed = float(word.value)
+                self.speed = _non_negative(word, self.speed, where, problems)
         if motion_params and self.motion is not None and any(k in motion_params for k in "XYZ"):
             self._move(motion_params, where, problems)
 

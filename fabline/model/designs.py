@@ -18,6 +18,7 @@ from fabline.errors import FablineError
 from fabline.model.network import Lamella, Network, Node
 
 SAMPLE_STEP_M = 0.02  # centreline sample spacing: spline arc lengths are then exact to well below 0.01 mm/m
+MAX_GRID_NODES = 2_000_000  # a larger (a, b) grid would not fit in memory
 
 
 @dataclass
@@ -167,10 +168,24 @@ def _assign_kinds(nodes: dict[str, Node], lamellas: list[Lamella]) -> None:
         node.kind = "grid" if nid not in ends else "support" if node.xyz[2] <= low else "edge-end"
 
 
+def _check_grid(design: str, option: str, a_count: int, b_count: int) -> None:
+    """Refuse, naming `option`, a grid with under two nodes along a line (no lamella) or over MAX_GRID_NODES nodes."""
+    if min(a_count, b_count) < 2:
+        raise FablineError(f"design {design}: {option} leaves {min(a_count, b_count)} node along a grid line "
+                           f"(a lamella needs at least 2)")
+    if a_count * b_count > MAX_GRID_NODES:
+        raise FablineError(f"design {design}: {option} makes a {a_count} x {b_count} grid, {a_count * b_count:,} nodes "
+                           f"(at most {MAX_GRID_NODES:,})")
+
+
+def _axis_count(arc_length: Callable[[float], float], extent: float, spacing: float) -> int:
+    """How many nodes `spacing` apart in arc length fit on the positive half of the axis, beyond the centre."""
+    return int(np.floor(arc_length(extent) / spacing + 1e-9))
+
+
 def _axis_grid(arc_length: Callable[[float], float], extent: float, spacing: float) -> np.ndarray:
     """Parameters from -extent to +extent whose nodes are `spacing` apart in arc length along the axis."""
-    total = arc_length(extent)
-    count = int(np.floor(total / spacing + 1e-9))
+    count = _axis_count(arc_length, extent, spacing)
     targets = spacing * np.arange(-count, count + 1)
     return np.array([brentq(lambda p, s=s: arc_length(p) - s, -extent - 1, extent + 1) if s else 0.0 for s in targets])
 
@@ -196,8 +211,8 @@ def enneper_network(size: tuple[float, float] = (9.0, 12.0), spacing: float = 0.
     The scale is set so the largest principal curvature (at the centre) is `k_max` 1/m; the parameter
     domain (an ellipse, diamond or rectangle in u, v) is sized so the footprint spans `size`.
     """
-    if spacing <= 0 or k_max <= 0 or min(size) <= 0:
-        raise FablineError("design enneper: size, spacing and k_max must be positive")
+    if not all(0 < v < np.inf for v in (spacing, k_max, *size)):
+        raise FablineError("design enneper: size, spacing and k_max must be positive finite numbers")
     scale = 1.0 / (3.0 * k_max)
     surface = enneper_surface(scale)
     half_u, half_v, reach = _fit_domain(surface, boundary, size)
@@ -208,6 +223,8 @@ def enneper_network(size: tuple[float, float] = (9.0, 12.0), spacing: float = 0.
     def axis_length(p: float) -> float:
         return 6 * scale * (p + p**3 / 3)
 
+    _check_grid("enneper", f"spacing {spacing:g} m", 2 * _axis_count(axis_length, half_u, spacing) + 1,
+                2 * _axis_count(axis_length, half_v, spacing) + 1)
     u_values = _axis_grid(axis_length, half_u, spacing)
     v_values = _axis_grid(axis_length, half_v, spacing)
     meta = {"design": "enneper", "size_m": list(size), "spacing_m": spacing, "k_max": k_max, "boundary": boundary,
@@ -241,13 +258,14 @@ def catenoid_network(waist: float = 1.0, height: float = 3.0, count: int = 16) -
 
     Lamellas follow theta +/- z/waist = const and run from z = -height/2 to +height/2.
     """
-    if waist <= 0 or height <= 0 or count < 3:
-        raise FablineError("design catenoid: waist and height must be positive and count at least 3")
+    if not (0 < waist < np.inf and 0 < height < np.inf and count >= 3):
+        raise FablineError("design catenoid: waist and height must be positive finite numbers and count at least 3")
     surface = catenoid_surface(waist)
     step = 2 * np.pi / count
     reach = int(np.floor(height / waist / step + 1e-9))
     # a = theta + z/w, b = theta - z/w: node (i, j) at a = i*step, b = (i - d)*step with |z| <= height/2.
     values = step * np.arange(-reach, count + reach)
+    _check_grid("catenoid", f"count {count} (height {height:g} m, waist {waist:g} m)", len(values), len(values))
     offset = reach
 
     def inside(a, b):
@@ -293,14 +311,16 @@ def helicoid_network(pitch: float = 6.0, radius: float = 3.0, turns: float = 0.5
 
     The patch spans radii -radius..+radius and `turns` turns; the rulings are `spacing` apart on the outer helix.
     """
-    if pitch <= 0 or radius <= 0 or turns <= 0 or spacing <= 0:
-        raise FablineError("design helicoid: pitch, radius, turns and spacing must be positive")
+    if not all(0 < v < np.inf for v in (pitch, radius, turns, spacing)):
+        raise FablineError("design helicoid: pitch, radius, turns and spacing must be positive finite numbers")
     surface = helicoid_surface(pitch)
     count = int(np.floor(radius / spacing + 1e-9))
     rho = spacing * np.arange(-count, count + 1)
     outer = np.hypot(radius, pitch / (2 * np.pi))
     angle = 2 * np.pi * turns
-    theta = np.linspace(0, angle, max(2, int(np.ceil(angle * outer / spacing))) + 1)
+    theta_count = max(2, int(np.ceil(angle * outer / spacing))) + 1
+    _check_grid("helicoid", f"spacing {spacing:g} m", 2 * count + 1, theta_count)
+    theta = np.linspace(0, angle, theta_count)
     return network_on_grid(surface, rho, theta, lambda a, b: np.ones(np.broadcast(a, b).shape, bool), "helicoid",
                            {"design": "helicoid", "pitch_m": pitch, "radius_m": radius, "turns": turns, "spacing_m": spacing})
 

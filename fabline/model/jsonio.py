@@ -66,7 +66,10 @@ def network_from_dict(data: Any, source: str = "model") -> Network:
         curve = _array(raw, "curve", where, (-1, 3))
         lamellas.append(Lamella(lid, str(raw.get("family", "")), [str(n) for n in node_ids], curve,
                                 _array(raw, "normals", where, (-1, 3))))
-    network = Network(str(data["units"]), nodes, lamellas, str(data.get("name", "")), dict(data.get("meta", {})))
+    meta = data.get("meta", {})
+    if not isinstance(meta, dict):
+        raise FablineError(f"{source}: 'meta' must be an object")
+    network = Network(str(data["units"]), nodes, lamellas, str(data.get("name", "")), dict(meta))
     return validate(network, source)
 
 

@@ -7,6 +7,7 @@ part's own origin, then translated by (x, y), in sheet millimetres with the orig
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -100,29 +101,74 @@ def nesting_to_dict(nesting: Nesting) -> dict[str, Any]:
 
 
 def nesting_from_dict(data: Any, source: str = "nesting") -> Nesting:
-    """Build a nesting from its JSON form; errors name the sheet or placement at fault."""
+    """Build a nesting from its JSON form; errors name the field and the sheet or placement at fault."""
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         raise FablineError(f"{source}: not a {SCHEMA} file")
     if not isinstance(data.get("parts_file"), str):
         raise FablineError(f"{source}: missing 'parts_file'")
     sheets = []
-    for i, raw in enumerate(data.get("sheets") or []):
-        where = f"{source}: sheets[{i}]"
-        try:
-            sheet = Sheet(str(raw["id"]), float(raw["width"]), float(raw["height"]), stock=str(raw.get("stock", "")))
-            where = f"{source}: sheet {sheet.id}"
-            for k, p in enumerate(raw.get("placements", [])):
-                sheet.placements.append(Placement(str(p["part"]), float(p["x"]), float(p["y"]), float(p.get("rotation", 0.0))))
-            for c in raw.get("common_cuts", []):
-                sheet.common_cuts.append(CommonCut(tuple(map(str, c["parts"])), tuple(map(float, c["start"])),
-                                                   tuple(map(float, c["end"]))))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise FablineError(f"{where}: malformed entry ({exc})") from None
+    for i, raw in enumerate(_typed(data, "sheets", list, source)):
+        raw = _object(raw, f"{source}: sheets[{i}]")
+        if "id" not in raw:
+            raise FablineError(f"{source}: sheets[{i}]: missing 'id'")
+        where = f"{source}: sheet {raw['id']}"
+        sheet = Sheet(str(raw["id"]), _number(raw, "width", where), _number(raw, "height", where),
+                      stock=str(raw.get("stock", "")))
+        for k, p in enumerate(_typed(raw, "placements", list, where)):
+            at = f"{where}: placements[{k}]"
+            p = _object(p, at)
+            if "part" not in p:
+                raise FablineError(f"{at}: missing 'part'")
+            sheet.placements.append(Placement(str(p["part"]), _number(p, "x", at), _number(p, "y", at),
+                                              _number(p, "rotation", at, 0.0)))
+        for k, c in enumerate(_typed(raw, "common_cuts", list, where)):
+            at = f"{where}: common_cuts[{k}]"
+            c = _object(c, at)
+            parts = c.get("parts")
+            if not isinstance(parts, list) or len(parts) != 2:
+                raise FablineError(f"{at}: 'parts' must name two parts")
+            sheet.common_cuts.append(CommonCut(tuple(map(str, parts)), _point(c, "start", at), _point(c, "end", at)))
         if sheet.width <= 0 or sheet.height <= 0:
             raise FablineError(f"{where}: width and height must be positive")
         sheets.append(sheet)
-    return Nesting(sheets, data["parts_file"], float(data.get("kerf", 0.0)), float(data.get("gap", 0.0)),
-                   float(data.get("margin", 0.0)), dict(data.get("summary", {})), list(data.get("remnants", [])))
+    return Nesting(sheets, data["parts_file"], _number(data, "kerf", source, 0.0), _number(data, "gap", source, 0.0),
+                   _number(data, "margin", source, 0.0), dict(_typed(data, "summary", dict, source)),
+                   list(_typed(data, "remnants", list, source)))
+
+
+def _typed(raw: dict, key: str, kind: type, where: str) -> Any:
+    """raw[key], empty when absent, which must be a list or an object (`kind`)."""
+    value = raw.get(key, kind())
+    if not isinstance(value, kind):
+        raise FablineError(f"{where}: '{key}' must be {'a list' if kind is list else 'an object'}")
+    return value
+
+
+def _object(raw: Any, where: str) -> dict:
+    if not isinstance(raw, dict):
+        raise FablineError(f"{where}: expected an object, got {raw!r}")
+    return raw
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _number(raw: dict, key: str, where: str, default: float | None = None) -> float:
+    """raw[key] as a float (`default` when absent; required when there is none): a finite number."""
+    if key not in raw and default is None:
+        raise FablineError(f"{where}: missing '{key}'")
+    value = raw.get(key, default)
+    if not _finite(value):
+        raise FablineError(f"{where}: '{key}' must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _point(raw: dict, key: str, where: str) -> tuple[float, float]:
+    value = raw.get(key)
+    if not isinstance(value, list) or len(value) != 2 or not all(map(_finite, value)):
+        raise FablineError(f"{where}: '{key}' must be [x, y], two finite numbers")
+    return float(value[0]), float(value[1])
 
 
 def load_nesting(path: str | os.PathLike) -> Nesting:

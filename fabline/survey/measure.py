@@ -100,11 +100,15 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
                    out_dir: str | os.PathLike, options: MeasureOptions | None = None) -> dict:
     """Run the whole survey and write `survey.json` and the pictures into `out_dir`; return the record."""
     options = options or MeasureOptions()
+    if not (options.tolerance_mm > 0 and np.isfinite(options.tolerance_mm)):
+        raise FablineError(f"--tolerance {options.tolerance_mm:g}: must be a distance in mm, more than 0")
+    if options.min_views < 2:
+        raise FablineError(f"--min-views {options.min_views}: a tag must be seen in at least 2 photos to be measured")
+    if not options.scale_min_cell_px >= 0:
+        raise FablineError(f"--scale-min-cell {options.scale_min_cell_px:g}: must be a number of px, 0 or more")
     model = network.in_mm()
     check_tag_map(tag_map, model)
     check_scale_bars(options.scale_bars, tag_map)
-    if not options.scale_min_cell_px >= 0:
-        raise FablineError(f"--scale-min-cell {options.scale_min_cell_px:g}: must be a number of px, 0 or more")
     detections, problems = detect_photos(photos, camera, set(tag_map.node_of_tag))
     observations = [Observation(k, d.tag_id, camera.normalise(d.corners), cell_width_px(d.corners) < options.scale_min_cell_px)
                     for k, found in detections.items() for d in found]
