@@ -8,12 +8,11 @@ string, got integer`). Paths in a job file are relative to the file's folder; ev
 from __future__ import annotations
 
 import inspect
-import math
 import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 try:
     import tomllib
@@ -21,6 +20,9 @@ except ImportError:  # Python 3.10
     import tomli as tomllib
 
 from fabline.errors import FablineError
+
+if TYPE_CHECKING:  # the nesting stage pulls in shapely; a job file is read before any stage runs
+    from fabline.nest.nester import NestOptions
 
 STAGES = ("unroll", "nest", "export", "stream", "survey", "report")
 """Pipeline stages after the model, in the order they run; a job lists the ones it wants."""
@@ -292,11 +294,18 @@ def _existing(base: Path, relative: str, where: str) -> Path:
     return path.resolve()
 
 
+def nest_options(nest: dict[str, Any]) -> "NestOptions":
+    """The nesting stage's options from a job's [nest] table."""
+    from fabline.nest.nester import NestOptions
+
+    return NestOptions(kerf=nest["kerf"], gap=nest["gap"], margin=nest["margin"], rotation_steps=nest["rotations"],
+                       time_limit=nest["time_limit"])
+
+
 def _check_values(data: dict[str, Any], where: str) -> None:
     """Ranges and vocabularies: sheet size, profile, material, machine profile, positive numbers."""
     from fabline.export.machine import available_machines
     from fabline.link import check_port
-    from fabline.nest.nester import ROTATION_STEPS
     from fabline.nest.stock import parse_sheet_size
     from fabline.unroll.materials import load_materials, parse_profile
 
@@ -316,15 +325,12 @@ def _check_values(data: dict[str, Any], where: str) -> None:
     if machine not in available_machines() and not machine.endswith(".toml"):
         raise FablineError(f"{where}: machine.profile: unknown machine {machine!r} "
                            f"(use one of {', '.join(available_machines())} or a .toml file)")
-    for key_path, value in (("stock.count", data["stock"]["count"]), ("nest.time_limit", data["nest"]["time_limit"]),
-                            ("machine.time_scale", data["machine"]["time_scale"])):
+    for key_path, value in (("stock.count", data["stock"]["count"]), ("machine.time_scale", data["machine"]["time_scale"])):
         if value is not None and not value > 0:
             raise FablineError(f"{where}: {key_path}: must be positive, got {value}")
-    for key in ("kerf", "gap", "margin"):
-        if not 0 <= data["nest"][key] < math.inf:
-            raise FablineError(f"{where}: nest.{key}: must be a finite number, not negative, got {data['nest'][key]}")
-    if data["nest"]["rotations"] not in ROTATION_STEPS:
-        raise FablineError(f"{where}: nest.rotations: must be one of {', '.join(map(str, ROTATION_STEPS))}, "
-                           f"got {data['nest']['rotations']}")
+    try:
+        nest_options(data["nest"]).check(name=lambda key: f"nest.{key}")
+    except FablineError as exc:
+        raise FablineError(f"{where}: {exc}") from None
     for port in data["machine"]["ports"]:
         wrapped("machine.ports", check_port, port)

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from fabline.errors import FablineError
 from fabline.fileio import atomic_output, write_json
-from fabline.jobs.jobfile import JobSpec, load_job_file
+from fabline.jobs.jobfile import JobSpec, load_job_file, nest_options
 
 if TYPE_CHECKING:  # the model stage pulls in scipy; the runner imports this package and must start fast
     from fabline.model import Network
@@ -147,7 +147,7 @@ def _unroll(result: JobResult) -> None:
 
 def _nest(result: JobResult) -> None:
     from fabline.nest import save_nesting
-    from fabline.nest.nester import NestOptions, nest
+    from fabline.nest.nester import nest
     from fabline.nest.stock import StockItem, load_stock, parse_sheet_size
 
     spec = result.spec
@@ -156,9 +156,7 @@ def _nest(result: JobResult) -> None:
     else:
         width, height = parse_sheet_size(spec.stock["sheet"])
         stock = [StockItem(spec.stock["sheet"], width, height, spec.stock["count"])]
-    options = NestOptions(kerf=spec.nest["kerf"], gap=spec.nest["gap"], margin=spec.nest["margin"],
-                          rotation_steps=spec.nest["rotations"], time_limit=spec.nest["time_limit"])
-    result.nesting = nest(result.partset, stock, options, parts_file="parts.json").nesting
+    result.nesting = nest(result.partset, stock, nest_options(spec.nest), parts_file="parts.json").nesting
     save_nesting(result.nesting, spec.output("nesting.json"))
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from shapely import affinity
@@ -55,16 +56,18 @@ class NestOptions:
         """Distance kept between parts: the web of material left (gap) plus the width the beam burns (kerf)."""
         return self.gap + self.kerf
 
-    def check(self) -> None:
-        """Reject nonsensical settings with a one-line message."""
-        for name in ("kerf", "gap", "margin"):
-            value = getattr(self, name)
+    def check(self, name: Callable[[str], str] = lambda key: "--" + key.replace("_", "-")) -> None:
+        """Reject nonsensical settings with a one-line message naming the setting as `name(key)` gives it (the
+        command line's option by default; a job file names its own keys)."""
+        for key in ("kerf", "gap", "margin"):
+            value = getattr(self, key)
             if not (math.isfinite(value) and value >= 0):
-                raise FablineError(f"--{name} must be a non-negative number, got {value}")
+                raise FablineError(f"{name(key)}: must be a finite number, not negative, got {value}")
         if self.rotation_steps not in ROTATION_STEPS:
-            raise FablineError(f"--rotations must be one of {', '.join(map(str, ROTATION_STEPS))}, got {self.rotation_steps}")
-        if self.time_limit <= 0:
-            raise FablineError(f"--time-limit must be positive, got {self.time_limit}")
+            raise FablineError(f"{name('rotations')}: must be one of {', '.join(map(str, ROTATION_STEPS))}, "
+                               f"got {self.rotation_steps}")
+        if not self.time_limit > 0:
+            raise FablineError(f"{name('time_limit')}: must be positive, got {self.time_limit}")
 
 
 @dataclass
