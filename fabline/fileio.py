@@ -7,7 +7,7 @@ import os
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, TextIO
 
 from fabline.errors import FablineError
 
@@ -86,3 +86,15 @@ def check_outputs(files: tuple = (), folders: tuple = ()) -> None:
             tempfile.TemporaryFile(dir=existing).close()  # it takes files (not read-only, not /proc)
         except OSError as exc:
             raise FablineError(f"{folder}: cannot write there: {exc.strerror}") from None
+
+
+def open_append(path: str | os.PathLike, what: str, **options) -> TextIO:
+    """Open an ASCII log (a journal, an exchange log) for appending, creating its folder; a place that cannot
+    take it is a one-line FablineError naming the path and `what` it is."""
+    path = Path(path)
+    check_outputs(files=(path,))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return open(path, "a", encoding="ascii", **options)
+    except OSError as exc:
+        raise FablineError(f"{path}: cannot write the {what}: {exc.strerror}") from None

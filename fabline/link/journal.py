@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fabline.errors import FablineError
-from fabline.fileio import check_outputs
+from fabline.fileio import open_append
 
 JOURNAL_FORMAT = "fabline.link-journal/1"
 
@@ -68,12 +68,7 @@ class Journal:
 
     def open(self) -> "Journal":
         """Open for appending (creating the file and its folder if needed)."""
-        check_outputs(files=(self.path,))
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        try:
-            self._handle = open(self.path, "a", encoding="ascii", newline="\n")
-        except OSError as exc:
-            raise FablineError(f"{self.path}: cannot open journal: {exc.strerror}") from None
+        self._handle = open_append(self.path, "journal", newline="\n")
         if self.sync_interval:
             self._closing.clear()
             self._syncer = threading.Thread(target=self._sync_periodically, name="journal-sync", daemon=True)

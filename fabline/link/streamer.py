@@ -29,7 +29,7 @@ from typing import Callable
 import serial
 
 from fabline.errors import FablineError
-from fabline.fileio import check_outputs
+from fabline.fileio import open_append
 from fabline.link.codes import explain_alarm, explain_error
 from fabline.link.gcode import ModalState
 from fabline.link.journal import Journal, JournalState, default_journal_path, read_journal
@@ -487,13 +487,10 @@ class Streamer:
         self._detect()
         if self.exchange_log_path is not None:
             try:
-                check_outputs(files=(self.exchange_log_path,))
-                Path(self.exchange_log_path).parent.mkdir(parents=True, exist_ok=True)
-                self._log = open(self.exchange_log_path, "a", encoding="ascii", errors="replace")
-            except (FablineError, OSError) as exc:
+                self._log = open_append(self.exchange_log_path, "exchange log", errors="replace")
+            except FablineError:
                 self._close_port()
-                raise FablineError(f"{self.exchange_log_path}: cannot write the exchange log: "
-                                   f"{getattr(exc, 'strerror', None) or exc}") from None
+                raise
             self._exchange("#", f"connected to {self.url}: Grbl {self.version or '1.1'}, rx buffer {self.rx_buffer}")
 
     def _connect_port(self) -> None:
