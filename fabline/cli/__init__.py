@@ -8,12 +8,32 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import sys
+from typing import Callable
 
 from fabline import __version__
 from fabline.errors import FablineError
 
 STAGE_COMMANDS = ("model", "importing", "unroll", "nest", "export", "link", "survey", "jobs")
+
+
+def positive(kind: type, most: float = math.inf) -> Callable[[str], int | float]:
+    """An argparse type shared by the stages' commands: a finite number of `kind` (int or float) above 0 and at
+    most `most`."""
+
+    def parse(text: str) -> int | float:
+        try:
+            value = kind(text)
+        except ValueError:
+            value = math.nan
+        if not (0 < value <= most and math.isfinite(value)):
+            bound = f", at most {most:g}" if most < math.inf else ""
+            raise argparse.ArgumentTypeError(
+                f"must be a positive {'whole number' if kind is int else 'number'}{bound}, got {text!r}")
+        return value
+
+    return parse
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -9,7 +9,7 @@ import sys
 import threading
 from pathlib import Path
 
-from fabline.cli.link import positive
+from fabline.cli import positive
 from fabline.errors import FablineError
 
 RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm")

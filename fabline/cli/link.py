@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import math
 import os
 import select
 import signal
@@ -13,10 +12,10 @@ import termios
 import threading
 import tty
 import urllib.parse
-from typing import Callable
 
 from tqdm import tqdm
 
+from fabline.cli import positive
 from fabline.errors import FablineError
 from fabline.link import Progress, Streamer, default_journal_path
 from fabline.link.streamer import MODES
@@ -58,23 +57,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--fault", action="append", default=[], metavar="KEY=VALUE",
                      help="inject a fault: drop_at=BYTES, corrupt_at=BYTES, error_line=N, alarm_line=N, stall_at=BYTES ...")
     sim.set_defaults(func=_grbl_sim)
-
-
-def positive(kind: type, most: float = math.inf) -> Callable[[str], int | float]:
-    """An argparse type: a finite number of `kind` (int or float) above 0 and at most `most`."""
-
-    def parse(text: str) -> int | float:
-        try:
-            value = kind(text)
-        except ValueError:
-            value = math.nan
-        if not (0 < value <= most and math.isfinite(value)):
-            bound = f", at most {most:g}" if most < math.inf else ""
-            raise argparse.ArgumentTypeError(
-                f"must be a positive {'whole number' if kind is int else 'number'}{bound}, got {text!r}")
-        return value
-
-    return parse
 
 
 def _stream(args: argparse.Namespace) -> int:
