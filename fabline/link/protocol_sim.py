@@ -158,12 +158,12 @@ class Serial(SerialBase):
         return True
 
     def _update_rts_state(self) -> None:
-        pass
+        """No modem control lines on a simulated port."""
 
     def _update_dtr_state(self) -> None:
-        pass
+        """No modem control lines on a simulated port."""
 
     def _update_break_state(self) -> None:
-        pass
+        """No modem control lines on a simulated port."""
 
 

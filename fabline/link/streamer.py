@@ -298,7 +298,7 @@ class Streamer:
                 self.journal.record("done", count=self.done)
                 self.journal.record("finished")
                 self.journal.commit()
-                self._report(force=True)
+                self._report()
                 return StreamResult(True, self.done, len(lines), None, time.monotonic() - self.started, self.bytes_sent)
             if time.monotonic() >= next_report:
                 self._report()
@@ -367,7 +367,7 @@ class Streamer:
         self.journal.record("done", count=executed)
         self.journal.record("stopped", reason="aborted")
         self.journal.commit()
-        self._report(force=True)
+        self._report()
         return StreamResult(False, executed, len(self.program.lines), "aborted", time.monotonic() - self.started,
                             self.bytes_sent)
 
@@ -727,7 +727,8 @@ class Streamer:
             self._exchange("#", f"unlocked after {explain_alarm(alarm) if alarm else 'alarm'}")
 
     # ----- reporting ----------------------------------------------------------------------------------
-    def _report(self, force: bool = False) -> None:
+    def _report(self) -> None:
+        """Tell `on_progress` where the job stands (the stream loop decides how often)."""
         if self.on_progress is None:
             return
         total = len(self.program.lines)
