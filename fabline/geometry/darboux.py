@@ -18,7 +18,7 @@ from fabline.errors import FablineError
 from fabline.model.network import Lamella, Network
 from fabline.progress import progress
 
-_GAUSS_X, _GAUSS_W = np.polynomial.legendre.leggauss(5)
+GAUSS_X, GAUSS_W = np.polynomial.legendre.leggauss(5)  # per-interval arc-length quadrature, shared by offsets
 NODE_OFF_CURVE_MM = 1.0  # a lamella's node farther than this from its centreline is an error in the model
 
 
@@ -52,9 +52,9 @@ class CurveFit:
     def _arc(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """Arc length from lo to hi (arrays of equal shape) by 5-point Gauss-Legendre on the spline speed."""
         half, mid = (hi - lo) / 2.0, (hi + lo) / 2.0
-        x = mid[:, None] + half[:, None] * _GAUSS_X[None, :]
+        x = mid[:, None] + half[:, None] * GAUSS_X[None, :]
         speed = np.linalg.norm(self.curve(x, 1), axis=-1)
-        return half * (speed @ _GAUSS_W)
+        return half * (speed @ GAUSS_W)
 
     def arc_length(self, tau: np.ndarray) -> np.ndarray:
         """Arc length from the start to each parameter value."""

@@ -13,9 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fabline.geometry.darboux import CurveFit, LamellaGeometry
-
-_GAUSS_X, _GAUSS_W = np.polynomial.legendre.leggauss(5)  # as CurveFit.arc_length integrates
+from fabline.geometry.darboux import GAUSS_W, GAUSS_X, CurveFit, LamellaGeometry  # the same quadrature
 
 
 class SplineTable:
@@ -61,10 +59,10 @@ class SplineTable:
         knot = self.first_knot[fit] + piece
         lo = self.knots[knot]
         half, mid = (tau - lo) / 2.0, (tau + lo) / 2.0
-        gauss = mid[:, None] + half[:, None] * _GAUSS_X[None, :]            # (N, 5), all on the query's piece
+        gauss = mid[:, None] + half[:, None] * GAUSS_X[None, :]            # (N, 5), all on the query's piece
         coefficients = self._coefficients[:, self.first_piece[fit] + piece, None, :3]  # (4, N, 1, 3)
         speed = np.linalg.norm(_horner(coefficients, gauss - lo[:, None], 1), axis=-1)
-        within = half * (speed @ _GAUSS_W)
+        within = half * (speed @ GAUSS_W)
         return self.s_at_knots[knot] + within, piece, within
 
     def parameter_at(self, fit: np.ndarray, s: np.ndarray) -> np.ndarray:

@@ -15,12 +15,11 @@ from fabline.unroll.options import TEXT_GAP, UnrollOptions
 from fabline.unroll.parts import Part, Slot
 from fabline.unroll.pieces import (ARROW_LENGTH, LABEL_TIE_MM, MIN_LABEL_HEIGHT, SEAM_HOLE_COLUMNS, SEAM_HOLE_ROWS,
                                    is_seam, segment_label, segment_meta)
-from fabline.unroll.flat import QUARTER_ARC_BULGE
+from fabline.unroll.flat import circles
 from fabline.unroll.seams import Segment
 from fabline.unroll.stations import FAMILY_EDGE
 from fabline.unroll.strokes import TextBlock, gather, layout_block, split_rows
 
-_QUARTERS = np.column_stack([np.cos(np.arange(5) * np.pi / 2.0), np.sin(np.arange(5) * np.pi / 2.0)])
 
 
 def straight_flags(segments: list[Segment], options: UnrollOptions) -> np.ndarray:
@@ -316,7 +315,4 @@ def _seam_holes(segments: list[Segment], a: np.ndarray, start_seam: np.ndarray, 
     order = np.lexsort((column, seam, row, owner[seam]))
     seam, row, column = seam[order], row[order], column[order]
     centres = np.column_stack([columns[seam, column] - a[owner[seam]], rows[row]])
-    rings = np.empty((len(centres), 5, 3))
-    rings[:, :, :2] = centres[:, None, :] + options.screw_hole / 2.0 * _QUARTERS[None, :, :]
-    rings[:, :, 2] = [QUARTER_ARC_BULGE] * 4 + [0.0]
-    return list(rings), (np.bincount(owner, minlength=len(segments)) * len(rows) * 3).tolist()
+    return circles(centres, options.screw_hole / 2.0), (np.bincount(owner, minlength=len(segments)) * len(rows) * 3).tolist()

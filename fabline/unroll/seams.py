@@ -61,8 +61,9 @@ def split_strip(strip: Strip, options: UnrollOptions, setback: float,
     start, end = strip_extent(strip, options)
     runs: list[tuple[float, float, Join | None, Join | None]] = []
     run_start, start_join = start, None
-    for nid, x in sorted(((n, float(x)) for n, x in zip(strip.node_ids, strip.node_x) if n in strip.joint_nodes),
-                         key=lambda item: item[1]):
+    for nid, x in zip(strip.node_ids, strip.node_x.tolist()):  # node_x increases (stations checks it)
+        if nid not in strip.joint_nodes:
+            continue
         joint = Join("joint", x, nid)
         if x - setback > run_start + options.end:
             runs.append((run_start, x - setback, start_join, joint))
@@ -107,9 +108,7 @@ def seam_candidates(strip: Strip, options: UnrollOptions, start: float,
                     end: float) -> tuple[np.ndarray, list[tuple[str, str]]]:
     """Midpoints of node intervals inside (start, end) whose overlap keeps a web clear of every slot and node mark,
     and those intervals' node pairs (arrays rather than Join objects: a strip has many candidates, few seams)."""
-    order = np.argsort(strip.node_x)
-    x = strip.node_x[order]
-    ids = [strip.node_ids[k] for k in order]
+    x, ids = strip.node_x, strip.node_ids  # in order along the strip (stations checks it)
     middle = (x[1:] + x[:-1]) / 2.0
     half = options.overlap / 2.0
     keep_out_slot = half + options.slot / 2.0 + options.web

@@ -22,7 +22,7 @@ from fabline.unroll.batch import straight_flags, straight_parts
 from fabline.unroll.hardware import HardwareSizes, checkerboard, clamp, singularity_joints, washers
 from fabline.unroll.options import UnrollOptions
 from fabline.unroll.parts import Part, PartSet
-from fabline.unroll.pieces import segment_part
+from fabline.unroll.pieces import is_seam, segment_part
 from fabline.unroll.seams import Segment, split_strip
 from fabline.unroll.stations import Strip, singular_nodes, strip_stations
 from fabline.unroll.structure import check_lamella, limits
@@ -63,9 +63,10 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
     for strip in progress(strips, "seams", total=len(strips)):
         avoid = partner_seams.setdefault(strip.lamella, set())
         pieces = split_strip(strip, options, sizes.joint_setback, avoid)
-        avoid.update(s.end_join.interval for s in pieces if s.end_join is not None and s.end_join.kind == "seam")
+        seams = [s.end_join.interval for s in pieces if is_seam(s.end_join)]
+        avoid.update(seams)
         segments.extend(pieces)
-        strip_rows.append(_strip_row(strip, pieces, options))
+        strip_rows.append(_strip_row(strip, pieces, seams, options))
     parts = _segment_parts(segments, options)
     checks = [check_lamella(geo, options.material, options.profile) for geo in geometry.lamellas.values()]
     warnings = [line for check in checks for line in check.warnings]
@@ -137,14 +138,15 @@ def arm_angles(nodes: list[str], tangents: dict[str, list[np.ndarray]], network:
     return [flat[lo:hi] for lo, hi in zip(bounds[:-1], bounds[1:])]
 
 
-def _strip_row(strip: Strip, segments: list[Segment], options: UnrollOptions) -> dict:
-    """A strip's report row: length, segments, seams, how its node distances differ from the centreline's."""
+def _strip_row(strip: Strip, segments: list[Segment], seams: list[tuple[str, str]], options: UnrollOptions) -> dict:
+    """A strip's report row: length, segments, seams (their node intervals), how its node distances differ from
+    the centreline's."""
     start, end = segments[0].start, segments[-1].end
     change = np.diff(strip.node_x) - np.diff(strip.geometry.node_s)
     row = {
         "strip": strip.id, "lamella": strip.lamella, "side": strip.side, "offset_mm": strip.offset,
         "length_mm": round(end - start, 3), "segments": [s.id for s in segments],
-        "seams": [list(s.end_join.interval) for s in segments if s.end_join is not None and s.end_join.kind == "seam"],
+        "seams": [list(interval) for interval in seams],
         "slots": len(strip.slot_x),
         "node_distance_change_max_mm": round(float(np.abs(change).max()), 4) if change.size else 0.0,
         "node_distance_change_total_mm": round(float(change.sum()), 4) if change.size else 0.0,

@@ -14,7 +14,6 @@ import numpy as np
 import trimesh
 
 from fabline.errors import FablineError
-from fabline.model.network import UNIT_TO_MM
 
 # "A", "B", "A-017", "B_3", "a12", "FAMILY-A", "Family B", "family_a-7": a family letter, optionally
 # after "FAMILY" and a separator, and not followed by another letter ("Arches" names no family).
@@ -111,9 +110,7 @@ def settle_units(source: CurveSource, requested: str | None) -> str:
 
     A file that declares units other than the requested ones is a mixed-units error.
     """
-    if requested is not None and requested not in UNIT_TO_MM:
-        raise FablineError(f"--units {requested!r}: unknown units (use one of {', '.join(UNIT_TO_MM)})")
-    declared = source.declared_units
+    declared = source.declared_units  # `requested` is a known unit: import_model checked it
     if declared is not None:
         if requested is not None and requested != declared:
             raise FablineError(f"mixed units: {source.path} declares {declared} but --units {requested} was given")
