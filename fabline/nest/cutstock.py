@@ -54,20 +54,12 @@ def pack_rows(sizes: np.ndarray, capacity: float, time_limit: float = 10.0) -> R
     sizes = np.asarray(sizes, dtype=float)
     if len(sizes) == 0:
         return RowPacking([], 0, 0.0, "empty")
-    if sizes.max() > capacity + 1e-9:
-        raise ValueError("an item is longer than the row")
-    ffd = first_fit_decreasing(sizes, capacity)
-    area_bound = math.ceil(sizes.sum() / capacity - 1e-9)
-    if len(ffd) == area_bound:
-        return RowPacking(ffd, area_bound, float(sizes.sum() / capacity), "first-fit decreasing")
     deadline = time.monotonic() + time_limit
-    generator = _ColumnGeneration(sizes, capacity)
-    for row in ffd:
-        generator.add_pattern_of(row)
-    # Column generation may use 40 % of the time, the integer programme over its patterns the next 30 %,
-    # and diving (fix a pattern, re-price the rest) what is left.
-    lp_value, bound = generator.solve(time.monotonic() + 0.4 * time_limit)
-    bound = max(bound, area_bound)
+    ffd, generator, lp_value, bound = _relaxation(sizes, capacity, time_limit)
+    if generator is None:
+        return RowPacking(ffd, bound, lp_value, "first-fit decreasing")
+    # Column generation used up to 40 % of the time; the integer programme over its patterns may use the
+    # next 30 %, and diving (fix a pattern, re-price the rest) what is left.
     best, method = ffd, "first-fit decreasing"
     heuristics = ((generator.residual_rounding, "column generation + rounding"),
                   (lambda: generator.integer_solution(time.monotonic() + 0.3 * time_limit), "column generation + HiGHS MIP"),
@@ -79,6 +71,29 @@ def pack_rows(sizes: np.ndarray, capacity: float, time_limit: float = 10.0) -> R
         if candidate is not None and len(candidate) < len(best):
             best, method = candidate, name
     return RowPacking(best, bound, lp_value, method)
+
+
+def row_lower_bound(sizes: np.ndarray, capacity: float, time_limit: float = 10.0) -> int:
+    """The LP lower bound on the rows `pack_rows` needs, without the packing heuristics that follow it."""
+    sizes = np.asarray(sizes, dtype=float)
+    return _relaxation(sizes, capacity, time_limit)[3] if len(sizes) else 0
+
+
+def _relaxation(sizes: np.ndarray, capacity: float,
+                time_limit: float) -> tuple[list[list[int]], "_ColumnGeneration | None", float, int]:
+    """First-fit decreasing, then, unless it meets the area bound, column generation over its patterns (in 40 %
+    of `time_limit`): FFD's rows, the generator (None when FFD is optimal), the LP value and the lower bound."""
+    if sizes.max() > capacity + 1e-9:
+        raise ValueError("an item is longer than the row")
+    ffd = first_fit_decreasing(sizes, capacity)
+    area_bound = math.ceil(sizes.sum() / capacity - 1e-9)
+    if len(ffd) == area_bound:
+        return ffd, None, float(sizes.sum() / capacity), area_bound
+    generator = _ColumnGeneration(sizes, capacity)
+    for row in ffd:
+        generator.add_pattern_of(row)
+    lp_value, bound = generator.solve(time.monotonic() + 0.4 * time_limit)
+    return ffd, generator, lp_value, max(bound, area_bound)
 
 
 class _ColumnGeneration:

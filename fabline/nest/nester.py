@@ -19,7 +19,7 @@ from shapely import affinity
 from shapely.geometry import Polygon
 
 from fabline.errors import FablineError
-from fabline.nest.cutstock import pack_rows
+from fabline.nest.cutstock import pack_rows, row_lower_bound
 from fabline.nest.layout import CommonCut, Nesting, Placement, Sheet
 from fabline.nest.raster import Canvas, Lattice, Template, densest_lattice, make_template, place_copies
 from fabline.nest.remnants import leftover_rectangles
@@ -408,7 +408,7 @@ def lower_bounds(shapes: list[NestShape], main: StockItem, options: NestOptions,
         row_bound = strip_report["row_lower_bound"]
         if row_bound is None:
             sizes = np.array([_extent(s)[0] + spacing for s in fitting])
-            row_bound = pack_rows(sizes, usable_w + spacing, options.time_limit).lower_bound
+            row_bound = row_lower_bound(sizes, usable_w + spacing, options.time_limit)
             strip_report.update(row_lower_bound=row_bound)
         # Every row is at least as high as the lowest strip, so this many rows fit on a sheet at most.
         lowest = min(_extent(s)[1] for s in fitting) if fitting else 1.0
