@@ -53,6 +53,16 @@ def write_json(path: str | os.PathLike, data: Any, compact: bool = False) -> Non
         handle.write("\n")
 
 
+def read_bytes(path: str | os.PathLike) -> bytes:
+    """A file's bytes; a missing or unreadable file becomes a FablineError naming it."""
+    try:
+        return Path(path).read_bytes()
+    except FileNotFoundError:
+        raise FablineError(f"{path}: file not found") from None
+    except OSError as exc:
+        raise FablineError(f"{path}: cannot read: {exc.strerror}") from None
+
+
 def read_json(path: str | os.PathLike) -> Any:
     """Read a JSON file; a missing file or bad JSON becomes a FablineError naming file and line."""
     path = Path(path)

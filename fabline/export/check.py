@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fabline.errors import FablineError
-from fabline.export.machine import MOTION_PARAMETERS, MachineProfile
+from fabline.fileio import read_bytes
+from fabline.export.machine import MOTION_PARAMETERS, MachineProfile, canonical_word
 from fabline.export.motion import MotionSummary, MoveLog, summarise
 
 OPERATION_COMMENT = re.compile(r"^\s*;\s*((?:engrave|cut)-[a-z]+)\b")
@@ -38,12 +39,7 @@ class CheckReport:
 
 def check_gcode(path: str | os.PathLike, profile: MachineProfile) -> CheckReport:
     """Parse a G-code file and check it against `profile`; an unreadable file is a FablineError."""
-    try:
-        data = open(path, "rb").read()
-    except FileNotFoundError:
-        raise FablineError(f"{path}: file not found") from None
-    except OSError as exc:
-        raise FablineError(f"{path}: cannot read: {exc}") from None
+    data = read_bytes(path)
     try:
         text = data.decode("ascii")
     except UnicodeDecodeError as exc:
@@ -117,7 +113,7 @@ class _State:
         motion_params = {}
         for gcode in block.gcodes:
             letter, value = gcode.word.letter, gcode.word.value
-            word = f"{letter}{int(value) if value == int(value) else value:g}" if letter in "GM" else None
+            word = canonical_word(f"{letter}{value}") if letter in "GM" else None
             if word is not None and word not in self.profile.words:
                 problems.append(f"{where}: {word} is not supported by {self.profile.name}")
             if letter == "F":

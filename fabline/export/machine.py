@@ -222,7 +222,7 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
         kerf=fields.number("kerf", 0, 20), decimals=fields.integer("decimals", 3, 4),
         max_line_length=fields.integer("max_line_length", 40, 256), arcs=fields.flag("arcs", True),
         laser_mode=fields.flag("laser_mode", False),
-        words=frozenset(_canonical(w) for w in words), program_start=fields.lines("program_start"),
+        words=frozenset(canonical_word(w) for w in words), program_start=fields.lines("program_start"),
         program_end=fields.lines("program_end"), tool_on=fields.lines("tool_on"), tool_off=fields.lines("tool_off"),
         requires=fields.text("requires", ""),
         bed_width=fields.number("bed.width", 0, 1e5, low_inclusive=False),
@@ -257,7 +257,7 @@ def _check_templates(profile: MachineProfile, field_name: str) -> None:
             raise FablineError(f"{profile.source}: {field_name}: {word} is not in the profile's words")
 
 
-def _canonical(word: str) -> str:
+def canonical_word(word: str) -> str:
     """G01 -> G1, M04 -> M4, G91.1 stays."""
     letter, number = word[0], word[1:]
     value = float(number)
@@ -274,7 +274,7 @@ def unsupported_words(line: str, words: frozenset[str]) -> list[str]:
     bad = []
     for letter, number in WORD_PATTERN.findall(strip_comment(line).upper()):
         if letter in "GM":
-            word = _canonical(letter + number)
+            word = canonical_word(letter + number)
             if word not in words:
                 bad.append(word)
         elif letter not in MOTION_PARAMETERS:

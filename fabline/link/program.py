@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fabline.errors import FablineError
+from fabline.fileio import read_bytes
 from fabline.link.codes import explain_error
 from fabline.link.gcode import Block, GcodeError, ModalState, Vector, execute, split_words
 
@@ -128,11 +129,4 @@ def parse_program(data: bytes, name: str) -> Program:
 
 def load_program(path: str | os.PathLike) -> Program:
     """Read and check a G-code file; any problem is a FablineError naming file, line and column."""
-    path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise FablineError(f"{path}: file not found") from None
-    except OSError as exc:
-        raise FablineError(f"{path}: cannot read: {exc.strerror}") from None
-    return parse_program(data, str(path))
+    return parse_program(read_bytes(path), str(Path(path)))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import cv2
@@ -35,9 +36,9 @@ class TagMap:
     model_name: str = ""
     family: str = TAG_FAMILY
 
-    @property
+    @cached_property
     def tag_of_node(self) -> dict[str, int]:
-        """Node id -> tag id."""
+        """Node id -> tag id (made once: `node_of_tag` is not changed after the map is made)."""
         return {node: tag for tag, node in self.node_of_tag.items()}
 
 
