@@ -10,10 +10,9 @@ import cv2
 import numpy as np
 
 from fabline.errors import FablineError
-from fabline.fileio import atomic_output
 from fabline.progress import progress
 from fabline.survey.camera import Camera
-from fabline.survey.detect import read_gray
+from fabline.survey.detect import read_gray, write_image
 
 BOARD_DICTIONARY = cv2.aruco.DICT_5X5_100
 MIN_CORNERS = 8
@@ -46,9 +45,7 @@ def board_image(spec: BoardSpec, pixels_per_mm: float = 10.0) -> np.ndarray:
 
 def write_board(spec: BoardSpec, path: str | os.PathLike, pixels_per_mm: float = 10.0) -> None:
     """Write the board image (PNG) for printing."""
-    ok, encoded = cv2.imencode(".png", board_image(spec, pixels_per_mm))
-    with atomic_output(path, "wb") as handle:
-        handle.write(encoded.tobytes())
+    write_image(path, board_image(spec, pixels_per_mm), suffix=".png")
 
 
 def calibrate(photos: list[Path], spec: BoardSpec) -> tuple[Camera, list[str]]:

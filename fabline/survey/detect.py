@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 from scipy.ndimage import map_coordinates, spline_filter
 
 from fabline.errors import FablineError
+from fabline.fileio import atomic_output
 from fabline.survey.camera import Camera
 from fabline.survey.tagmap import TAG_CELLS, TAG_DICTIONARY
 
@@ -39,6 +41,16 @@ def read_gray(path: str | os.PathLike) -> np.ndarray:
     if image is None:
         raise FablineError(f"{path}: cannot read the image (missing, unreadable or not an image)")
     return image
+
+
+def write_image(path: str | os.PathLike, image: np.ndarray, params: tuple = (), suffix: str | None = None) -> None:
+    """Encode an image as `suffix` says (default: as the file name says, with OpenCV `params`) and write it
+    atomically."""
+    ok, encoded = cv2.imencode(suffix or Path(path).suffix, image, list(params))
+    if not ok:
+        raise FablineError(f"{path}: could not encode the picture")
+    with atomic_output(path, "wb") as handle:
+        handle.write(encoded.tobytes())
 
 
 def _detector(min_side_px: float, image_size: int) -> cv2.aruco.ArucoDetector:

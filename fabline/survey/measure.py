@@ -14,11 +14,11 @@ import cv2
 import numpy as np
 
 from fabline.errors import FablineError
-from fabline.fileio import atomic_output, write_json
+from fabline.fileio import write_json
 from fabline.model import Network
 from fabline.progress import progress
 from fabline.survey.camera import Camera
-from fabline.survey.detect import TagDetection, cell_width_px, detect_tags, read_gray
+from fabline.survey.detect import TagDetection, cell_width_px, detect_tags, read_gray, write_image
 from fabline.survey.reconstruct import Observation, bundle_adjust
 from fabline.survey.register import register
 from fabline.survey.tagmap import TagMap, check_tag_map
@@ -280,7 +280,7 @@ def write_deviation_map(model: Network, record: dict, path: Path, width: int = 1
     cv2.putText(canvas, f"{model.name}: {summary['measured']} nodes measured, RMS {summary['rms_deviation_mm']} mm, "
                         f"max {summary['max_deviation_mm']} mm, {summary['failed']} over {tolerance:g} mm, {summary['not_seen']} not seen",
                 (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 1, cv2.LINE_AA)
-    _write_image(path, canvas, ".png")
+    write_image(path, canvas)
 
 
 def write_detection_pictures(photos: list[Path], detections: dict[int, list[TagDetection]], folder: Path) -> None:
@@ -295,12 +295,4 @@ def write_detection_pictures(photos: list[Path], detections: dict[int, list[TagD
             cv2.circle(image, tuple(np.round(quad[0]).astype(int)), 3, (0, 0, 255), -1)
             cv2.putText(image, str(det.tag_id), tuple(np.round(quad.mean(axis=0)).astype(int)), cv2.FONT_HERSHEY_SIMPLEX,
                         0.5, (255, 0, 0), 1, cv2.LINE_AA)
-        _write_image(folder / f"{photos[k].stem}.jpg", image, ".jpg")
-
-
-def _write_image(path: Path, image: np.ndarray, suffix: str) -> None:
-    ok, encoded = cv2.imencode(suffix, image)
-    if not ok:
-        raise FablineError(f"{path}: could not encode the picture")
-    with atomic_output(path, "wb") as handle:
-        handle.write(encoded.tobytes())
+        write_image(folder / f"{photos[k].stem}.jpg", image)

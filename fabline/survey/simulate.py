@@ -16,11 +16,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fabline.fileio import atomic_output, write_json
+from fabline.fileio import write_json
 from fabline.model import Lamella, Network, Node, validate
 from fabline.progress import progress
 from fabline.survey.camera import Camera, save_camera
-from fabline.survey.detect import tag_object_points
+from fabline.survey.detect import tag_object_points, write_image
 from fabline.survey.tagmap import TAG_CELLS, TagMap, make_tag_map, save_tag_map, tag_image
 
 TRUTH_SCHEMA = "fabline.survey-truth/1"
@@ -261,9 +261,7 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
                 visible[int(tags[n])] = np.round(quad, 4).tolist()
         photo = _degrade(photo, spec, rng)
         name = f"photo-{k:03d}.jpg"
-        ok, encoded = cv2.imencode(".jpg", photo, [cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality])
-        with atomic_output(photos_dir / name, "wb") as handle:
-            handle.write(encoded.tobytes())
+        write_image(photos_dir / name, photo, (cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality))
         rvec, _ = cv2.Rodrigues(rotation)
         photo_records.append({"file": f"photos/{name}", "rotation": np.round(rvec.ravel(), 9).tolist(),
                               "translation_mm": np.round(translation, 4).tolist(),
