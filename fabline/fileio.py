@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 from contextlib import contextmanager
@@ -51,6 +52,11 @@ def write_json(path: str | os.PathLike, data: Any, compact: bool = False) -> Non
     with atomic_output(path) as handle:
         json.dump(data, handle, allow_nan=False, **layout)
         handle.write("\n")
+
+
+def finite_number(value: Any) -> bool:
+    """Whether a value read from JSON is a finite number (an int or a float; not a bool, NaN or infinity)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def read_bytes(path: str | os.PathLike) -> bytes:

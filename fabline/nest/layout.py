@@ -7,7 +7,6 @@ part's own origin, then translated by (x, y), in sheet millimetres with the orig
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from fabline.errors import FablineError
-from fabline.fileio import read_json, write_json
+from fabline.fileio import finite_number, read_json, write_json
 
 SCHEMA = "fabline.nesting/1"
 
@@ -150,23 +149,19 @@ def _object(raw: Any, where: str) -> dict:
     return raw
 
 
-def _finite(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def _number(raw: dict, key: str, where: str, default: float | None = None) -> float:
     """raw[key] as a float (`default` when absent; required when there is none): a finite number."""
     if key not in raw and default is None:
         raise FablineError(f"{where}: missing '{key}'")
     value = raw.get(key, default)
-    if not _finite(value):
+    if not finite_number(value):
         raise FablineError(f"{where}: '{key}' must be a finite number, got {value!r}")
     return float(value)
 
 
 def _point(raw: dict, key: str, where: str) -> tuple[float, float]:
     value = raw.get(key)
-    if not isinstance(value, list) or len(value) != 2 or not all(map(_finite, value)):
+    if not isinstance(value, list) or len(value) != 2 or not all(map(finite_number, value)):
         raise FablineError(f"{where}: '{key}' must be [x, y], two finite numbers")
     return float(value[0]), float(value[1])
 

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from fabline.errors import FablineError
-from fabline.fileio import read_json, write_json
+from fabline.fileio import finite_number, read_json, write_json
 
 CAMERA_SCHEMA = "fabline.camera/1"
 
@@ -71,7 +71,7 @@ def camera_from_dict(data: object, source: str = "camera") -> Camera:
     values = {}
     for key in ("width", "height", "fx", "fy", "cx", "cy"):
         value = data.get(key)
-        if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isfinite(value) or value <= 0:
+        if not finite_number(value) or value <= 0:
             raise FablineError(f"{source}: field '{key}' must be a positive number")
         values[key] = value
     for key in ("width", "height"):

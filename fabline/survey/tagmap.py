@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from fabline.errors import FablineError
-from fabline.fileio import atomic_output, read_json, write_json
+from fabline.fileio import atomic_output, finite_number, read_json, write_json
 from fabline.model import Network
 
 TAGMAP_SCHEMA = "fabline.tagmap/1"
@@ -78,7 +78,7 @@ def tagmap_from_dict(data: object, source: str = "tag map") -> TagMap:
     numbers = {}
     for key in ("tag_size_mm", "mount_offset_mm"):
         value = data.get(key)
-        if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isfinite(value):
+        if not finite_number(value):
             raise FablineError(f"{source}: field '{key}' must be a number")
         numbers[key] = float(value)
     if numbers["tag_size_mm"] <= 0:
