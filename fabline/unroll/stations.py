@@ -17,6 +17,7 @@ from fabline.errors import FablineError
 from fabline.geometry.darboux import LamellaGeometry, NetworkGeometry
 from fabline.geometry.offsets import OffsetCurve, SplineTable, closest_approach, offset_arc_lengths
 from fabline.unroll.options import UnrollOptions
+from fabline.unroll.structure import helix_strains
 
 NEWTON_STEPS = 3  # from the tangent-plane guess (error ~ k d^2 < 1 mm) each step gains a factor ~100
 CROSSING_GAP_MM = 1.0  # two strips whose offset curves pass farther apart than this at a node do not cross there
@@ -75,7 +76,7 @@ def helix_stretch(geo: LamellaGeometry, options: UnrollOptions) -> np.ndarray | 
     """Length element factor 1 / (1 + eps_H,min) that undoes the twisted centre fibre's contraction (6.8, 6.9)."""
     if not options.compensate_twist:
         return 1.0
-    return 1.0 / (1.0 - 0.5 * options.profile.polar_radius_sq * geo.tau_g ** 2)
+    return 1.0 / (1.0 + helix_strains(options.profile, geo.tau_g)[0])
 
 
 def strip_stations(geometry: NetworkGeometry, options: UnrollOptions) -> list[Strip]:

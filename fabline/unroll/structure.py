@@ -164,7 +164,7 @@ def check_lamella(geometry: LamellaGeometry, material: Material, profile: Profil
     use = utilisations(material, profile, max_k_g, max_tau_g)
     ds = np.diff(s)
     mid_tau = (tau_g[1:] + tau_g[:-1]) / 2.0
-    contraction = float(np.sum(0.5 * profile.polar_radius_sq * mid_tau ** 2 * ds))
+    contraction = float(-np.sum(helix_strains(profile, mid_tau)[0] * ds))
     top, bottom = (helix_edge_extension(geometry, r) for r in (profile.h / 2.0, -profile.h / 2.0))
     check = LamellaCheck(geometry.lamella.id, geometry.length, list(geometry.node_ids), max_k_g, max_tau_g, max_k_n,
                          use, contraction, top, bottom)
