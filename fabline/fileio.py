@@ -69,15 +69,21 @@ def read_bytes(path: str | os.PathLike) -> bytes:
         raise FablineError(f"{path}: cannot read: {exc.strerror}") from None
 
 
-def read_json(path: str | os.PathLike) -> Any:
-    """Read a JSON file; a missing file or bad JSON becomes a FablineError naming file and line."""
-    path = Path(path)
+def read_text(path: str | os.PathLike, what: str = "") -> str:
+    """A UTF-8 text file; a missing, unreadable or undecodable file becomes a FablineError naming it
+    (`what`, e.g. " as OBJ text", says how it was being read)."""
     try:
-        text = path.read_text(encoding="utf-8")
+        return Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:
         raise FablineError(f"{path}: file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise FablineError(f"{path}: cannot read: {exc}") from None
+        raise FablineError(f"{path}: cannot read{what}: {exc}") from None
+
+
+def read_json(path: str | os.PathLike) -> Any:
+    """Read a JSON file; a missing file or bad JSON becomes a FablineError naming file and line."""
+    path = Path(path)
+    text = read_text(path)
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:

@@ -112,3 +112,11 @@ def test_bad_model_file(cli, tmp_path):
     model.write_text("{\n  nope")
     code, _, err = cli("unroll", model, "-o", tmp_path / "parts.json")
     assert code == 2 and "broken.json:2" in err
+
+
+def test_unreadable_materials_file_is_one_line(cli, tmp_path, polar_model):
+    materials = tmp_path / "materials.toml"
+    materials.write_bytes(b"[steel]\nE = \xff\xfe\n")  # not UTF-8
+    out = tmp_path / "parts.json"
+    code, _, err = cli("unroll", polar_model, "-o", out, "--materials", materials)
+    assert code == 2 and err.count("\n") == 1 and f"{materials}: cannot read" in err and not out.exists()

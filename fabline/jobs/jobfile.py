@@ -20,6 +20,7 @@ except ImportError:  # Python 3.10
     import tomli as tomllib
 
 from fabline.errors import FablineError
+from fabline.fileio import read_text
 
 if TYPE_CHECKING:  # the nesting stage pulls in shapely; a job file is read before any stage runs
     from fabline.nest.nester import NestOptions
@@ -109,11 +110,7 @@ def load_job_file(path: str | os.PathLike) -> JobSpec:
     """Read and check a job file; every problem is a one-line FablineError naming the file and key path."""
     path = Path(path)
     try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FablineError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FablineError(f"{path}: cannot read: {exc}") from None
+        raw = tomllib.loads(read_text(path))
     except tomllib.TOMLDecodeError as exc:
         raise FablineError(f"{path}: malformed TOML: {exc}") from None
     return job_from_dict(raw, path)

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fabline.errors import FablineError
+from fabline.fileio import read_text
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -89,9 +90,7 @@ def get_material(name: str, path: str | os.PathLike | None = None) -> Material:
 
 def _read_table(path: Path) -> dict[str, Material]:
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FablineError(f"{path}: file not found") from None
+        data = tomllib.loads(read_text(path))
     except tomllib.TOMLDecodeError as exc:
         raise FablineError(f"{path}: malformed TOML: {exc}") from None
     materials = {}

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from fabline.errors import FablineError
+from fabline.fileio import read_text
 from fabline.model.importers.curves import CurveSource, assign_ids, clean_points, family_and_id
 from fabline.model.importers.surface import mesh_from_arrays
 
@@ -78,12 +79,7 @@ def read_obj(path: str | Path) -> CurveSource:
 
 def _read_lines(path: str) -> list[tuple[int, str]]:
     """Non-empty, non-comment lines with their numbers, backslash continuations joined."""
-    try:
-        text = Path(path).read_text(encoding="utf-8", errors="strict")
-    except FileNotFoundError:
-        raise FablineError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FablineError(f"{path}: cannot read as OBJ text: {exc}") from None
+    text = read_text(path, " as OBJ text")
     result: list[tuple[int, str]] = []
     pending, start = "", 0
     for number, line in enumerate(text.splitlines(), 1):
