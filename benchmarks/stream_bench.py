@@ -1,9 +1,12 @@
 """Streaming throughput: character counting vs send-response over a real pseudo-terminal at 115200 baud.
 
 A GRBL simulator runs in its own process behind `pty.openpty`, pacing bytes to 11520 bytes/s each way
-like a 115200-baud serial line, with motion sped up so the controller is not the bottleneck, once as a
-bare UART and once behind an Arduino-Uno-like USB bridge (answers flushed every 4 ms). Prints lines/s
-and the host-to-controller link utilisation (bytes sent / line capacity) for both modes.
+like a 115200-baud serial line, with motion sped up so the controller is not the bottleneck. Three links:
+a bare UART to an instant controller; an Arduino-Uno-like USB bridge (answers flushed every 4 ms) to an
+instant controller; and that bridge to a controller that needs 1 ms to parse and plan each line. An 8-bit
+Grbl needs more (2.4-3.6 ms per line with the steppers running, gnea/grbl#1144; about 5 ms by its author,
+grbl/grbl#492); 1 ms stays below a 22-byte line's 1.9 ms on the wire, so the controller is still not the
+bottleneck. Prints lines/s and the host-to-controller link utilisation (bytes sent / line capacity).
 Run: python benchmarks/stream_bench.py [--lines 20000]
 """
 
@@ -21,8 +24,8 @@ from fabline.link import SimulatorServer, Streamer, executed_file_lines, load_pr
 
 BAUD = 115200
 BYTES_PER_SECOND = BAUD / 10
-LINKS = {0.0: "UART only", 0.004: "Uno USB 4ms"}
-"""Adapter latency (s) -> label: a bare paced UART, and an Arduino Uno whose 16U2 bridge flushes every 4 ms."""
+LINKS = {"UART, instant": (0.0, 0.0), "USB 4ms, instant": (0.004, 0.0), "USB 4ms, 1ms/line": (0.004, 0.001)}
+"""Label -> (adapter latency s, firmware seconds per line): bare paced UART, Uno 16U2 bridge, bridge + parse time."""
 
 
 def write_program(path: Path, lines: int) -> None:
@@ -36,15 +39,17 @@ def write_program(path: Path, lines: int) -> None:
     path.write_text("\n".join(body) + "\n", encoding="ascii")
 
 
-def measure(program: Path, mode: str, latency: float, workdir: Path) -> dict:
-    log = workdir / f"executed-{mode}-{latency}.log"
-    with SimulatorServer(log=log, time_scale=1e4, transport="pty", baud=BAUD, adapter_latency=latency) as server:
+def measure(program: Path, mode: str, link: str, workdir: Path) -> dict:
+    latency, line_time = LINKS[link]
+    log = workdir / f"executed-{mode}-{latency}-{line_time}.log"
+    with SimulatorServer(log=log, time_scale=1e4, transport="pty", baud=BAUD, adapter_latency=latency,
+                         line_time=line_time) as server:
         result = Streamer(server.url, mode=mode, status_interval=0.2).run(
-            program, journal=workdir / f"{mode}-{latency}.journal")
+            program, journal=workdir / f"{mode}-{latency}-{line_time}.journal")
     executed = executed_file_lines(log)
     expected = [line.file_line for line in load_program(program).lines]
     assert result.completed and executed == expected, f"{mode}: controller did not execute the program exactly"
-    return {"mode": mode, "link": LINKS[latency], "lines": result.total, "seconds": result.elapsed,
+    return {"mode": mode, "link": link, "lines": result.total, "seconds": result.elapsed,
             "rate": result.total / result.elapsed, "bytes": result.bytes_sent,
             "utilisation": result.bytes_sent / (result.elapsed * BYTES_PER_SECOND)}
 
@@ -57,10 +62,10 @@ def main() -> None:
         workdir = Path(folder)
         program = workdir / "bench.gcode"
         write_program(program, args.lines)
-        rows = [measure(program, mode, latency, workdir) for latency in LINKS for mode in ("counting", "send-response")]
-    print(f"{'link':<12} {'mode':<14} {'lines':>7} {'seconds':>8} {'lines/s':>8} {'bytes':>9} {'link use':>9}")
+        rows = [measure(program, mode, link, workdir) for link in LINKS for mode in ("counting", "send-response")]
+    print(f"{'link':<18} {'mode':<14} {'lines':>7} {'seconds':>8} {'lines/s':>8} {'bytes':>9} {'link use':>9}")
     for row in rows:
-        print(f"{row['link']:<12} {row['mode']:<14} {row['lines']:>7} {row['seconds']:>8.1f} {row['rate']:>8.0f} "
+        print(f"{row['link']:<18} {row['mode']:<14} {row['lines']:>7} {row['seconds']:>8.1f} {row['rate']:>8.0f} "
               f"{row['bytes']:>9} {row['utilisation']:>8.1%}")
     for counting, single in zip(rows[::2], rows[1::2]):
         print(f"{counting['link']}: character counting / send-response = {counting['rate'] / single['rate']:.2f}x")

@@ -182,3 +182,23 @@ def test_unknown_settings_are_refused_by_name():
         GrblSimulator(settings={999: 1.0})
     with pytest.raises(SerialException, match=r"\$999"):
         serial_for_url("sim://bad-settings?settings=110:12000,999:1")
+
+
+def test_line_time_delays_each_answer_but_not_realtime_commands():
+    """The firmware's parse-and-plan time: each line's ok comes line_time after its newline, one line at a
+    time, while a status request is still answered at once (real-time bytes bypass the line parser)."""
+    simulator = GrblSimulator(time_scale=100.0, line_time=0.2)
+    try:
+        simulator.attach()
+        host = Host(simulator)
+        start = time.monotonic()
+        simulator.receive(b"G21\nG90\n")
+        assert classify(host.status()).status.state == "Idle"  # answered while the first line is parsed
+        assert time.monotonic() - start < 0.15
+        assert host.read(1, quiet=0) == ["ok"]
+        first = time.monotonic() - start
+        assert host.read(1, quiet=0) == ["ok"]
+        second = time.monotonic() - start
+        assert 0.18 <= first < 0.35 and 0.38 <= second < 0.6
+    finally:
+        simulator.close()

@@ -51,6 +51,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--listen-port", type=int, default=0, help="TCP port on 127.0.0.1 (default: any free port)")
     sim.add_argument("--log", help="executed-line log (append-only)")
     sim.add_argument("--time-scale", type=float, default=1.0, help="run motion this many times faster")
+    sim.add_argument("--line-time", type=float, default=0.0,
+                     help="seconds the firmware spends parsing and planning each line (default 0: instant)")
     sim.add_argument("--baud", type=int, help="pace bytes like a serial line at this rate")
     sim.add_argument("--adapter-latency", type=float, default=0.0,
                      help="batch answers like a USB-serial bridge flushing every this many seconds (Uno: 0.004)")
@@ -143,7 +145,7 @@ def _abort_on_interrupt(streamer: Streamer):
 def _grbl_sim(args: argparse.Namespace) -> int:
     from fabline.link.server import serve
 
-    options = {"time_scale": args.time_scale}
+    options = {"time_scale": args.time_scale, "line_time": args.line_time}
     if args.log:
         options["log"] = args.log
     for fault in args.fault:
@@ -154,7 +156,7 @@ def _grbl_sim(args: argparse.Namespace) -> int:
     try:
         serve(args.transport, urllib.parse.urlencode(options), args.baud, args.listen_port, args.adapter_latency)
     except ValueError as exc:
-        raise FablineError(f"grbl-sim: {exc}") from None
+        raise FablineError(str(exc)) from None
     except OSError as exc:
         raise FablineError(f"grbl-sim: cannot listen: {exc.strerror}") from None
     return 0

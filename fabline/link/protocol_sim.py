@@ -2,7 +2,7 @@
 
 Simulators live in a per-process registry by NAME, so a reconnect after a dropped connection reaches
 the same controller, as a real one outlives its USB cable. Options (used when NAME is first opened):
-time_scale, log (executed-line log path), settings (`$N` values as `110:12000,120:800`), drop_at, corrupt_at (comma-separated byte offsets),
+time_scale, line_time (firmware seconds per line), log (executed-line log path), settings (`$N` values as `110:12000,120:800`), drop_at, corrupt_at (comma-separated byte offsets),
 error_line, error_code, alarm_line, alarm_code, stall_at, stall_seconds.
 """
 
@@ -48,6 +48,9 @@ def simulator_from_options(query: str) -> GrblSimulator:
                     alarm_line=number("alarm_line", int), alarm_code=number("alarm_code", int, 1),
                     stall_at=number("stall_at", int), stall_seconds=number("stall_seconds", float, 0.0))
     time_scale = number("time_scale", float, 1.0)
+    line_time = number("line_time", float, 0.0)
+    if line_time < 0:
+        raise ValueError(f"line_time must be 0 or more seconds, not {line_time}")
     log = options.pop("log", None)
     settings = {}
     for pair in options.pop("settings", "").split(","):
@@ -56,7 +59,7 @@ def simulator_from_options(query: str) -> GrblSimulator:
             settings[int(key)] = float(value)
     if options:
         raise ValueError(f"unknown simulator option(s) {sorted(options)}")
-    return GrblSimulator(time_scale=time_scale, executed_log=log, faults=faults, settings=settings)
+    return GrblSimulator(time_scale=time_scale, executed_log=log, faults=faults, settings=settings, line_time=line_time)
 
 
 def _simulator_from_url(url: str) -> GrblSimulator:

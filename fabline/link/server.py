@@ -167,13 +167,17 @@ class SimulatorServer:
     """A simulator process; `url` is what a Streamer (or `fabline stream --port`) connects to.
 
     `log` receives every executed line in order (see `executed_file_lines`); `time_scale` > 1 runs
-    motion faster; `baud` paces bytes like a serial line; `adapter_latency` (s) batches answers like a
-    USB-serial bridge; `faults` are sim:// fault options.
+    motion faster; `line_time` (s) is the firmware's time to parse and plan a line; `baud` paces bytes
+    like a serial line; `adapter_latency` (s) batches answers like a USB-serial bridge; `faults` are
+    sim:// fault options.
     """
 
     def __init__(self, *, log: str | os.PathLike | None = None, time_scale: float = 1.0, transport: str = "tcp",
-                 baud: int | None = None, adapter_latency: float = 0.0, faults: dict | None = None):
+                 baud: int | None = None, adapter_latency: float = 0.0, faults: dict | None = None,
+                 line_time: float = 0.0):
         options = {"time_scale": time_scale, **(faults or {})}
+        if line_time:
+            options["line_time"] = line_time
         if log is not None:
             options["log"] = str(log)
         self.command = [sys.executable, "-m", "fabline.link.server", "--transport", transport,

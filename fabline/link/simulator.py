@@ -89,11 +89,17 @@ class _Planned:
 
 
 class GrblSimulator:
-    """A GRBL 1.1h controller in a background thread; `time_scale` > 1 makes motion run faster."""
+    """A GRBL 1.1h controller in a background thread; `time_scale` > 1 makes motion run faster.
+
+    `line_time` is the firmware's time (real seconds, not scaled) to parse and plan one line before it
+    answers and reads the next: an 8-bit Grbl needs a few milliseconds, 0 makes the controller instant.
+    """
 
     def __init__(self, *, time_scale: float = 1.0, executed_log: str | Path | None = None,
-                 faults: Faults | None = None, tick: float = 0.001, settings: dict[int, float] | None = None):
+                 faults: Faults | None = None, tick: float = 0.001, settings: dict[int, float] | None = None,
+                 line_time: float = 0.0):
         self.time_scale = time_scale
+        self.line_time = line_time
         self.faults = faults or Faults()
         unknown = sorted(set(settings or {}) - set(DEFAULT_SETTINGS))
         if unknown:
@@ -208,6 +214,8 @@ class GrblSimulator:
         self._line_overflow = False
         self._comment = False
         self._pending: _Pending | None = None
+        self._parsing: tuple[str, bool] | None = None  # a complete line the firmware is still parsing ...
+        self._parsed_at = 0.0                           # ... until this time.monotonic()
         self.planner: deque[_Planned] = deque()
         self.modal = ModalState()
         self._parse_position = self.position
@@ -266,6 +274,7 @@ class GrblSimulator:
         self._line = bytearray()
         self.planner.clear()
         self._pending = None
+        self._parsing = None
         self._hold = None
         self.state = "Alarm"
         self._critical = True
@@ -326,7 +335,8 @@ class GrblSimulator:
     def _run(self) -> None:
         last = time.monotonic()
         while not self._stopping:
-            self._input_arrived.wait(self._tick)  # GRBL's main loop picks a line up as soon as it is complete
+            wait = self._tick if self._parsing is None else min(self._tick, max(0.0, self._parsed_at - time.monotonic()))
+            self._input_arrived.wait(wait)  # GRBL's main loop picks a line up as soon as it is complete
             self._input_arrived.clear()
             now = time.monotonic()
             with self._lock:
@@ -340,6 +350,13 @@ class GrblSimulator:
     def _process_input(self) -> None:
         """Pull characters into the line buffer and execute complete lines while the planner has room."""
         while not self._critical:
+            if self._parsing is not None:
+                if time.monotonic() < self._parsed_at:
+                    return
+                line, overflow = self._parsing
+                self._parsing = None
+                self._finish_line(line, overflow)
+                continue
             pending = self._pending
             if pending is not None:
                 if pending.sync and self.planner:
@@ -362,10 +379,10 @@ class GrblSimulator:
             if char == "\n" or char == "\r":
                 line, overflow = self._line.decode("ascii", errors="replace"), self._line_overflow
                 self._line, self._line_overflow, self._comment = bytearray(), False, False
-                if overflow:
-                    self._say("error:11")
+                if self.line_time > 0:
+                    self._parsing, self._parsed_at = (line, overflow), time.monotonic() + self.line_time
                 else:
-                    self._execute_line(line)
+                    self._finish_line(line, overflow)
             elif self._comment:
                 if char == ")":
                     self._comment = False
@@ -377,6 +394,13 @@ class GrblSimulator:
                 self._line_overflow = True
             else:
                 self._line += char.upper().encode("ascii", errors="replace")
+
+    def _finish_line(self, line: str, overflow: bool) -> None:
+        """Answer a complete input line: error:11 if it overflowed the line buffer, else execute it."""
+        if overflow:
+            self._say("error:11")
+        else:
+            self._execute_line(line)
 
     def _execute_line(self, line: str) -> None:
         if ";" in line:

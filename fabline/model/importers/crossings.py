@@ -201,6 +201,13 @@ def _unique(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ordered[first], inverse
 
 
+def _clusters(points: np.ndarray, reach: float, norm: float = 2.0) -> tuple[int, np.ndarray]:
+    """Group points chained by distances within `reach` (Minkowski `norm`): the group count and each point's group."""
+    links = cKDTree(points).query_pairs(reach, p=norm, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(len(points),) * 2)
+    return connected_components(graph, directed=False)
+
+
 def _closest_per_approach(segments: _Segments, seg_a: np.ndarray, seg_b: np.ndarray,
                           distance: np.ndarray) -> np.ndarray:
     """Index of the closest candidate of each approach: candidates of one curve pair on adjacent segments."""
@@ -210,9 +217,7 @@ def _closest_per_approach(segments: _Segments, seg_a: np.ndarray, seg_b: np.ndar
     _, pair = _unique(segments.curve[seg_a] * n_curves + segments.curve[seg_b])
     # candidates of one pair whose segments are neighbours (Chebyshev distance 1) form one approach
     grid = np.c_[pair * 4, segments.local[seg_a], segments.local[seg_b]].astype(float)
-    links = cKDTree(grid).query_pairs(1.0, p=np.inf, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(len(grid), len(grid)))
-    _, approach = connected_components(graph, directed=False)
+    _, approach = _clusters(grid, 1.0, norm=np.inf)
     order = np.lexsort((distance, approach))
     first_of_each = np.r_[True, approach[order][1:] != approach[order][:-1]]
     return order[first_of_each]
@@ -224,9 +229,7 @@ def _nodes(curve_a: np.ndarray, curve_b: np.ndarray, arc_a: np.ndarray, arc_b: n
     """Merge crossings within the tolerance of each other into nodes of two (or, at a singularity, three) curves."""
     if len(midpoint) == 0:
         return np.zeros((0, 3)), []
-    links = cKDTree(midpoint).query_pairs(tolerance, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(len(midpoint),) * 2)
-    n_nodes, node = connected_components(graph, directed=False)
+    n_nodes, node = _clusters(midpoint, tolerance)
     count = np.bincount(node, minlength=n_nodes)
     xyz = np.stack([np.bincount(node, midpoint[:, k], n_nodes) for k in range(3)], axis=1) / count[:, None]
     # one row per (node, curve): the curve's arc length there, averaged over the crossings it takes part in
