@@ -219,3 +219,21 @@ def test_scale_free_is_ignored_where_it_would_leave_a_tag_or_the_survey_without_
     assert result.scale_free_observations == sum(o.photo == 1 and o.tag != once for o in single)
     assert np.linalg.norm(result.tag_poses[once][3:] - result.tag_poses[sorted(result.tag_poses)[-1]][3:]) == pytest.approx(
         np.linalg.norm(centres[once] - centres[sorted(result.tag_poses)[-1]]), abs=1e-3)
+
+
+def test_predicted_corners_are_where_a_photo_shows_a_tag_it_did_not_yield():
+    """Leave one observation out: the adjustment from the rest predicts that tag's corners in that photo exactly,
+    lens distortion included; only tags the photo can show are predicted, none past the view-angle limit."""
+    rng = np.random.default_rng(8)
+    camera, observations, _, _, _ = _scene(rng)
+    camera.distortion = np.array([-0.05, 0.02, 0.0, 0.0, 0.0])  # observations are normalised: only the pixels change
+    left_out = next(o for o in observations if o.photo == 3 and np.all(np.abs(o.normalised) < 0.3))
+    result = bundle_adjust([o for o in observations if o is not left_out], camera, TAG_MM)
+    predicted = result.predict_corners(3, camera, TAG_MM)
+    assert left_out.tag in predicted
+    assert set(predicted) <= {o.tag for o in observations if o.photo == 3}
+    exact = cv2.projectPoints(np.column_stack([left_out.normalised, np.ones(4)]), np.zeros(3), np.zeros(3),
+                              camera.matrix, camera.distortion)[0].reshape(4, 2)
+    assert np.abs(predicted[left_out.tag] - exact).max() < 1e-3
+    assert result.predict_corners(3, camera, TAG_MM, max_view_angle_deg=0.5) == {}
+    assert result.predict_corners(99, camera, TAG_MM) == {}

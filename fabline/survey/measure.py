@@ -1,5 +1,8 @@
 """The as-built survey: detect tags in every photo, reconstruct, register to the design, report per node.
 
+After a first adjustment each photo is searched again where the reconstruction puts tags it did not
+yield (tags too small or dim for the image alone), and the adjustment is repeated with what is found.
+
 Bad photos (unreadable, another resolution, no tags) and unknown tag ids are reported by file and id and
 left out; the survey goes on with the rest as long as the photos still join into one reconstruction.
 """
@@ -18,8 +21,8 @@ from fabline.fileio import write_json
 from fabline.model import Network
 from fabline.progress import progress
 from fabline.survey.camera import Camera
-from fabline.survey.detect import TagDetection, cell_width_px, detect_tags, read_gray, write_image
-from fabline.survey.reconstruct import Observation, bundle_adjust
+from fabline.survey.detect import TagDetection, cell_width_px, detect_expected_tags, detect_tags, read_gray, write_image
+from fabline.survey.reconstruct import Observation, Reconstruction, bundle_adjust
 from fabline.survey.register import register
 from fabline.survey.tagmap import TagMap, check_tag_map
 
@@ -79,6 +82,32 @@ def detect_photos(photos: list[Path], camera: Camera | None, known_tags: set[int
     return detections, problems
 
 
+def find_predicted_tags(photos: list[Path], camera: Camera, tag_size: float, reconstruction: Reconstruction,
+                        detections: dict[int, list[TagDetection]]) -> list[tuple[int, TagDetection]]:
+    """Look again, in each photo that joined, for the reconstructed tags it should show but did not yield.
+
+    A tag too small or too blurred for the image alone to give its quad is found where the other photos
+    put it (`detect_expected_tags`: refined there and kept only if it reads as that tag); the finds are
+    added to `detections` and returned as (photo index, detection).
+    """
+    added = []
+    for k in progress(sorted(reconstruction.camera_rotations), "looking for predicted tags"):
+        seen = {d.tag_id for d in detections[k]}
+        expected = {t: corners for t, corners in reconstruction.predict_corners(k, camera, tag_size).items() if t not in seen}
+        if not expected:
+            continue
+        found = detect_expected_tags(read_gray(photos[k]), expected)
+        detections[k] = sorted(detections[k] + found, key=lambda d: d.tag_id)
+        added += [(k, d) for d in found]
+    return added
+
+
+def _observations(found: list[tuple[int, TagDetection]], camera: Camera, scale_min_cell_px: float) -> list[Observation]:
+    """(photo index, detection) pairs as observations: corners normalised, scale-free where the cells are small."""
+    return [Observation(k, d.tag_id, camera.normalise(d.corners), cell_width_px(d.corners) < scale_min_cell_px)
+            for k, d in found]
+
+
 def _reference_mask(option: str | list[str], node_ids: list[str], network: Network) -> np.ndarray:
     if option == "all":
         return np.ones(len(node_ids), dtype=bool)
@@ -110,12 +139,15 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
     check_tag_map(tag_map, model)
     check_scale_bars(options.scale_bars, tag_map)
     detections, problems = detect_photos(photos, camera, set(tag_map.node_of_tag))
-    observations = [Observation(k, d.tag_id, camera.normalise(d.corners), cell_width_px(d.corners) < options.scale_min_cell_px)
-                    for k, found in detections.items() for d in found]
+    observations = _observations([(k, d) for k, found in detections.items() for d in found], camera, options.scale_min_cell_px)
     if not observations:
         detail = f" ({problems[0]['problem']}" + (f"; {len(problems) - 1} more problem(s))" if len(problems) > 1 else ")") if problems else ""
         raise FablineError(f"no tags of the tag map were found in any usable photo{detail}")
     reconstruction = bundle_adjust(observations, camera, tag_map.tag_size_mm)
+    predicted = find_predicted_tags(photos, camera, tag_map.tag_size_mm, reconstruction, detections)
+    if predicted:
+        observations += _observations(predicted, camera, options.scale_min_cell_px)
+        reconstruction = bundle_adjust(observations, camera, tag_map.tag_size_mm)
     scale = None
     if options.scale_bars:
         unmeasured = [t for bar in options.scale_bars for t in bar[:2] if t not in reconstruction.tag_poses]
@@ -167,6 +199,7 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
     passed = distance <= options.tolerance_mm
     record = _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviation, distance, sigma, views, passed,
                      rotation, translation, fit_rms, reconstruction, photos, detections, problems, wrong)
+    record["summary"]["tags_found_where_predicted"] = len(predicted)
     record["scale"] = scale or {"source": f"tag size {tag_map.tag_size_mm:g} mm", "factor": 1.0, "bars": []}
     record["scale"].update(min_cell_px=options.scale_min_cell_px,
                            observations_without_scale=reconstruction.scale_free_observations)

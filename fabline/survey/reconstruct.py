@@ -23,6 +23,7 @@ import numpy as np
 from fabline.survey.camera import Camera
 from fabline.survey.detect import tag_object_points
 from fabline.survey.register import rigid_fit
+from fabline.survey.tagmap import TAG_CELLS
 
 ROBUST_SCALE_PX = 1.0
 OUTLIER_PX = 2.0
@@ -72,6 +73,36 @@ class Reconstruction:
             self.tag_poses[tag] = np.concatenate([pose[:3], factor * pose[3:]])
             self.tag_covariances[tag] = scaling @ self.tag_covariances[tag] @ scaling
         return factor, (factor * measured - lengths).tolist()
+
+    def predict_corners(self, photo: int, camera: Camera, tag_size: float,
+                        max_view_angle_deg: float = 80.0) -> dict[int, np.ndarray]:
+        """Where photo `photo` should show each reconstructed tag: id -> corners (4, 2) in px, detection order.
+
+        Only tags in front of the camera, facing it within `max_view_angle_deg`, whose quiet zone (one
+        cell around the black square) lies inside the photo.
+        """
+        if photo not in self.camera_rotations or not self.tag_poses:
+            return {}
+        ids = sorted(self.tag_poses)
+        poses = np.array([self.tag_poses[t] for t in ids])
+        rotations = rotation_matrices(poses[:, :3])
+        square = tag_object_points(tag_size)
+        outer = square * (TAG_CELLS + 2) / TAG_CELLS
+        rotation, translation = self.camera_rotations[photo], self.camera_translations[photo]
+        centre = -rotation.T @ translation
+        to_camera = centre - poses[:, 3:]
+        facing = np.einsum("ni,ni->n", rotations[:, :, 2], to_camera) / np.linalg.norm(to_camera, axis=1)
+        points = np.einsum("nij,kj->nki", rotations, np.concatenate([square, outer])) + poses[:, None, 3:]
+        in_camera = points @ rotation.T + translation
+        reach = 1.2 * max(camera.width, camera.height) / min(camera.matrix[0, 0], camera.matrix[1, 1])
+        ahead = np.all(in_camera[..., 2] > 0, axis=1)
+        ahead[ahead] &= np.all(np.abs(in_camera[ahead, :, :2]) < reach * in_camera[ahead, :, 2:], axis=(1, 2))
+        candidates = np.flatnonzero(ahead & (facing > np.cos(np.radians(max_view_angle_deg))))
+        if not len(candidates):
+            return {}
+        pixels = camera.project(in_camera[candidates].reshape(-1, 3)).reshape(len(candidates), 8, 2)
+        inside = np.all((pixels[:, 4:] >= 0) & (pixels[:, 4:] <= [camera.width - 1, camera.height - 1]), axis=(1, 2))
+        return {ids[n]: pixels[k, :4] for k, n in enumerate(candidates) if inside[k]}
 
     def points_below_tags(self, offset: float) -> tuple[list[int], np.ndarray, np.ndarray]:
         """Tag ids, the points `offset` behind each tag centre along its normal (N, 3), their covariances (N, 3, 3).
