@@ -195,5 +195,6 @@ def _measure(args: argparse.Namespace) -> int:
     s = record["summary"]
     print(f"{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
           f"RMS deviation {s['rms_deviation_mm']} mm, max {s['max_deviation_mm']} mm, {s['failed']} over "
-          f"{record['tolerance_mm']:g} mm, {s['not_seen']} not measured -> {Path(args.output) / 'survey.json'}")
+          f"{record['tolerance_mm']:g} mm, {s['not_seen']} not measured; {s['tags_found_where_predicted']} tag view(s) "
+          f"found where the reconstruction predicted them -> {Path(args.output) / 'survey.json'}")
     return 0
