@@ -13,6 +13,7 @@ points), and vpype's `linesort` (greedy, and with --two-opt), the peer from PyPI
 from __future__ import annotations
 
 import argparse
+import gc
 import importlib.util
 import multiprocessing
 import os
@@ -71,6 +72,7 @@ def stage_times(nesting, parts, profile) -> dict[str, float]:
                 seconds[name] += time.process_time() - start
         return run
 
+    gc.freeze()         # as every export worker does with the job it inherits (job._start_worker)
     inner = {"  nearest neighbour": "_nearest_neighbour", "  2-opt": "_two_opt", "  start points": "_restart"}
     originals = {attribute: getattr(toolpath, attribute) for attribute in inner.values()}
     for label, attribute in inner.items():

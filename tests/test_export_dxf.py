@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fabline.export import ToolpathOptions, export_job, load_machine
-from fabline.export.dxf import LAYERS, drawing_text, new_drawing, sheet_polylines
+from fabline.export.dxf import LAYERS, drawing_text, lwpolylines_text, new_drawing, sheet_polylines
 from fabline.nest.layout import place
 
 from test_export_helpers import every_kind_nesting, every_kind_partset
@@ -115,3 +115,20 @@ def test_polylines_are_written_byte_for_byte_as_ezdxf_writes_them():
     doc = ezdxf.read(io.StringIO(ours))
     assert not doc.audit().has_errors
     assert len(doc.modelspace()) == len(pieces)
+
+
+def test_coordinates_that_repr_writes_otherwise_are_still_written_as_ezdxf_writes_them():
+    """The digit-by-digit writer covers whole numbers of 1e-6; the rest (exponent notation below 1e-4, huge or
+    unrounded values, negative zero) must still come out as ezdxf's own serialisation writes them."""
+    vertices = np.array([[0.0, -0.0, 0.0], [5e-05, -1e-06, 0.25], [1e-4, 0.000123, -1e-07], [123456789012.5, 7.0, 0.0],
+                         [1234.5678901234, -99.000001, 0.4142135623730951], [4000.0, 2000.5, 0.0]])
+    ours = lwpolylines_text(vertices, [("CUT-OUTER", True, 0, 3), ("ENGRAVE-TEXT", False, 3, 6)], 0x30, "1F")
+    doc = new_drawing()
+    for layer, closed, rows in (("CUT-OUTER", True, vertices[:3]), ("ENGRAVE-TEXT", False, vertices[3:])):
+        doc.modelspace().add_lwpolyline(rows.tolist(), format="xyb", close=closed, dxfattribs={"layer": layer})
+    stream = io.StringIO()
+    doc.write(stream)
+    theirs = stream.getvalue()
+    body = theirs[theirs.index("  0\nLWPOLYLINE\n"):theirs.index("  0\nENDSEC", theirs.index("  2\nENTITIES\n"))]
+    assert re.sub(r"  5\n\w+\n330\n\w+\n", "", ours) == re.sub(r"  5\n\w+\n330\n\w+\n", "", body)
+    assert "\n5e-05\n" in ours and "\n-0.0\n" in ours and "\n123456789012.5\n" in ours

@@ -24,12 +24,19 @@ def with_bulges(contour: np.ndarray) -> np.ndarray:
     return np.column_stack([contour, np.zeros(len(contour))])
 
 
-def is_closed(contour: np.ndarray) -> bool:
-    """True when the last vertex equals the first (np.allclose's test, written out: called for every contour)."""
-    if len(contour) < 3:
-        return False
-    (x0, y0), (x1, y1) = contour[0, :2].tolist(), contour[-1, :2].tolist()
-    return abs(x0 - x1) <= 1e-9 + 1e-5 * abs(x1) and abs(y0 - y1) <= 1e-9 + 1e-5 * abs(y1)
+def stack_contours(contours: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Many (N, 2) or (N, 3) contours as one float [x, y, bulge] array, the row where each ends, and whether each is
+    closed (its last vertex equals its first, np.allclose's test written out), all at once: a part has hundreds
+    of short label strokes, where numpy calls per contour would dominate."""
+    sizes = np.array([len(contour) for contour in contours], dtype=int)
+    ends = np.cumsum(sizes)
+    starts = ends - sizes
+    stacked = np.zeros((int(ends[-1]) if len(ends) else 0, 3))
+    for contour, start in zip(contours, starts.tolist()):
+        stacked[start:start + len(contour), :contour.shape[1]] = contour
+    first, last = stacked[starts, :2], stacked[ends - 1, :2]
+    closed = (sizes >= 3) & np.all(np.abs(first - last) <= 1e-9 + 1e-5 * np.abs(last), axis=1)
+    return stacked, ends, closed
 
 
 def arc_centres(contour: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -36,7 +36,8 @@ class GcodeWriter:
     def __init__(self, profile: MachineProfile):
         self.profile = profile
         self.decimals = profile.decimals
-        self.xy_format = f"X{{:.{profile.decimals}f}} Y{{:.{profile.decimals}f}}"
+        self.xy_format = f"X{{:.{profile.decimals}f}} Y{{:.{profile.decimals}f}}"   # for rounded values only
+        self.ij_format = f"I{{:.{profile.decimals}f}} J{{:.{profile.decimals}f}}"
         self.lines: list[str] = []
         self.moves = MoveLog()
         self.position = (0.0, 0.0)
@@ -75,9 +76,10 @@ class GcodeWriter:
                 self.feed = None      # the template changed the modal feed; state it again on the next move
         self.stop_pending = True
 
-    def rapid(self, point, always: bool = False) -> None:
-        """Tool-off travel to `point` (skipped when already there, unless `always`)."""
-        target = self.rounded(point)
+    def rapid(self, point, always: bool = False, rounded: tuple | None = None) -> None:
+        """Tool-off travel to `point` (skipped when already there, unless `always`); `rounded`: the point already
+        rounded, when the caller has it."""
+        target = self.rounded(point) if rounded is None else rounded
         if target == self.position and not always:
             return
         self.lines.append(f"G0 {self.xy_format.format(*target)}")
@@ -91,28 +93,48 @@ class GcodeWriter:
         self.lines.append(f"G1 {self.xy_format.format(*target)}{self._modal_words(feed)}")
         self._record(target, None, False, rapid=False, feed=feed)
 
-    def contour(self, contour: np.ndarray, feed: float) -> None:
+    def contour(self, contour: np.ndarray, feed: float, rounded: list | None = None) -> None:
         """Feed moves along a contour from its first vertex (where the tool already is): G1 lines and G2/G3 arcs.
 
-        Plain Python per vertex: contours are short (a hole has four arcs), where numpy's per-call cost dominates.
+        `rounded` is the contour's vertices as `round_half_even` gives them, when the caller rounded many contours
+        at once. Straight moves, most of a program, are written by a plain loop here (contours are short, so
+        numpy's per-call cost would dominate) and logged straight into the MoveLog's rows, laid out as
+        `MoveLog.add` lays them out; arcs go through `_bulge`.
         """
-        rows = contour.tolist()
-        for (x0, y0, bulge), (x1, y1, _) in zip(rows[:-1], rows[1:]):
-            if bulge == 0:
-                self.line_to((x1, y1), feed)
+        if rounded is None:
+            rounded = round_half_even(contour[:, :2], self.decimals).tolist()
+        rows, fmt, logged_feed = contour.tolist(), self.xy_format.format, float(feed or 0.0)
+        lines, log = self.lines, self.moves.rows
+        for (x0, y0, bulge), (x1, y1, _), target in zip(rows, rows[1:], rounded[1:]):
+            target = tuple(target)
+            if bulge:
+                self._bulge(x0, y0, bulge, x1, y1, target, feed)
                 continue
-            sweep = 4.0 * math.atan(bulge)
-            chord = math.hypot(x1 - x0, y1 - y0)
-            radius = chord / (2.0 * abs(math.sin(sweep / 2.0)))
-            if (self.profile.arcs and chord > 0 and radius * (1 - math.cos(sweep / 2)) >= MIN_SAGITTA
-                    and self._arc((x1, y1), _bulge_centre(x0, y0, x1, y1, sweep, chord), sweep < 0, feed)):
+            position = self.position
+            if target == position:
                 continue
-            for point in flatten_contour(np.array([[x0, y0, bulge], [x1, y1, 0.0]]), ARC_FLATTEN_TOLERANCE)[1:].tolist():
-                self.line_to(point, feed)
+            lines.append(f"G1 {fmt(*target)}{self._modal_words(feed)}")
+            log.append((position[0], position[1], target[0], target[1], math.nan, math.nan, False, logged_feed, False,
+                        self.tool_on, self.mark, self.stop_pending, self.dwell_pending))
+            self.position = target
+            self.stop_pending, self.dwell_pending = False, 0.0
 
-    def _arc(self, end, centre, clockwise: bool, feed: float) -> bool:
-        """Write one arc if it survives rounding within ARC_RADIUS_TOLERANCE; False to have it written as lines."""
-        start, target = self.position, self.rounded(end)
+    def _bulge(self, x0: float, y0: float, bulge: float, x1: float, y1: float, target: tuple, feed: float) -> None:
+        """One arc segment to (x1, y1), `target` when rounded: G2/G3 if the profile has arcs and it survives
+        rounding, else straight moves within ARC_FLATTEN_TOLERANCE."""
+        sweep = 4.0 * math.atan(bulge)
+        chord = math.hypot(x1 - x0, y1 - y0)
+        radius = chord / (2.0 * abs(math.sin(sweep / 2.0)))
+        if (self.profile.arcs and chord > 0 and radius * (1 - math.cos(sweep / 2)) >= MIN_SAGITTA
+                and self._arc(target, _bulge_centre(x0, y0, x1, y1, sweep, chord), sweep < 0, feed)):
+            return
+        for point in flatten_contour(np.array([[x0, y0, bulge], [x1, y1, 0.0]]), ARC_FLATTEN_TOLERANCE)[1:].tolist():
+            self.line_to(point, feed)
+
+    def _arc(self, target: tuple, centre, clockwise: bool, feed: float) -> bool:
+        """Write one arc to the (rounded) `target` if it survives rounding within ARC_RADIUS_TOLERANCE; False to
+        have it written as lines."""
+        start = self.position
         offset = self.rounded((centre[0] - start[0], centre[1] - start[1]))
         rounded_centre = (start[0] + offset[0], start[1] + offset[1])
         r_start = math.hypot(*offset)
@@ -120,7 +142,7 @@ class GcodeWriter:
         if abs(r_start - r_end) > ARC_RADIUS_TOLERANCE or target == start:
             return False
         self.lines.append(f"{'G2' if clockwise else 'G3'} {self.xy_format.format(*target)} "
-                          f"I{self.fmt(offset[0])} J{self.fmt(offset[1])}{self._modal_words(feed)}")
+                          f"{self.ij_format.format(*offset)}{self._modal_words(feed)}")
         self._record(target, rounded_centre, clockwise, rapid=False, feed=feed)
         return True
 
@@ -152,6 +174,20 @@ class GcodeWriter:
             raise FablineError(f"{self.profile.source}: max_line_length: a G-code line would be {len(longest)} characters "
                                f"(limit {self.profile.max_line_length}): {longest[:40]}...")
         return "\n".join(self.lines) + "\n"
+
+
+def round_half_even(values: np.ndarray, decimals: int) -> np.ndarray:
+    """`values` rounded as Python's round(value, decimals) rounds each (never a negative zero), for whole arrays.
+
+    numpy's round scales by 10**decimals first, and that product can land on the other side of a half; the few
+    values whose scaled fraction is that close to one half are rounded again one by one.
+    """
+    scaled = values * 10.0 ** decimals
+    result = np.rint(scaled) / 10.0 ** decimals + 0.0
+    doubtful = np.abs(scaled - np.floor(scaled) - 0.5) < 1e-6
+    if doubtful.any():
+        result[doubtful] = [round(value, decimals) + 0.0 for value in values[doubtful].tolist()]
+    return result
 
 
 def _bulge_centre(x0: float, y0: float, x1: float, y1: float, sweep: float, chord: float) -> tuple[float, float]:
@@ -190,12 +226,13 @@ def sheet_program(paths: list[Toolpath], profile: MachineProfile) -> tuple[str, 
     writer.template(profile.render(profile.program_start))
     if profile.laser_mode:
         writer.template(profile.render(profile.tool_on, power=0.0))
+    rounded, entries = _rounded_contours(paths, profile.decimals)
     for index, path in enumerate(paths):
         operation = profile.operations[path.operation]
-        if not _continues(paths, index, writer, operation.passes):
+        if not _continues(paths, entries, index, writer, operation.passes):
             writer.mark = path.operation.startswith("engrave")
             writer.comment(f"{path.operation} {path.part}")
-            writer.rapid(path.entry, always=profile.laser_mode)
+            writer.rapid(path.entry, profile.laser_mode, None if path.lead_in is not None else entries[index])
         contour = path.contour
         for k in range(operation.passes):
             if (k == 0 and not writer.tool_on) or (k > 0 and profile.mode == "mill"):
@@ -208,10 +245,10 @@ def sheet_program(paths: list[Toolpath], profile: MachineProfile) -> tuple[str, 
                 writer.tool_on = True
             if k == 0 and path.lead_in is not None:
                 writer.line_to(contour[0, :2], operation.feed)
-            writer.contour(contour, operation.feed)
+            writer.contour(contour, operation.feed, rounded[index] if contour is path.contour else None)
             if not path.closed:
                 contour = reverse(contour)
-        if not _continues(paths, index + 1, writer, operation.passes):
+        if not _continues(paths, entries, index + 1, writer, operation.passes):
             writer.tool_on = False
             if not profile.laser_mode:
                 writer.template(profile.render(profile.tool_off))
@@ -222,10 +259,24 @@ def sheet_program(paths: list[Toolpath], profile: MachineProfile) -> tuple[str, 
     return writer.finish(), writer.moves
 
 
-def _continues(paths: list[Toolpath], index: int, writer: GcodeWriter, passes: int) -> bool:
+def _rounded_contours(paths: list[Toolpath], decimals: int) -> tuple[list[list], list[tuple]]:
+    """Every path's vertices as they will read back from the file, rounded in one go for the whole sheet, and its
+    first vertex as `GcodeWriter.rounded` rounds a numpy point (numpy's rounding: scaled, then to even), which is
+    where the travel to the path goes."""
+    if not paths:
+        return [], []
+    stacked = np.vstack([path.contour[:, :2] for path in paths])
+    rounded = round_half_even(stacked, decimals).tolist()
+    ends = np.cumsum([len(path.contour) for path in paths])
+    firsts = np.concatenate([[0], ends[:-1]])
+    entries = list(map(tuple, (np.round(stacked[firsts], decimals) + 0.0).tolist()))
+    return [rounded[start:end] for start, end in zip(firsts.tolist(), ends.tolist())], entries
+
+
+def _continues(paths: list[Toolpath], entries: list[tuple], index: int, writer: GcodeWriter, passes: int) -> bool:
     """Does paths[index] carry straight on from where the tool is, still on, in the same single-pass operation?"""
     if not writer.tool_on or index == 0 or index >= len(paths) or passes != 1:
         return False
     path, previous = paths[index], paths[index - 1]
     return (not path.closed and not previous.closed and path.operation == previous.operation
-            and path.lead_in is None and writer.rounded(path.entry) == writer.position)
+            and path.lead_in is None and entries[index] == writer.position)

@@ -112,12 +112,7 @@ def estimate_time(table: np.ndarray, acceleration: float, junction_deviation: fl
     v = np.minimum(v, np.minimum(v_max[:-1], v_max[1:]))
     moving = (length[:-1] > 0) & (length[1:] > 0) & (table[1:, STOP] == 0)
     junction[1:count] = np.where(moving, v, 0.0)
-    speeds, lengths = junction.tolist(), length.tolist()
-    for i in range(count - 1, -1, -1):        # backward: able to slow down in time
-        speeds[i] = min(speeds[i], math.sqrt(speeds[i + 1] ** 2 + 2 * a * lengths[i]))
-    for i in range(count):                     # forward: able to speed up in time
-        speeds[i + 1] = min(speeds[i + 1], math.sqrt(speeds[i] ** 2 + 2 * a * lengths[i]))
-    junction = np.array(speeds)
+    junction = np.sqrt(np.maximum(_reachable(junction ** 2, 2 * a * length), 0.0))   # >= 0 whatever the rounding
     v0, v1 = junction[:-1], junction[1:]
     accel_dist = (v_max ** 2 - v0 ** 2) / (2 * a)
     decel_dist = (v_max ** 2 - v1 ** 2) / (2 * a)
@@ -128,3 +123,16 @@ def estimate_time(table: np.ndarray, acceleration: float, junction_deviation: fl
         triangle = (peak - v0) / a + (peak - v1) / a
     times = np.where(cruise >= 0, trapezoid, triangle)
     return float(np.sum(times[length > 0]) + table[:, DWELL].sum())
+
+
+def _reachable(limit: np.ndarray, gain: np.ndarray) -> np.ndarray:
+    """Squared junction speeds within `limit` that the machine can slow down to and speed up from in time.
+
+    `gain[i]` is how much move i can change the squared speed (2 a L). Slowing down in time means
+    s[i] <= s[i + 1] + gain[i] for every i (the backward pass of a planner), whose largest solution is the
+    running minimum from the end of limit[j] + gain[i] + ... + gain[j - 1]; speeding up in time is the same
+    forwards. Both are cumulative minimums over cumulative sums, so no Python loop over the moves.
+    """
+    travelled = np.concatenate([[0.0], np.cumsum(gain)])          # travelled[j] - travelled[i]: gain of moves i..j-1
+    backward = np.minimum.accumulate((limit + travelled)[::-1])[::-1] - travelled
+    return np.minimum.accumulate(backward - travelled) + travelled

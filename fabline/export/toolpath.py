@@ -14,14 +14,14 @@ import shapely
 from scipy.spatial import cKDTree
 
 from fabline.errors import FablineError
-from fabline.export.contours import (arc_centres, is_closed, offset, remove_intervals, reverse, rotate_start,
-                                     segment_lengths, to_polygon, with_bulges)
+from fabline.export.contours import (arc_centres, offset, remove_intervals, reverse, rotate_start, segment_lengths,
+                                     stack_contours, to_polygon, with_bulges)
 from fabline.export.machine import OPERATIONS
 from fabline.nest.layout import CommonCut, Placement, Sheet, place
 from fabline.unroll.parts import Part
 
 NN_CANDIDATES = 16         # nearest points looked at per greedy step before widening the search
-TWO_OPT_NEIGHBOURS = 8     # candidate new neighbours per path in a 2-opt pass
+TWO_OPT_NEIGHBOURS = 16    # nearest path ends looked at per path end in 2-opt (about half are usable)
 TWO_OPT_PASSES = 30
 
 
@@ -120,19 +120,20 @@ def _part_contours(part: Part, options: ToolpathOptions) -> tuple[np.ndarray, li
     """Every toolpath contour of a part in its own frame, stacked into one array so a placement moves them at once,
     with (operation, closed, first row, end row) for each: marks and text as they are, cuts offset by half the kerf."""
     half = options.kerf / 2.0
-    contours = [("engrave-mark", with_bulges(m)) for m in part.marks] + [("engrave-text", with_bulges(t)) for t in part.text]
+    operations = ["engrave-mark"] * len(part.marks) + ["engrave-text"] * len(part.text)
+    contours = [*part.marks, *part.text]
     for contour, operation, distance in ([(c, "cut-inner", -half) for c in inner_contours(part)]
                                          + [(part.outline, "cut-outer", half)]):
         moved = _cached_offset(contour, distance, options._cache)
         if moved is None:
             raise FablineError(f"part {part.id}: a contour vanishes when offset by half the kerf ({half} mm)")
-        contours.append((operation, moved))
-    pieces, row = [], 0
-    for operation, contour in contours:
-        closed = operation.startswith("cut") or is_closed(contour)
-        pieces.append((operation, closed, row, row + len(contour)))
-        row += len(contour)
-    return np.vstack([c for _, c in contours]), pieces
+        operations.append(operation)
+        contours.append(moved)
+    stacked, ends, closed = stack_contours(contours)
+    ends = ends.tolist()
+    pieces = [(operation, operation.startswith("cut") or shut, start, end)
+              for operation, shut, start, end in zip(operations, closed.tolist(), [0] + ends[:-1], ends)]
+    return stacked, pieces
 
 
 def inner_contours(part: Part) -> list[np.ndarray]:
@@ -331,43 +332,64 @@ def _nearest_neighbour(paths: list[Toolpath], start: np.ndarray) -> list[Toolpat
 def _two_opt(tour: list[Toolpath], start: np.ndarray) -> list[Toolpath]:
     """2-opt on the tour's travel moves with neighbour lists: reversing a run of paths also reverses its open paths.
 
-    Each pass looks at the reversals whose new travel moves join near neighbours (KD-tree), applies the best
-    non-overlapping improving ones at once, and repeats until no reversal shortens the travel.
+    Each pass looks at the reversals whose new travel moves join near neighbours, applies the best
+    non-overlapping improving ones at once, and repeats until no reversal shortens the travel. Reversals only
+    swap which end of a path is its entry, so the neighbours of every path end are found once (KD-tree) and
+    each pass keeps those that are currently an exit (or an entry), as the new moves need.
     """
     n = len(tour)
-    entry = np.array([p.entry for p in tour])
-    exit_ = np.array([p.exit for p in tour])
-    flipped = np.zeros(n, dtype=bool)
-    order = np.arange(n)
-    k = min(TWO_OPT_NEIGHBOURS, n)
+    ends = np.empty((2 * n, 2))                             # row 2q: path q's entry in the tour given, 2q + 1: its exit
+    ends[0::2] = [p.entry for p in tour]
+    ends[1::2] = [p.exit for p in tour]
+    closed = np.array([p.closed for p in tour])
+    k = min(TWO_OPT_NEIGHBOURS, 2 * n)
+    tree = cKDTree(ends)
+    gap, near = (a.reshape(2 * n, k) for a in tree.query(ends, k=k))
+    gap_start, near_start = (np.atleast_1d(a) for a in tree.query(start, k=k))
+    order = np.arange(n)                                    # path at each tour position
+    flipped = np.zeros(n, dtype=bool)                       # by path: run backwards from the tour given
+    rows = np.arange(n)
     for _ in range(TWO_OPT_PASSES):
-        before = np.vstack([start, exit_[:-1]])                 # where the tool comes from into position i
-        _, near_exit = cKDTree(exit_).query(before, k=k)        # reversal [i..j] with a short new move before[i] -> exit[j]
-        _, near_entry = cKDTree(entry).query(entry[1:], k=k)    # reversal [i..j] with a short move entry[i] -> entry[j+1]
-        i = np.concatenate([np.repeat(np.arange(n), k), near_entry.ravel()])
-        j = np.concatenate([near_exit.reshape(n, k).ravel(), np.repeat(np.arange(n - 1), k)])
-        keep = j >= i
-        i, j = i[keep], j[keep]
-        has_after = j + 1 < n
-        after = entry[np.minimum(j + 1, n - 1)]
-        old = _distance(before[i], entry[i]) + np.where(has_after, _distance(exit_[j], after), 0.0)
-        new = _distance(before[i], exit_[j]) + np.where(has_after, _distance(entry[i], after), 0.0)
-        gain = old - new
+        position = np.empty(n, dtype=int)
+        position[order] = rows
+        entry_end = 2 * order + flipped[order]              # row of `ends` each position enters at
+        exit_end = 2 * order + 1 - flipped[order]
+        entry, exit_ = ends[entry_end], ends[exit_end]
+        before = np.vstack([start, exit_[:-1]])             # where the tool comes from into position i
+        move_in = np.append(_distance(before, entry), 0.0)  # travel into each position (and past the end: none)
+        # reversal [i..j] with a short new move before[i] -> exit[j]: ends near before[i] that are an exit now
+        found = np.vstack([near_start, near[exit_end[:-1]]])
+        path = found // 2
+        usable = np.nonzero(closed[path] | ((found % 2 == 1) != flipped[path]))
+        i1, j1 = usable[0], position[path[usable]]
+        short1 = np.vstack([gap_start, gap[exit_end[:-1]]])[usable]
+        # reversal [i..j] with a short new move entry[i] -> entry[j + 1]: ends near entry[i] that are an entry now
+        found = near[entry_end]
+        path = found // 2
+        usable = np.nonzero(closed[path] | ((found % 2 == 0) != flipped[path]))
+        i2, j2 = usable[0], position[path[usable]] - 1
+        short2 = gap[entry_end][usable]
+        keep1, keep2 = j1 >= i1, j2 >= i2
+        i1, j1, short1, i2, j2, short2 = i1[keep1], j1[keep1], short1[keep1], i2[keep2], j2[keep2], short2[keep2]
+        after1 = j1 + 1 < n
+        other1 = np.where(after1, _distance(entry[i1], entry[np.minimum(j1 + 1, n - 1)]), 0.0)
+        other2 = _distance(before[i2], exit_[j2])          # j2 + 1 < n: it is a position
+        i, j = np.concatenate([i1, i2]), np.concatenate([j1, j2])
+        gain = move_in[i] + move_in[j + 1] - np.concatenate([short1 + other1, short2 + other2])
         improving = np.flatnonzero(gain > 1e-6)
         if len(improving) == 0:
             break
         busy = np.zeros(n, dtype=bool)
-        for c in improving[np.argsort(-gain[improving], kind="stable")]:
+        for c in improving[np.argsort(-gain[improving], kind="stable")].tolist():
             lo, hi = int(i[c]), int(j[c])
             if busy[max(lo - 1, 0):hi + 2].any():
                 continue
             busy[lo:hi + 1] = True
-            run = slice(lo, hi + 1)
-            entry[run], exit_[run] = exit_[run][::-1].copy(), entry[run][::-1].copy()
-            order[run] = order[run][::-1].copy()
-            flipped[run] = ~flipped[run][::-1]
+            run = order[lo:hi + 1]
+            flipped[run] = ~flipped[run]
+            order[lo:hi + 1] = run[::-1].copy()
     result = []
-    for index, flip in zip(order.tolist(), flipped.tolist()):
+    for index, flip in zip(order.tolist(), flipped[order].tolist()):
         path = tour[index]
         if flip and not path.closed:
             path = Toolpath(path.operation, path.part, reverse(path.contour), False)
