@@ -12,13 +12,13 @@ from __future__ import annotations
 import numpy as np
 
 from fabline.unroll.options import TEXT_GAP, UnrollOptions
-from fabline.unroll.parts import Part, Slot
+from fabline.unroll.parts import Part, Polylines, Slot
 from fabline.unroll.pieces import (ARROW_LENGTH, LABEL_TIE_MM, MIN_LABEL_HEIGHT, SEAM_HOLE_COLUMNS, SEAM_HOLE_ROWS,
                                    is_seam, segment_label, segment_meta)
 from fabline.unroll.flat import circles
 from fabline.unroll.seams import Segment
 from fabline.unroll.stations import FAMILY_EDGE
-from fabline.unroll.strokes import TextBlock, gather, layout_block, split_rows
+from fabline.unroll.strokes import Characters, TextBlock, characters, gather, join_blocks, split_rows
 
 
 
@@ -74,8 +74,8 @@ def straight_parts(segments: list[Segment], options: UnrollOptions) -> list[Part
     # node ids beside their marks, on the side away from a seam overlap or the strip end
     unique: dict[str, int] = {}
     which = np.array([unique.setdefault(n, len(unique)) for n in nodes["ids"]], dtype=int)
-    id_block = layout_block(list(unique))
-    widths = id_block.widths[which]
+    id_chars = characters(list(unique))
+    widths = id_chars.widths[which]
     widest = np.zeros(len(segments))
     np.maximum.at(widest, node_seg, widths)
     reach = widest * height + 2.0 * TEXT_GAP
@@ -91,39 +91,38 @@ def straight_parts(segments: list[Segment], options: UnrollOptions) -> list[Part
     baseline = edge_y - sign * TEXT_GAP - np.where(sign > 0, height, 0.0)
     blocked_lo = np.where(right, node_x - TEXT_GAP, node_x - r_node)
     blocked_hi = np.where(right, node_x + r_node, node_x + TEXT_GAP)
-    # each id is laid out once and engraved on up to four strips
-    ids = gather(id_block, which, height, np.column_stack([node_x - a[node_seg] + dx, baseline[node_seg]]))
-    node_strokes = split_rows(ids.points, ids.starts)
-    node_stroke_count = np.bincount(ids.stroke_owner, minlength=len(which))
+    id_shift = np.column_stack([node_x - a[node_seg] + dx, baseline[node_seg]])
 
     # labels: the widest stretch between seam overlaps and node ids, for all segments at once
     labels = [segment_label(s) for s in segments]
-    label_block = layout_block(labels)
+    label_chars = characters(labels)
     starting, ending = np.flatnonzero(start_seam), np.flatnonzero(end_seam)
     span_seg = np.concatenate([starting, ending, node_seg])
     span_lo = np.concatenate([a[starting], b[ending] - options.overlap, blocked_lo])
     span_hi = np.concatenate([a[starting] + options.overlap, b[ending], blocked_hi])
-    anchor, size = label_spots(label_block.widths, a, b, span_seg, span_lo, span_hi, height)
-    label_strokes = _labels(anchor, size, label_block, a, edge_y, slot_end_y)
+    anchor, size = label_spots(label_chars.widths, a, b, span_seg, span_lo, span_hi, height)
+    text, text_starts, text_stroke_at, text_point_at = _engraving(
+        id_chars, which, id_shift, node_seg, height, label_chars, anchor, size, a, edge_y, slot_end_y)
 
     holes, hole_count = _seam_holes(segments, a, start_seam, end_seam, options)
 
     # the per-part assembly below only slices Python lists with Python ints, the cheapest way to build objects
     node_ids = nodes["ids"]
-    stroke_at = np.concatenate([[0], np.cumsum(node_stroke_count)]).tolist()
     hole_at = np.concatenate([[0], np.cumsum(hole_count)]).tolist()
     slot_list = [Slot(n, c, e) for n, c, e in zip(slots["nodes"], slot_contours, slots["edges"])]
-    mark_list = list(marks)
+    mark_points = marks.reshape(-1, 2)
+    mark_starts = 2 * (np.arange(len(node_x)) - node_range[node_seg])   # two vertices a mark, from its part's first
     node_s = np.round(node_x - a[node_seg], 4).tolist()
     node_rows = [{"id": n, "s": s} for n, s in zip(node_ids, node_s)]
     slot_bounds, node_bounds = slot_range.tolist(), node_range.tolist()
     parts = []
     for k, segment in enumerate(segments):
         s0, s1, n0, n1 = slot_bounds[k], slot_bounds[k + 1], node_bounds[k], node_bounds[k + 1]
-        text = node_strokes[stroke_at[n0]:stroke_at[n1]] + label_strokes.get(k, [])
+        t0, t1 = text_stroke_at[k], text_stroke_at[k + 1]
         parts.append(Part(
             segment.id, "strip", outlines[k], lamella=segment.strip.lamella, holes=holes[hole_at[k]:hole_at[k + 1]],
-            slots=slot_list[s0:s1], marks=mark_list[n0:n1], text=text, nodes=node_rows[n0:n1],
+            slots=slot_list[s0:s1], marks=Polylines(mark_points[2 * n0:2 * n1], mark_starts[n0:n1]),
+            text=Polylines(text[text_point_at[k]:text_point_at[k + 1]], text_starts[t0:t1]), nodes=node_rows[n0:n1],
             label=labels[k], grain=True, meta=segment_meta(segment, None)))
     return parts
 
@@ -270,28 +269,52 @@ def label_spots(widths: np.ndarray, a: np.ndarray, b: np.ndarray, span_seg: np.n
     return anchor, size
 
 
-def _labels(anchor: np.ndarray, size: np.ndarray, block: TextBlock, a: np.ndarray, edge_y: np.ndarray,
-            slot_end_y: np.ndarray) -> dict[int, list[np.ndarray]]:
-    """Per segment with a label spot: the label's strokes, then its arrow's shaft and head (as `pieces._label`)."""
-    placed = np.flatnonzero(~np.isnan(anchor))
-    if not placed.size:
-        return {}
-    count = len(anchor)
-    anchor = np.where(np.isnan(anchor), 0.0, anchor) - a
+def _engraving(ids: Characters, which: np.ndarray, id_shift: np.ndarray, node_seg: np.ndarray, height: float,
+               labels: Characters, anchor: np.ndarray, size: np.ndarray, a: np.ndarray, edge_y: np.ndarray,
+               slot_end_y: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int], list[int]]:
+    """Every segment's engraving in one vertex array, in the order `pieces` draws it: the ids of its nodes (id
+    which[i] at cap height `height`, moved by id_shift[i]), then its label and the label's arrow, shaft and head
+    (as `pieces._label`, where `label_spots` found room). Each character and arrow stroke is one item of one
+    `gather` from the glyph tables, sorted by segment first. Returns the points, each stroke's start counted from
+    its segment's first point, and per segment (count + 1 bounds) its first stroke and first point."""
+    count = len(a)
+    labelled = ~np.isnan(anchor)
+    placed = np.flatnonzero(labelled)
     mid_y = (slot_end_y + edge_y) / 2.0
-    start = anchor - (block.widths + 1.0 + ARROW_LENGTH) * size / 2.0
-    points = block.points * size[block.owner][:, None]
-    points[:, 0] += start[block.owner]
-    points[:, 1] += (mid_y - size / 2.0)[block.owner]
-    every = split_rows(points, block.starts)
-    first = np.searchsorted(block.stroke_owner, np.arange(count + 1)).tolist()
-    shaft_x = start + (block.widths + 1.0) * size
-    length, head = ARROW_LENGTH * size, np.minimum(0.8 * size, ARROW_LENGTH * size / 3.0)
+    start = np.where(labelled, anchor, 0.0) - a - (labels.widths + 1.0 + ARROW_LENGTH) * size / 2.0
+    shaft_x = (start + (labels.widths + 1.0) * size)[placed]
+    mid, length = mid_y[placed], ARROW_LENGTH * size[placed]
+    head = np.minimum(0.8 * size[placed], length / 3.0)
     tip = shaft_x + length
-    shafts = np.stack([np.column_stack([shaft_x, mid_y]), np.column_stack([tip, mid_y])], axis=1)
-    heads = np.stack([np.column_stack([tip - head, mid_y + head / 2.0]), np.column_stack([tip, mid_y]),
-                      np.column_stack([tip - head, mid_y - head / 2.0])], axis=1)
-    return {k: every[first[k]:first[k + 1]] + [shafts[k], heads[k]] for k in placed.tolist()}
+    shafts = np.stack([np.column_stack([shaft_x, mid]), np.column_stack([tip, mid])], axis=1)
+    heads = np.stack([np.column_stack([tip - head, mid + head / 2.0]), np.column_stack([tip, mid]),
+                      np.column_stack([tip - head, mid - head / 2.0])], axis=1)
+    m = len(placed)
+    arrows = TextBlock(np.concatenate([shafts.reshape(-1, 2), heads.reshape(-1, 2)]),
+                       np.repeat(np.arange(2 * m), [2] * m + [3] * m), np.concatenate([2 * np.arange(m), 2 * m + 3 * np.arange(m)]),
+                       np.arange(2 * m), np.zeros(2 * m))
+    table = join_blocks([ids.table, labels.table, arrows])
+    id_glyphs, label_glyphs = len(ids.table.widths), len(ids.table.widths) + len(labels.table.widths)
+    id_char, label_char = _spans(ids.first[which], ids.lengths[which]), _spans(labels.first[placed], labels.lengths[placed])
+    id_node = np.repeat(np.arange(len(which)), ids.lengths[which])
+    label_seg = np.repeat(placed, labels.lengths[placed])
+    entry = np.concatenate([ids.glyph[id_char], id_glyphs + labels.glyph[label_char], label_glyphs + np.arange(2 * m)])
+    advance = np.concatenate([ids.advance[id_char], labels.advance[label_char], np.zeros(2 * m)])
+    scale = np.concatenate([np.full(len(id_char), height), size[label_seg], np.ones(2 * m)])
+    shift = np.concatenate([id_shift[id_node], np.column_stack([start, mid_y - size / 2.0])[label_seg], np.zeros((2 * m, 2))])
+    segment = np.concatenate([node_seg[id_node], label_seg, placed, placed])
+    order = np.argsort(segment, kind="stable")
+    text = gather(table, entry[order], scale[order], shift[order], advance[order])
+    stroke_segment = segment[order][text.stroke_owner]
+    stroke_at = np.searchsorted(stroke_segment, np.arange(count + 1))
+    point_at = np.append(text.starts, len(text.points))[stroke_at]
+    return text.points, text.starts - point_at[stroke_segment], stroke_at.tolist(), point_at.tolist()
+
+
+def _spans(first: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The indices first[i], first[i] + 1, ..., first[i] + counts[i] - 1 of every i, one after another."""
+    row = np.cumsum(counts) - counts
+    return np.repeat(first - row, counts) + np.arange(counts.sum())
 
 
 def _seam_holes(segments: list[Segment], a: np.ndarray, start_seam: np.ndarray, end_seam: np.ndarray,

@@ -78,15 +78,22 @@ def _square(side: float, angle_deg: float) -> np.ndarray:
     return contour
 
 
-def washers(node: str, arm_angles_deg: list[float], sizes: HardwareSizes) -> list[Part]:
-    """The two star washers (top, bottom) of a node: one arm pair along each lamella pair, at its angle (degrees).
+def washer_keys(angles: np.ndarray, bounds: list[int]) -> list[tuple[float, ...]]:
+    """Per node (its arm angles in degrees from bounds[k] to bounds[k + 1]), the washer's arm angles: relative to the
+    first lamella, rounded to half a degree (the washer's tolerance), distinct and sorted. Rounding for all at once."""
+    owner = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))
+    first = angles[np.asarray(bounds[:-1], dtype=int)]
+    relative = (np.round((angles - first[owner]) % 180.0 * 2.0) / 2.0 % 180.0).tolist()
+    return [tuple(sorted(set(relative[lo:hi]))) for lo, hi in zip(bounds[:-1], bounds[1:])]
 
-    Angles are taken relative to the first lamella and rounded to half a degree, the washer's tolerance.
-    """
-    angles = tuple(sorted({round((a - arm_angles_deg[0]) % 180.0 * 2.0) / 2.0 % 180.0 for a in arm_angles_deg}))
+
+def washers(node: str, angles: tuple[float, ...], sizes: HardwareSizes) -> list[Part]:
+    """The two star washers (top, bottom) of a node: one arm pair along each lamella pair, at `angles` (`washer_keys`)."""
     outline, hole, label = _washer_shape(angles, sizes)
-    return [Part(f"W-{node}-{side}", "washer", outline, holes=[hole], label=label,
-                 meta={"node": node, "arm_angles_deg": list(angles), "side": side}) for side in ("T", "B")]
+    return [Part(f"W-{node}-T", "washer", outline, holes=[hole], label=label,
+                 meta={"node": node, "arm_angles_deg": list(angles), "side": "T"}),
+            Part(f"W-{node}-B", "washer", outline, holes=[hole], label=label,
+                 meta={"node": node, "arm_angles_deg": list(angles), "side": "B"})]
 
 
 @lru_cache(maxsize=1024)

@@ -8,6 +8,7 @@ of the arc it spans, positive counter-clockwise, so arcs stay arcs all the way t
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -15,9 +16,65 @@ import numpy as np
 
 from fabline.errors import FablineError
 from fabline.fileio import read_json, write_json
+from fabline.unroll.collector import collector_paused
 
 SCHEMA = "fabline.parts/1"
 PART_KINDS = ("strip", "curved-strip", "washer", "clamp", "joint")
+
+
+class Polylines(Sequence):
+    """Many polylines in ONE vertex array: reads as the list of (k, 2) or (k, 3) arrays it stands for.
+
+    A large job engraves hundreds of thousands of short strokes; one array per stroke costs more to make
+    (and to load) than the geometry itself. `points` holds every vertex, `starts` the row where each
+    polyline begins; indexing and iteration give views into `points`, `+` gives a plain list.
+    """
+
+    __slots__ = ("points", "starts")
+
+    def __init__(self, points: np.ndarray, starts: np.ndarray) -> None:
+        self.points = points
+        self.starts = np.asarray(starts, dtype=np.intp)
+
+    @classmethod
+    def of(cls, polylines: Sequence[np.ndarray]) -> "Polylines | list[np.ndarray]":
+        """The polylines in one array; a plain list when their vertex widths differ (one array holds one width)."""
+        if isinstance(polylines, Polylines):
+            return polylines
+        arrays = [np.asarray(line, dtype=float) for line in polylines]
+        if not arrays:
+            return cls(np.zeros((0, 2)), np.zeros(0, dtype=np.intp))
+        if len({a.shape[1] for a in arrays}) > 1:
+            return arrays
+        counts = np.array([len(a) for a in arrays])
+        return cls(np.concatenate(arrays), np.cumsum(counts) - counts)
+
+    def bounds(self) -> list[int]:
+        """Row bounds of the polylines as plain ints: polyline k is points[bounds[k]:bounds[k + 1]]."""
+        return self.starts.tolist() + [len(self.points)]
+
+    def __len__(self) -> int:
+        return len(self.starts)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return list(self)[index]
+        k = range(len(self.starts))[index]  # negative indices and IndexError as a list has them
+        end = self.starts[k + 1] if k + 1 < len(self.starts) else len(self.points)
+        return self.points[self.starts[k]:end]
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        bounds = self.bounds()
+        return (self.points[a:b] for a, b in zip(bounds[:-1], bounds[1:]))
+
+    def __add__(self, other: Sequence[np.ndarray]) -> list[np.ndarray]:
+        return list(self) + list(other)
+
+    def __radd__(self, other: Sequence[np.ndarray]) -> list[np.ndarray]:
+        return list(other) + list(self)
+
+    def __repr__(self) -> str:
+        return f"Polylines({len(self)} polylines, {len(self.points)} vertices)"
 
 
 @dataclass
@@ -34,8 +91,9 @@ class Part:
     """One flat part to cut. `outline` is the outer contour (edge notches included); `holes` are inner contours.
 
     `slots` describe the joint slots (already part of the outline when open to an edge), `marks` and
-    `text` are engrave polylines, `nodes` the node positions along the strip's x axis. `grain` asks for
-    the part's x axis to stay along the sheet's rolling direction (rotation 0 or 180 only).
+    `text` are engrave polylines (a list of arrays, or the leaner `Polylines` that unroll and `load_parts`
+    make), `nodes` the node positions along the strip's x axis. `grain` asks for the part's x axis to stay
+    along the sheet's rolling direction (rotation 0 or 180 only).
     """
 
     id: str
@@ -44,8 +102,8 @@ class Part:
     lamella: str | None = None
     holes: list[np.ndarray] = field(default_factory=list)
     slots: list[Slot] = field(default_factory=list)
-    marks: list[np.ndarray] = field(default_factory=list)
-    text: list[np.ndarray] = field(default_factory=list)
+    marks: Sequence[np.ndarray] = field(default_factory=list)
+    text: Sequence[np.ndarray] = field(default_factory=list)
     nodes: list[dict] = field(default_factory=list)
     label: str = ""
     grain: bool = False
@@ -91,10 +149,6 @@ def flatten_contour(contour: np.ndarray, tolerance: float = 0.05) -> np.ndarray:
 
 def parts_to_dict(partset: PartSet) -> dict[str, Any]:
     """The JSON-ready form of a part set."""
-
-    def rows(a: np.ndarray) -> list:
-        return np.round(np.asarray(a, dtype=float), 4).tolist()
-
     return {
         "schema": SCHEMA,
         "units": "mm",
@@ -105,9 +159,9 @@ def parts_to_dict(partset: PartSet) -> dict[str, Any]:
         "parts": [
             {
                 "id": p.id, "kind": p.kind, "lamella": p.lamella, "label": p.label, "grain": p.grain,
-                "outline": rows(p.outline), "holes": [rows(h) for h in p.holes],
-                "slots": [{"node": s.node, "edge": s.edge, "outline": rows(s.outline)} for s in p.slots],
-                "marks": [rows(m) for m in p.marks], "text": [rows(t) for t in p.text],
+                "outline": _rows(p.outline), "holes": [_rows(h) for h in p.holes],
+                "slots": [{"node": s.node, "edge": s.edge, "outline": _rows(s.outline)} for s in p.slots],
+                "marks": _polyline_rows(p.marks), "text": _polyline_rows(p.text),
                 "nodes": p.nodes, "meta": p.meta,
             }
             for p in partset.parts
@@ -115,8 +169,26 @@ def parts_to_dict(partset: PartSet) -> dict[str, Any]:
     }
 
 
+def _rows(contour: np.ndarray) -> list:
+    """A contour as JSON rows, rounded to 1e-4 mm."""
+    return np.round(np.asarray(contour, dtype=float), 4).tolist()
+
+
+def _polyline_rows(polylines: Sequence[np.ndarray]) -> list:
+    """Engrave polylines as JSON rows; a `Polylines` is rounded and converted in one call, then cut into lists."""
+    if not isinstance(polylines, Polylines):
+        return [_rows(line) for line in polylines]
+    rows, bounds = _rows(polylines.points), polylines.bounds()
+    return [rows[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+
+
 def parts_from_dict(data: Any, source: str = "parts") -> PartSet:
-    """Build a part set from its JSON form, checking what nest and export rely on; errors name the part."""
+    """Build a part set from its JSON form, checking what nest and export rely on; errors name the part.
+
+    All contours of the file become arrays in one conversion per vertex width (`_ContourPool`); parts get
+    views into them, engrave polylines as `Polylines`. Only when that bulk check fails are the contours
+    converted one by one, to name the first bad one.
+    """
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         raise FablineError(f"{source}: not a {SCHEMA} file")
     if data.get("units", "mm") != "mm":
@@ -124,7 +196,7 @@ def parts_from_dict(data: Any, source: str = "parts") -> PartSet:
     raw_parts = data.get("parts")
     if not isinstance(raw_parts, list) or not raw_parts:
         raise FablineError(f"{source}: no parts")
-    parts, seen = [], set()
+    pool, seen, entries = _ContourPool(), set(), []
     for i, raw in enumerate(raw_parts):
         if not isinstance(raw, dict) or "id" not in raw:
             raise FablineError(f"{source}: parts[{i}] has no id")
@@ -136,32 +208,132 @@ def parts_from_dict(data: Any, source: str = "parts") -> PartSet:
         kind = raw.get("kind")
         if kind not in PART_KINDS:
             raise FablineError(f"{where}: unknown kind {kind!r} (use one of {', '.join(PART_KINDS)})")
+        slots = _field_list(raw, "slots", where)
+        bad_slot = next((k for k, slot in enumerate(slots) if not isinstance(slot, dict)), None)
+        if bad_slot is not None:
+            raise FablineError(f"{where}: slots[{bad_slot}] must be an object with node, edge and outline")
+        entries.append((raw, pid, kind, slots, pool.add([raw.get("outline")], closed=True),
+                        pool.add(_field_list(raw, "holes", where), closed=True),
+                        pool.add([slot.get("outline") for slot in slots], closed=True),
+                        pool.add(_field_list(raw, "marks", where), closed=False),
+                        pool.add(_field_list(raw, "text", where), closed=False)))
+    if not pool.convert():
+        _diagnose(raw_parts, source)
+    parts = []
+    for raw, pid, kind, slots, outline, holes, slot_outlines, marks, text in entries:
         parts.append(Part(
             id=pid, kind=kind, lamella=raw.get("lamella"), label=str(raw.get("label", "")),
-            grain=bool(raw.get("grain", False)),
-            outline=_contour(raw.get("outline"), f"{where}: outline", closed=True),
-            holes=[_contour(h, f"{where}: holes[{k}]", closed=True) for k, h in enumerate(raw.get("holes", []))],
-            slots=[Slot(str(s.get("node", "")), _contour(s.get("outline"), f"{where}: slots[{k}]", closed=True), s.get("edge"))
-                   for k, s in enumerate(raw.get("slots", []))],
-            marks=[_contour(m, f"{where}: marks[{k}]") for k, m in enumerate(raw.get("marks", []))],
-            text=[_contour(t, f"{where}: text[{k}]") for k, t in enumerate(raw.get("text", []))],
+            grain=bool(raw.get("grain", False)), outline=pool.contours(outline)[0], holes=pool.contours(holes),
+            slots=[Slot(str(s.get("node", "")), contour, s.get("edge"))
+                   for s, contour in zip(slots, pool.contours(slot_outlines))],
+            marks=pool.polylines(marks), text=pool.polylines(text),
             nodes=list(raw.get("nodes", [])), meta=dict(raw.get("meta", {})),
         ))
     return PartSet(parts, dict(data.get("profile", {})), str(data.get("material", "")),
                    str(data.get("source", "")), dict(data.get("report", {})))
 
 
+class _ContourPool:
+    """The contours of a whole parts file, converted to arrays together: one array per vertex width (2 or 3).
+
+    `add` files raw contours (JSON lists) and returns their references; `convert` makes the arrays and runs
+    `_contour`'s checks on all of them at once; then `contours` and `polylines` hand out views.
+    """
+
+    def __init__(self) -> None:
+        self.raw: dict[int, list] = {}
+        self.closed: dict[int, list[bool]] = {}
+        self.points: dict[int, np.ndarray] = {}
+        self.bounds: dict[int, list[int]] = {}
+        self.malformed = False
+
+    def add(self, contours: Any, closed: bool) -> list[tuple[int, int]]:
+        """File a field's contours; their (width, index) references, or none once something is malformed."""
+        refs = []
+        try:
+            for contour in contours:
+                width = len(contour[0])
+                group = self.raw.setdefault(width, [])
+                refs.append((width, len(group)))
+                group.append(contour)
+                self.closed.setdefault(width, []).append(closed)
+        except (TypeError, IndexError, KeyError):
+            self.malformed = True
+        return refs
+
+    def convert(self) -> bool:
+        """Convert every width's contours in one call and check them all; False when any is malformed."""
+        if self.malformed or not set(self.raw) <= {2, 3}:
+            return False
+        for width, group in self.raw.items():
+            counts = np.array([len(contour) for contour in group])
+            try:
+                points = np.array([vertex for contour in group for vertex in contour], dtype=float)
+            except (TypeError, ValueError):
+                return False
+            closed = np.array(self.closed[width])
+            if (points.ndim != 2 or points.shape[1] != width or counts.min() < 2 or not np.all(np.isfinite(points))
+                    or np.any(closed & (counts < 4))):
+                return False
+            first = np.cumsum(counts) - counts
+            last = first + counts - 1
+            if not np.all(np.isclose(points[first[closed], :2], points[last[closed], :2])):  # as np.allclose
+                return False
+            self.points[width], self.bounds[width] = points, first.tolist() + [len(points)]
+        return True
+
+    def contours(self, refs: list[tuple[int, int]]) -> list[np.ndarray]:
+        """The arrays of the referenced contours (views)."""
+        return [self.points[w][self.bounds[w][k]:self.bounds[w][k + 1]] for w, k in refs]
+
+    def polylines(self, refs: list[tuple[int, int]]) -> Polylines | list[np.ndarray]:
+        """The referenced polylines (one field of one part, filed together) as `Polylines`; a list if widths differ."""
+        if not refs:
+            return Polylines(np.zeros((0, 2)), np.zeros(0, dtype=np.intp))
+        width = refs[0][0]
+        if any(w != width for w, _ in refs):
+            return self.contours(refs)
+        bounds = self.bounds[width][refs[0][1]:refs[-1][1] + 2]
+        return Polylines(self.points[width][bounds[0]:bounds[-1]], np.array(bounds[:-1]) - bounds[0])
+
+
+def _diagnose(raw_parts: list, source: str) -> None:
+    """Check the contours one by one, in file order, and raise for the first malformed one, naming it."""
+    for raw in raw_parts:
+        where = f"{source}: part {raw['id']}"
+        _contour(raw.get("outline"), f"{where}: outline", closed=True)
+        for k, hole in enumerate(raw.get("holes", [])):
+            _contour(hole, f"{where}: holes[{k}]", closed=True)
+        for k, slot in enumerate(raw.get("slots", [])):
+            _contour(slot.get("outline"), f"{where}: slots[{k}]", closed=True)
+        for name in ("marks", "text"):
+            for k, line in enumerate(raw.get(name, [])):
+                _contour(line, f"{where}: {name}[{k}]")
+    raise FablineError(f"{source}: malformed contours")  # not reached: the checks above are the pool's, one by one
+
+
+def _field_list(raw: dict, name: str, where: str) -> list:
+    """A part's list field (holes, slots, marks, text), empty when absent; anything but a list is an error."""
+    value = raw.get(name, [])
+    if not isinstance(value, list):
+        raise FablineError(f"{where}: {name} must be a list")
+    return value
+
+
 def load_parts(path: str | os.PathLike) -> PartSet:
-    """Load and check a `fabline.parts/1` file."""
-    return parts_from_dict(read_json(path), str(path))
+    """Load and check a `fabline.parts/1` file (the collector paused: the JSON alone is millions of lists)."""
+    with collector_paused():
+        return parts_from_dict(read_json(path), str(path))
 
 
 def save_parts(partset: PartSet, path: str | os.PathLike) -> None:
-    """Write a part set atomically."""
-    write_json(path, parts_to_dict(partset), compact=True)
+    """Write a part set atomically (the collector paused, as for loading)."""
+    with collector_paused():
+        write_json(path, parts_to_dict(partset), compact=True)
 
 
 def _contour(raw: Any, where: str, closed: bool = False) -> np.ndarray:
+    """One contour from JSON, checked: 2 or 3 finite columns, at least 2 vertices (closed: 4, last = first)."""
     try:
         value = np.asarray(raw, dtype=float)
     except (TypeError, ValueError):

@@ -14,7 +14,7 @@ import numpy as np
 
 from fabline.unroll.flat import FlatCentreline, Notches, circles, strip_outline
 from fabline.unroll.options import TEXT_GAP, UnrollOptions
-from fabline.unroll.parts import Part, Slot
+from fabline.unroll.parts import Part, Polylines, Slot
 from fabline.unroll.seams import Segment, node_text_reach
 from fabline.unroll.stations import FAMILY_EDGE, OTHER_EDGE
 from fabline.unroll.strokes import arrow, layout, split_rows
@@ -73,8 +73,8 @@ def segment_part(segment: Segment, options: UnrollOptions) -> Part:
     holes = circles(_seam_holes(centre, segment, options), options.screw_hole / 2.0)
     nodes = [{"id": nid, "s": round(x - a, 4)} for nid, x in in_nodes]
     kind = "strip" if centre.straight else "curved-strip"
-    return Part(segment.id, kind, outline, lamella=strip.lamella, holes=holes, slots=slots, marks=marks, text=text,
-                nodes=nodes, label=label, grain=True, meta=segment_meta(segment, _radius(centre)))
+    return Part(segment.id, kind, outline, lamella=strip.lamella, holes=holes, slots=slots, marks=marks,
+                text=Polylines.of(text), nodes=nodes, label=label, grain=True, meta=segment_meta(segment, _radius(centre)))
 
 
 def segment_meta(segment: Segment, radius: float | None) -> dict:
@@ -152,12 +152,12 @@ def _radius(centre: FlatCentreline) -> float | None:
     return round(1.0 / kappa, 3) if kappa > 0 else None
 
 
-def _marks(centre: FlatCentreline, x: np.ndarray, y_from: float, y_to: np.ndarray) -> list[np.ndarray]:
+def _marks(centre: FlatCentreline, x: np.ndarray, y_from: float, y_to: np.ndarray) -> Polylines:
     """Engrave lines across the strip at stations x, from y_from to y_to, all placed in one call."""
     if not len(x):
-        return []
+        return Polylines.of([])
     points = centre.place(np.repeat(x, 2), np.zeros(2 * len(x)), np.column_stack([np.full(len(x), y_from), y_to]).ravel())
-    return list(points.reshape(-1, 2, 2))
+    return Polylines(points, 2 * np.arange(len(x)))
 
 
 def _engrave(centre: FlatCentreline, items: list) -> list[np.ndarray]:

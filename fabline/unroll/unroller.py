@@ -8,9 +8,6 @@ over-stress is a warning in the report (an error with `strict`), since cutting c
 
 from __future__ import annotations
 
-import gc
-from contextlib import contextmanager
-
 import numpy as np
 
 from fabline.errors import FablineError
@@ -19,7 +16,8 @@ from fabline.geometry.offsets import OffsetCurve
 from fabline.model.network import Network
 from fabline.progress import progress
 from fabline.unroll.batch import straight_flags, straight_parts
-from fabline.unroll.hardware import HardwareSizes, checkerboard, clamp, singularity_joints, washers
+from fabline.unroll.collector import collector_paused
+from fabline.unroll.hardware import HardwareSizes, checkerboard, clamp, singularity_joints, washer_keys, washers
 from fabline.unroll.options import UnrollOptions
 from fabline.unroll.parts import Part, PartSet
 from fabline.unroll.pieces import is_seam, segment_part
@@ -31,21 +29,8 @@ from fabline.unroll.structure import check_lamella, limits
 def unroll_network(network: Network, options: UnrollOptions | None = None,
                    geometry: NetworkGeometry | None = None) -> PartSet:
     """All flat parts of a network (mm) and the report; pass `geometry` to reuse an `analyse` result."""
-    with _collector_paused():
+    with collector_paused():
         return _unroll(network, (options or UnrollOptions()).check(), geometry)
-
-
-@contextmanager
-def _collector_paused():
-    """Pause Python's cyclic garbage collector: a large unroll creates millions of acyclic objects (parts, arrays,
-    strokes), and the collector's repeated full passes over them cost about a fifth of the run. Restored after."""
-    was_enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was_enabled:
-            gc.enable()
 
 
 def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry | None) -> PartSet:
@@ -97,45 +82,59 @@ def _segment_parts(segments: list[Segment], options: UnrollOptions) -> list[Part
 
 
 def hardware_parts(geometry: NetworkGeometry, options: UnrollOptions, sizes: HardwareSizes) -> list[Part]:
-    """Washers (two per crossing node), clamps (checkerboard nodes) and hexagonal joints (singularities, joint mode)."""
-    tangents: dict[str, list[np.ndarray]] = {}
+    """Washers (two per crossing node), clamps (checkerboard nodes) and hexagonal joints (singularities, joint mode).
+
+    The arm angles of all nodes and their washer keys come from whole-array operations; per node only the
+    Part objects are made, from shapes shared by every node of the same (rounded) angles.
+    """
+    geos = list(geometry.lamellas.values())
+    index: dict[str, int] = {}
+    node_of = np.array([index.setdefault(nid, len(index)) for geo in geos for nid in geo.node_ids], dtype=int)
     neighbours: dict[str, list[str]] = {}
-    for geo in geometry.lamellas.values():
-        for nid, t in zip(geo.node_ids, geo.node_tangents):
-            tangents.setdefault(nid, []).append(t)
+    for geo in geos:
         for a, b in zip(geo.node_ids[:-1], geo.node_ids[1:]):
             neighbours.setdefault(a, []).append(b)
             neighbours.setdefault(b, []).append(a)
     clamped = checkerboard(sorted(neighbours), neighbours)
     singular = singular_nodes(geometry)
-    crossing = sorted(nid for nid, ts in tangents.items() if len(ts) >= 2)
+    arms = np.bincount(node_of, minlength=len(index))
+    crossing = sorted(nid for nid, count in zip(index, arms.tolist()) if count >= 2)
+    angles, bounds = arm_angles(crossing, [index[nid] for nid in crossing], node_of,
+                                np.concatenate([geo.node_tangents for geo in geos]), geometry.network)
+    keys = washer_keys(angles, bounds)
+    raw = angles.tolist()
+    joint_mode = options.singularity == "joint"
     parts: list[Part] = []
-    for nid, angles in zip(crossing, arm_angles(crossing, tangents, geometry.network)):
-        if nid in singular and options.singularity == "joint":
-            parts.extend(singularity_joints(nid, angles, sizes))
+    for k, (nid, key) in enumerate(zip(crossing, keys)):
+        if nid in singular and joint_mode:
+            parts.extend(singularity_joints(nid, raw[bounds[k]:bounds[k + 1]], sizes))
             continue
-        pair = washers(nid, angles, sizes)
-        parts.extend(pair)
+        parts.extend(washers(nid, key, sizes))
         if nid in clamped and nid not in singular:
-            parts.append(clamp(nid, pair[0].meta["arm_angles_deg"][1], sizes))
+            parts.append(clamp(nid, key[1], sizes))
     return parts
 
 
-def arm_angles(nodes: list[str], tangents: dict[str, list[np.ndarray]], network: Network) -> list[list[float]]:
-    """Per node, the directions (degrees) of its lamellas in its tangent plane, the first lamella at 0."""
+def arm_angles(nodes: list[str], rows: list[int], node_of: np.ndarray, tangents: np.ndarray,
+               network: Network) -> tuple[np.ndarray, list[int]]:
+    """The directions (degrees) of the lamellas at each node in its tangent plane, the first lamella at 0: one flat
+    array, node k's from bounds[k] to bounds[k + 1]. `node_of` and `tangents` hold every lamella's nodes in order
+    (node row and tangent), `rows` the nodes' rows; a node's lamellas keep that order."""
     if not nodes:
-        return []
+        return np.zeros(0), [0]
+    arms = np.bincount(node_of)
+    by_node = np.argsort(node_of, kind="stable")
+    counts = arms[rows]
+    before = np.cumsum(counts) - counts
+    all_t = tangents[by_node[np.repeat((np.cumsum(arms) - arms)[rows] - before, counts) + np.arange(counts.sum())]]
     normals = np.array([network.nodes[nid].normal for nid in nodes], dtype=float)
-    first = np.array([tangents[nid][0] for nid in nodes])
+    first = all_t[before]
     first -= np.einsum("ij,ij->i", first, normals)[:, None] * normals
     first /= np.linalg.norm(first, axis=1)[:, None]
     second = np.cross(normals, first)
-    owner = np.repeat(np.arange(len(nodes)), [len(tangents[nid]) for nid in nodes])
-    all_t = np.array([t for nid in nodes for t in tangents[nid]])
+    owner = np.repeat(np.arange(len(nodes)), counts)
     angles = np.degrees(np.arctan2(np.einsum("ij,ij->i", all_t, second[owner]), np.einsum("ij,ij->i", all_t, first[owner])))
-    bounds = np.cumsum([0] + [len(tangents[nid]) for nid in nodes]).tolist()
-    flat = angles.tolist()
-    return [flat[lo:hi] for lo, hi in zip(bounds[:-1], bounds[1:])]
+    return angles, np.append(before, len(angles)).tolist()
 
 
 def _strip_row(strip: Strip, segments: list[Segment], seams: list[tuple[str, str]], options: UnrollOptions) -> dict:
