@@ -1,7 +1,8 @@
 """The `fabline` command line: a thin layer that parses arguments and calls the stage packages.
 
 Each module listed in STAGE_COMMANDS defines `register(subparsers)`, which adds its subcommands
-and sets `func` on each parser; `func(args)` returns the exit code (0 on success).
+and sets `func` on each parser; `func(args)` returns the exit code (0 on success). `main` imports only
+the module of the command it runs (the stages' libraries take seconds to import); help shows them all.
 """
 
 from __future__ import annotations
@@ -15,7 +16,10 @@ from typing import Callable
 from fabline import __version__
 from fabline.errors import FablineError
 
-STAGE_COMMANDS = ("model", "importing", "unroll", "nest", "export", "link", "survey", "jobs")
+STAGE_COMMANDS = {"model": ("design", "inspect"), "importing": ("import",), "unroll": ("unroll", "limits"),
+                  "nest": ("nest",), "export": ("export", "gcode-check"), "link": ("stream", "grbl-sim"),
+                  "survey": ("survey",), "jobs": ("run", "runner")}
+"""CLI module -> the commands it registers (a test checks this against the modules)."""
 
 
 def positive(kind: type, most: float = math.inf) -> Callable[[str], int | float]:
@@ -36,19 +40,22 @@ def positive(kind: type, most: float = math.inf) -> Callable[[str], int | float]
     return parse
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The full argument parser with every stage's subcommands."""
+def build_parser(modules: tuple[str, ...] = tuple(STAGE_COMMANDS)) -> argparse.ArgumentParser:
+    """The argument parser with the subcommands of the given CLI modules (default: all)."""
     parser = argparse.ArgumentParser(prog="fabline", description="Fabrication pipeline for elastic lamella gridshells.")
     parser.add_argument("--version", action="version", version=f"fabline {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in STAGE_COMMANDS:
+    for name in modules:
         importlib.import_module(f"fabline.cli.{name}").register(subparsers)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run one subcommand; a user's mistake becomes one line on stderr and exit code 2."""
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    command = argv[0] if argv else None
+    module = next((name for name, commands in STAGE_COMMANDS.items() if command in commands), None)
+    args = build_parser((module,) if module else tuple(STAGE_COMMANDS)).parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except FablineError as exc:

@@ -1,14 +1,16 @@
-"""The unroll stage: every lamella to flat parts, and the parts format that nest and export read."""
+"""The unroll stage: every lamella to flat parts, and the parts format that nest and export read.
 
-from fabline.unroll.materials import Material, Profile, get_material, load_materials, parse_profile
-from fabline.unroll.options import SINGULARITY_MODES, UnrollOptions
-from fabline.unroll.parts import (PART_KINDS, SCHEMA, Part, PartSet, Polylines, Slot, flatten_contour, load_parts,
-                                  parts_from_dict, parts_to_dict, save_parts)
-from fabline.unroll.structure import (bending_stress, check_lamella, helix_stresses, limits, max_twist,
-                                      min_bending_radius, twist_shear_stress)
-from fabline.unroll.unroller import unroll_network
+The names below load their modules on first use, so reading a parts file does not import the unroller.
+"""
 
-__all__ = ["PART_KINDS", "SCHEMA", "SINGULARITY_MODES", "Material", "Part", "PartSet", "Polylines", "Profile", "Slot",
-           "UnrollOptions", "bending_stress", "check_lamella", "flatten_contour", "get_material", "helix_stresses",
-           "limits", "load_materials", "load_parts", "max_twist", "min_bending_radius", "parse_profile",
-           "parts_from_dict", "parts_to_dict", "save_parts", "twist_shear_stress", "unroll_network"]
+from fabline.lazy import lazy_surface
+
+__getattr__, __all__ = lazy_surface(__name__, {
+    "materials": ("Material", "Profile", "get_material", "load_materials", "parse_profile"),
+    "options": ("SINGULARITY_MODES", "UnrollOptions"),
+    "parts": ("PART_KINDS", "SCHEMA", "Part", "PartSet", "Polylines", "Slot", "flatten_contour", "load_parts",
+              "parts_from_dict", "parts_to_dict", "save_parts"),
+    "structure": ("bending_stress", "check_lamella", "helix_stresses", "limits", "max_twist", "min_bending_radius",
+                  "twist_shear_stress"),
+    "unroller": ("unroll_network",),
+})
