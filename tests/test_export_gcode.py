@@ -12,7 +12,6 @@ import pytest
 from fabline.export import MoveLog, ToolpathOptions, check_program, estimate_time, export_job, load_machine
 from fabline.export import samplejob
 from fabline.export.gcode import round_half_even
-from fabline.export.motion import move_geometry
 
 from test_export_helpers import every_kind_nesting, every_kind_partset, gcodeparser, read_toolpaths
 
@@ -178,35 +177,18 @@ def test_whole_array_rounding_is_pythons_round():
 
 
 def test_junction_speeds_match_a_move_by_move_planner():
-    """The planner's backward and forward passes, written the plain way (one move at a time, as Grbl does),
-    against the cumulative-minimum form estimate_time uses, on a random program with arcs, stops and dwells."""
+    """The planner's backward and forward passes, written the plain way (one junction at a time, as Grbl
+    does), against the cumulative-minimum form estimate_time uses: random limits with stops, long and short moves."""
+    from fabline.export.motion import _reachable
+
     rng = np.random.default_rng(3)
-    log, position = MoveLog(), (0.0, 0.0)
-    for k in range(3000):
-        target = (position[0] + rng.normal(0, 20), position[1] + rng.normal(0, 20))
-        centre = (position[0] + rng.normal(0, 5), position[1] + rng.normal(0, 5)) if k % 7 == 0 else None
-        log.add(position, target, float(rng.choice([600.0, 3000.0, 6000.0])), k % 11 == 0, k % 11 != 0,
-                centre=centre, clockwise=bool(k % 2), stop_before=k % 50 == 0, dwell=0.5 if k % 500 == 0 else 0.0)
-        position = target
-    table, a, deviation = log.table(), 800.0, 0.01
-    length, radius, t_start, t_end = move_geometry(table)
-    v_max = np.minimum(table[:, 7] / 60.0, np.sqrt(a * radius))
-    cos_theta = -np.einsum("ij,ij->i", t_end[:-1], t_start[1:])
-    sin_half = np.sqrt(np.clip(0.5 * (1.0 - cos_theta), 0.0, 1.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        v = np.sqrt(a * deviation * sin_half / (1.0 - sin_half))
-    v = np.where(cos_theta > 0.999999, 0.0, np.where(cos_theta < -0.999999, np.inf, v))
-    v = np.minimum(v, np.minimum(v_max[:-1], v_max[1:]))
-    moving = (length[:-1] > 0) & (length[1:] > 0) & (table[1:, 11] == 0)
-    speeds = [0.0] + np.where(moving, v, 0.0).tolist() + [0.0]
-    for i in range(len(table) - 1, -1, -1):
-        speeds[i] = min(speeds[i], math.sqrt(speeds[i + 1] ** 2 + 2 * a * length[i]))
-    for i in range(len(table)):
-        speeds[i + 1] = min(speeds[i + 1], math.sqrt(speeds[i] ** 2 + 2 * a * length[i]))
-    v0, v1 = np.array(speeds[:-1]), np.array(speeds[1:])
-    cruise = length - (v_max ** 2 - v0 ** 2) / (2 * a) - (v_max ** 2 - v1 ** 2) / (2 * a)
-    peak = np.sqrt(np.maximum((2 * a * length + v0 ** 2 + v1 ** 2) / 2.0, 0.0))
-    times = np.where(cruise >= 0, (v_max - v0) / a + (v_max - v1) / a + cruise / v_max,
-                     (peak - v0) / a + (peak - v1) / a)
-    expected = float(np.sum(times[length > 0]) + table[:, 12].sum())
-    assert estimate_time(table, a, deviation) == pytest.approx(expected, rel=1e-9)
+    for moves in (1, 2, 50, 3000):
+        limit = rng.uniform(0, 1e4, moves + 1) * (rng.random(moves + 1) > 0.1)  # squared speeds, some stops
+        limit[0] = limit[-1] = 0.0
+        gain = rng.exponential(2e3, moves) * (rng.random(moves) > 0.05)        # 2 a L, some zero-length moves
+        speeds = limit.tolist()
+        for i in range(moves - 1, -1, -1):
+            speeds[i] = min(speeds[i], speeds[i + 1] + gain[i])
+        for i in range(moves):
+            speeds[i + 1] = min(speeds[i + 1], speeds[i] + gain[i])
+        assert _reachable(limit, gain) == pytest.approx(speeds, rel=1e-9, abs=1e-6)
