@@ -158,12 +158,11 @@ def _under_exposed_small_tag(tag_id: int, seed: int) -> np.ndarray:
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_a_small_tag_the_image_alone_does_not_yield_is_found_where_predicted(seed):
-    """2 px cells in a dark photo: blurred, their contrast is below the adaptive threshold's fixed offset, so no quad
-    comes out of the image alone (the benchmark's three missed tags). Predicted to within a pixel, as the survey's
-    reconstruction predicts it, the tag is found with sub-pixel corners; a wrong id or an empty spot gives nothing."""
+def test_a_small_dim_tag_is_found_where_predicted(seed):
+    """2 px cells in a dark photo, at the limit of what the image alone yields (the low-contrast pass finds it for
+    some noise seeds, not all). Predicted to within a pixel, as the survey's reconstruction predicts it, the tag
+    is found with sub-pixel corners; a wrong id or an empty spot gives nothing."""
     gray = _under_exposed_small_tag(518, seed)
-    assert 518 not in {d.tag_id for d in detect_tags(gray)}  # the kind of miss this is about
     rng = np.random.default_rng(100 + seed)
     predicted = SMALL_OBLIQUE_TAG + rng.uniform(-0.8, 0.8, (4, 2))
     found = detect_expected_tags(gray, {518: predicted})
@@ -172,3 +171,36 @@ def test_a_small_tag_the_image_alone_does_not_yield_is_found_where_predicted(see
     assert detect_expected_tags(gray, {517: predicted}) == []
     assert detect_expected_tags(gray, {518: predicted + [40, 0]}) == []
     assert detect_expected_tags(gray, {518: predicted + [200, 0]}) == []  # outside the image
+
+
+# A tag of 2 px cells at 67 degrees, half exposed (the benchmark's tag 191 in photo 8, moved to the crop's centre)
+DIM_SMALL_TAG = np.array([[59.08, 37.49], [70.48, 49.41], [60.78, 82.34], [49.66, 70.77]])
+
+
+def _dim_small_tag(seed: int) -> np.ndarray:
+    """Tag 191 where two dark lamellas cross, photographed at half exposure with the simulator's blur and noise."""
+    rng = np.random.default_rng(seed)
+    scene = np.full((120, 120), 120, np.float32) + rng.normal(0, 4, (120, 120)).astype(np.float32)
+    cv2.line(scene, (10, 0), (110, 120), 55.0, 20)
+    cv2.line(scene, (110, 0), (10, 120), 55.0, 20)
+    _render_tag(scene, 191, DIM_SMALL_TAG, 0.85)
+    photo = cv2.GaussianBlur(scene * np.float32(0.5), (0, 0), 0.7) + rng.normal(0, 2, scene.shape).astype(np.float32)
+    return np.clip(photo + 0.5, 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_dim_tag_of_2px_cells_is_found_as_pupil_apriltags_finds_it(seed, tmp_path):
+    """Blurred, the black border of 2 px cells at half exposure has less contrast than aruco's default threshold
+    offset, so its first pass yields no quad; the low-contrast pass does, and the tag comes out with sub-pixel
+    corners and no other tag. The AprilTag 3 reference detector finds it too (checked when it is installed)."""
+    gray = _dim_small_tag(seed)
+    found = detect_tags(gray)
+    assert [d.tag_id for d in found] == [191]
+    assert np.linalg.norm(found[0].corners - DIM_SMALL_TAG, axis=1).max() < 0.4
+    try:
+        import pupil_apriltags  # noqa: F401
+    except ImportError:
+        pytest.skip("pupil-apriltags (optional reference detector) not installed: the comparison with it is skipped")
+    cv2.imwrite(str(tmp_path / "dim.png"), gray)
+    [theirs] = _pupil_detect([tmp_path / "dim.png"])
+    assert [tag_id for tag_id, hamming, _ in theirs if hamming == 0] == [191]

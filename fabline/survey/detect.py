@@ -1,7 +1,8 @@
 """AprilTag 36h11 detection with sub-pixel corners, usable on its own (`fabline survey detect`).
 
 OpenCV's aruco finds the quads without corner refinement (its AprilTag refinement silently drops tags,
-its sub-pixel refinement is about 1 px off on real photos); each tag's four edges are then located to
+its sub-pixel refinement is about 1 px off on real photos), in a second pass with a lower threshold offset for
+small, dim tags the first pass cannot see; each tag's four edges are then located to
 sub-pixel precision along the edge normal (the intensity-gradient peak, on a cubic spline of the image),
 a line is fitted per edge and the corners are the line intersections, as in the AprilTag library. Corners follow OpenCV's conventions: pixel centres at integer coordinates,
 order top-left, top-right, bottom-right, bottom-left of the upright tag (clockwise in the image).
@@ -26,6 +27,10 @@ from fabline.survey.tagmap import TAG_CELLS, TAG_DICTIONARY
 EDGE_SAMPLES = 20
 REFINE_PASSES = 2
 BORDER_PAD_PX = 16  # aruco drops quads whose thresholded contour reaches the image border; pad so tags near it survive
+# Second pass for tags of about 2 px cells: blurred, their black border's contrast falls below aruco's default
+# threshold offset (7 grey levels) and the border breaks up; a lower offset at a window of a few cells keeps it whole.
+LOW_CONTRAST_THRESHOLD_OFFSET = 3
+LOW_CONTRAST_WINDOW_PX = 5
 
 
 @dataclass
@@ -54,52 +59,79 @@ def write_image(path: str | os.PathLike, image: np.ndarray, params: tuple = (), 
         handle.write(encoded.tobytes())
 
 
-def _detector(min_side_px: float, image_size: int) -> cv2.aruco.ArucoDetector:
+def _detector(min_side_px: float, image_size: int, low_contrast: bool = False) -> cv2.aruco.ArucoDetector:
+    """OpenCV's aruco detector for 36h11 quads of at least `min_side_px`; `low_contrast` for the second pass."""
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE
     params.minMarkerPerimeterRate = max(4 * min_side_px / image_size, 1e-3)
+    if low_contrast:
+        params.adaptiveThreshConstant = LOW_CONTRAST_THRESHOLD_OFFSET
+        params.adaptiveThreshWinSizeMin = params.adaptiveThreshWinSizeMax = LOW_CONTRAST_WINDOW_PX
     return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY), params)
 
 
-def detect_tags(gray: np.ndarray, min_side_px: float = 12.0) -> list[TagDetection]:
+def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection]:
     """Every 36h11 tag in a grayscale image, sorted by id, corners refined to sub-pixel precision.
 
     Quads OpenCV decodes are refined; quads it finds but cannot decode (small, oblique or blurred
     tags, where its bit sampling on the coarse quad fails) get a second chance: refined first, their
     bits are then read on the refined quad and identified with the dictionary's own error correction.
+    A second aruco pass with a lower threshold offset then adds the small, dim tags the first one cannot
+    see; its quads inside tags already found are skipped.
     """
     padded = cv2.copyMakeBorder(gray, BORDER_PAD_PX, BORDER_PAD_PX, BORDER_PAD_PX, BORDER_PAD_PX, cv2.BORDER_REPLICATE)
-    corners, ids, rejected = _detector(min_side_px, max(padded.shape)).detectMarkers(padded)
-    candidates = [(q, int(i)) for q, i in zip(corners, ids.ravel())] if ids is not None else []
-    candidates += [(q, None) for q in rejected]
     found: dict[int, np.ndarray] = {}
-    for quad, tag_id in candidates:
-        quad = quad.reshape(4, 2).astype(float) - BORDER_PAD_PX
-        if np.any(quad < 0) or np.any(quad > [gray.shape[1] - 1, gray.shape[0] - 1]):
-            continue  # cut by the image border: its corners cannot be measured
-        if tag_id is None and np.min(np.linalg.norm(quad - np.roll(quad, 1, axis=0), axis=1)) < min_side_px:
-            continue
-        tag_id, refined = _refine_and_read(gray, quad, tag_id)
-        if refined is None or tag_id is None:
-            continue
-        if tag_id not in found or _area(refined) > _area(found[tag_id]):
-            found[tag_id] = refined
+    for low_contrast in (False, True):
+        corners, ids, rejected = _detector(min_side_px, max(padded.shape), low_contrast).detectMarkers(padded)
+        candidates = [(q, int(i)) for q, i in zip(corners, ids.ravel())] if ids is not None else []
+        candidates += [(q, None) for q in rejected]
+        known = list(found.values())
+        centres = np.array([q.mean(axis=0) for q in known]).reshape(-1, 2)
+        radii = np.array([0.5 * _shortest_side(q) for q in known])
+        for quad, tag_id in candidates:
+            quad = quad.reshape(4, 2).astype(float) - BORDER_PAD_PX
+            if np.any(quad < 0) or np.any(quad > [gray.shape[1] - 1, gray.shape[0] - 1]):
+                continue  # cut by the image border: its corners cannot be measured
+            if tag_id is None and _shortest_side(quad) < min_side_px:
+                continue
+            if np.any(np.linalg.norm(centres - quad.mean(axis=0), axis=1) < radii):
+                continue  # inside a tag the first pass found
+            read_id, refined = _refine_and_read(gray, quad, tag_id)
+            if tag_id is None and (refined is None or read_id is None):
+                # a tag on a darker background: the quad may be its quiet zone's outline, one cell outside the black square
+                read_id, refined = _refine_and_read(gray, _inside_quiet_zone(quad), None)
+            if refined is None or read_id is None:
+                continue
+            if read_id not in found or _area(refined) > _area(found[read_id]):
+                found[read_id] = refined
     return [TagDetection(tag_id, found[tag_id]) for tag_id in sorted(found)]
+
+
+def _shortest_side(quad: np.ndarray) -> float:
+    return float(np.min(np.linalg.norm(quad - np.roll(quad, 1, axis=0), axis=1)))
+
+
+def _inside_quiet_zone(outline: np.ndarray) -> np.ndarray:
+    """The black square's corners (4, 2) of a tag whose quiet zone's outer outline is `outline`, in perspective."""
+    span = TAG_CELLS + 2
+    to_image = cv2.getPerspectiveTransform(np.float32([[0, 0], [span, 0], [span, span], [0, span]]), outline.astype(np.float32))
+    square = np.float32([[1, 1], [span - 1, 1], [span - 1, span - 1], [1, span - 1]])
+    return cv2.perspectiveTransform(square[None], to_image)[0].astype(float)
 
 
 def detect_expected_tags(gray: np.ndarray, expected: dict[int, np.ndarray], min_side_px: float = 12.0) -> list[TagDetection]:
     """The tags `expected` (id -> predicted corners (4, 2) in px) that really are where predicted, sorted by id.
 
-    For tags whose quad the image alone does not yield: with cells of about 2 px in a dim photo the
-    blurred contrast of the black border falls below the adaptive threshold's fixed offset and the
-    border breaks up. The survey predicts them from the photos that did see them; each prediction is
+    For tags whose quad the image alone does not yield: cells under 2 px in a dim photo, whose blurred
+    border breaks up even at the low-contrast pass's threshold offset, or a strap across a corner of the
+    black square. The survey predicts them from the photos that did see them; each prediction is
     refined on the image edges as in `detect_tags` and kept only when its cells read as that very tag.
     """
     found = []
     for tag_id, predicted in sorted(expected.items()):
         quad = np.asarray(predicted, dtype=float).reshape(4, 2)
         if (np.any(quad < 0) or np.any(quad > [gray.shape[1] - 1, gray.shape[0] - 1])
-                or np.min(np.linalg.norm(quad - np.roll(quad, 1, axis=0), axis=1)) < min_side_px):
+                or _shortest_side(quad) < min_side_px):
             continue
         read_id, refined = _refine_and_read(gray, quad, None)
         if read_id == tag_id:
@@ -234,7 +266,7 @@ def _intersect(line1, line2) -> np.ndarray:
 
 def cell_width_px(corners: np.ndarray) -> float:
     """The tag's narrowest cell width in the photo, px: its shortest detected side over the 8 cells of the black square."""
-    return float(np.min(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1)) / TAG_CELLS)
+    return _shortest_side(corners) / TAG_CELLS
 
 
 def tag_object_points(tag_size: float) -> np.ndarray:
