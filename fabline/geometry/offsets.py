@@ -47,10 +47,15 @@ class SplineTable:
         piece = np.searchsorted(self._piece_keys, key, side="right") - 1 - self.first_piece[fit]
         return np.clip(piece, 0, self.pieces[fit] - 1)
 
+    def piece_coefficients(self, fit: np.ndarray, piece: np.ndarray) -> np.ndarray:
+        """The coefficients (4 powers, highest first; N; 6) of the given local pieces: `np.take` along the pieces,
+        three times faster than indexing the middle axis of the network's table, which spans hundreds of megabytes."""
+        return np.take(self._coefficients, self.first_piece[fit] + piece, axis=1)
+
     def evaluate(self, fit: np.ndarray, piece: np.ndarray, tau: np.ndarray, derivative: int = 0) -> np.ndarray:
         """Spline values (N, 6: point and normal) or their first derivative at tau, on the given local pieces."""
-        return _horner(self._coefficients[:, self.first_piece[fit] + piece],
-                       tau - self.knots[self.first_knot[fit] + piece], derivative)
+        return _horner(self.piece_coefficients(fit, piece),
+                       (tau - self.knots[self.first_knot[fit] + piece])[:, None], derivative)
 
     def arc_length(self, fit: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """`CurveFit.arc_length` of many queries: the length from the fit's start, the local piece, and the part of
@@ -60,8 +65,7 @@ class SplineTable:
         lo = self.knots[knot]
         half, mid = (tau - lo) / 2.0, (tau + lo) / 2.0
         gauss = mid[:, None] + half[:, None] * GAUSS_X[None, :]            # (N, 5), all on the query's piece
-        coefficients = self._coefficients[:, self.first_piece[fit] + piece, None, :3]  # (4, N, 1, 3)
-        speed = np.linalg.norm(_horner(coefficients, gauss - lo[:, None], 1), axis=-1)
+        speed = np.ascontiguousarray(self._speed(fit, piece, (gauss - lo[:, None]).T).T)  # (N, 5)
         within = half * (speed @ GAUSS_W)
         return self.s_at_knots[knot] + within, piece, within
 
@@ -75,30 +79,77 @@ class SplineTable:
         tau = self.knots[knot] + fraction * (self.knots[knot + 1] - self.knots[knot])
         for _ in range(3):
             length, piece, _ = self.arc_length(fit, tau)
-            tau = tau - (length - s) / np.linalg.norm(self.evaluate(fit, piece, tau, 1)[:, :3], axis=1)
+            tau = tau - (length - s) / self._speed(fit, piece, tau - self.knots[self.first_knot[fit] + piece])
         low, high = self.knots[self.first_knot[fit]], self.knots[self.first_knot[fit] + self.pieces[fit]]
         return np.clip(tau, low, high)
 
-    def offset_points(self, fit: np.ndarray, tau: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Points c + o u at parameters `tau` of the given fits, and the centreline's derivative c' there.
+    def _speed(self, fit: np.ndarray, piece: np.ndarray, dx: np.ndarray) -> np.ndarray:
+        """|c'|, the centreline's speed, at offsets dx (..., N) into the N queries' pieces, as np.linalg.norm of the
+        derivative gives it (x^2 + y^2, then + z^2). Queries come last so that numpy's inner loops run over all of
+        them rather than over 3 columns: four times faster, the same operations on every value."""
+        by_column = self.piece_coefficients(fit, piece)[:, :, :3].transpose(0, 2, 1)  # (4, 3, N)
+        squares = _horner(by_column[(slice(None), slice(None)) + (None,) * (dx.ndim - 1)], dx, 1) ** 2
+        return np.sqrt(squares[0] + squares[1] + squares[2])
+
+    def locate(self, fit: np.ndarray, tau: np.ndarray, previous: "Location | None" = None) -> "Location":
+        """The local pieces of parameters `tau` (as `local_piece`) with their coefficients and knots.
+
+        Given the `previous` location of the same queries (e.g. the last Gauss-Newton step's), only parameters
+        that left their piece are searched and gathered again: the same result, at a fraction of the work.
+        """
+        if previous is None:
+            piece = self.local_piece(fit, tau)
+            return Location(piece, self.piece_coefficients(fit, piece),
+                            self.knots[self.first_knot[fit] + piece])
+        moved = np.flatnonzero(~self._holds(fit, previous.piece, tau))
+        if not moved.size:
+            return previous
+        piece, coefficients, knot = previous.piece.copy(), previous.coefficients.copy(), previous.knot.copy()
+        piece[moved] = self.local_piece(fit[moved], tau[moved])
+        coefficients[:, moved] = self.piece_coefficients(fit[moved], piece[moved])
+        knot[moved] = self.knots[self.first_knot[fit[moved]] + piece[moved]]
+        return Location(piece, coefficients, knot)
+
+    def _holds(self, fit: np.ndarray, piece: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Whether `local_piece` would still give `piece`: the very comparisons its search makes, on the same keys."""
+        key = tau - self._start[fit] + fit * self._span
+        row = self.first_piece[fit] + piece
+        last = piece == self.pieces[fit] - 1
+        above_start = (piece == 0) | (key >= self._piece_keys[row])
+        below_end = last | (key < self._piece_keys[np.where(last, row, row + 1)])
+        return above_start & below_end
+
+    def offset_points(self, fit: np.ndarray, tau: np.ndarray, offset: np.ndarray,
+                      location: "Location | None" = None) -> tuple[np.ndarray, np.ndarray]:
+        """Points c + o u at parameters `tau` of the given fits, and the centreline's derivative c' there; pass
+        `location` (from `locate`) to reuse the pieces found for these parameters.
 
         c' is the offset curve's derivative up to the relative terms o k_g and o tau_g (about 1 % for a pair),
         which is all a Gauss-Newton step needs; two spline evaluations instead of the full Darboux frame.
         """
-        piece = self.local_piece(fit, tau)
-        coefficients = self._coefficients[:, self.first_piece[fit] + piece]
-        dx = tau - self.knots[self.first_knot[fit] + piece]
-        value, d1 = _horner(coefficients, dx, 0), _horner(coefficients[..., :3], dx, 1)
+        location = location if location is not None else self.locate(fit, tau)
+        coefficients, dx = location.coefficients, tau - location.knot
+        value, d1 = _horner(coefficients, dx[:, None], 0), _horner(coefficients[..., :3], dx[:, None], 1)
         t = d1 / np.linalg.norm(d1, axis=1)[:, None]
         n = value[:, 3:] - np.einsum("ij,ij->i", value[:, 3:], t)[:, None] * t
         n /= np.linalg.norm(n, axis=1)[:, None]
         return value[:, :3] + offset[:, None] * np.cross(n, t), d1
 
 
+@dataclass(frozen=True)
+class Location:
+    """Where parameters fall in a `SplineTable`: each one's local piece, that piece's coefficients (4 powers, highest
+    first; N; 6) and its starting knot."""
+
+    piece: np.ndarray
+    coefficients: np.ndarray
+    knot: np.ndarray
+
+
 def _horner(coefficients: np.ndarray, dx: np.ndarray, derivative: int) -> np.ndarray:
-    """Cubic pieces (4 powers, highest first; ...; columns) or their derivative at offsets dx (...) from their knots."""
+    """Cubic pieces (4 powers, highest first; then any shape) or their derivative at offsets dx from their knots
+    (dx broadcasting against one power's coefficients)."""
     c3, c2, c1, c0 = coefficients
-    dx = dx[..., None]
     if derivative == 0:
         return ((c3 * dx + c2) * dx + c1) * dx + c0
     return (3.0 * c3 * dx + 2.0 * c2) * dx + c1
@@ -164,8 +215,10 @@ def closest_approach(table: SplineTable, first: np.ndarray, tau_first: np.ndarra
     low = table.knots[table.first_knot[index]] - reach
     high = table.knots[table.first_knot[index] + table.pieces[index]] + reach
     m = len(first)
+    location = None
     for step in range(iterations + 1):
-        points, derivs = table.offset_points(index, tau, offset)
+        location = table.locate(index, tau, location)  # after the first step few parameters change piece
+        points, derivs = table.offset_points(index, tau, offset, location)
         gap = points[:m] - points[m:]
         if step == iterations:
             break

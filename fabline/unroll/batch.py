@@ -291,7 +291,7 @@ def _engraving(ids: Characters, which: np.ndarray, id_shift: np.ndarray, node_se
                       np.column_stack([tip - head, mid - head / 2.0])], axis=1)
     m = len(placed)
     arrows = TextBlock(np.concatenate([shafts.reshape(-1, 2), heads.reshape(-1, 2)]),
-                       np.repeat(np.arange(2 * m), [2] * m + [3] * m), np.concatenate([2 * np.arange(m), 2 * m + 3 * np.arange(m)]),
+                       np.array([2] * m + [3] * m, dtype=int), np.concatenate([2 * np.arange(m), 2 * m + 3 * np.arange(m)]),
                        np.arange(2 * m), np.zeros(2 * m))
     table = join_blocks([ids.table, labels.table, arrows])
     id_glyphs, label_glyphs = len(ids.table.widths), len(ids.table.widths) + len(labels.table.widths)

@@ -196,7 +196,8 @@ def _solve_crossings(geos: list[LamellaGeometry], geometry: NetworkGeometry, tab
     key = lam * count + np.concatenate([side_i, side_j])
     x = offset_arc_lengths(table, curves, fit_of_curve, key, np.concatenate([tau_i, tau_j]))
     node_index = np.concatenate([np.repeat(ki, rep), np.repeat(kj, rep)])
-    edges = np.concatenate([np.array(edge_i)[pair_of], np.array(edge_j)[pair_of]])
+    # object arrays hand back the same str objects in tolist (numpy strings would each become a new one)
+    edges = np.concatenate([np.array(edge_i, dtype=object)[pair_of], np.array(edge_j, dtype=object)[pair_of]])
     node_names = np.array(nodes, dtype=object)[np.tile(pair_of, 2)]
     order = np.lexsort((x, key))
     return key[order], x[order], node_index[order], node_names[order].tolist(), edges[order].tolist()
