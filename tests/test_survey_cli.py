@@ -61,6 +61,7 @@ def test_detect_json_with_poses(cli, simulated):
     for tag_id, corners in record["visible"].items():
         tag = found[int(tag_id)]
         assert np.abs(np.array(tag["corners_px"]) - corners).max() < 0.5
+        assert tag["partial"] is False  # wholly inside the photo
         assert len(tag["rotation"]) == 3 and 0.5 < tag["translation_m"][2] < 10  # metres, in front of the camera
 
 

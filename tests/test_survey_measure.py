@@ -185,3 +185,15 @@ def test_a_tag_the_photo_alone_does_not_yield_is_found_where_the_other_photos_pu
     for found, rendered in zip(record["photos"], truth["photos"]):
         assert set(found["tags"]) <= set(rendered["rendered"])
         assert set(map(int, rendered["visible"])) <= set(found["tags"]), f"missed in {found['file']}"
+
+
+def test_tags_cut_by_the_photo_edge_stay_out_of_the_adjustment(photo_set):
+    """A partial detection (a corner extrapolated past the photo's edge) gives no observation; a whole one does."""
+    from fabline.survey.detect import TagDetection
+    from fabline.survey.measure import _observations
+
+    out, _ = photo_set
+    camera = load_camera(out / "camera.json")
+    square = np.array([[10.0, 10.0], [60.0, 10.0], [60.0, 60.0], [10.0, 60.0]])
+    found = [(0, TagDetection(5, square)), (0, TagDetection(6, square - [12, 0], partial=True)), (1, TagDetection(6, square))]
+    assert [(o.photo, o.tag) for o in _observations(found, camera, 4.0)] == [(0, 5), (1, 6)]

@@ -105,7 +105,8 @@ def _detect(args: argparse.Namespace) -> int:
             continue
         entry["tags"] = []
         for det in detect_tags(gray):
-            tag = {"id": det.tag_id, "corners_px": [[round(x, 3), round(y, 3)] for x, y in det.corners]}
+            # partial: cut by the photo's edge, a corner extrapolated from the edges inside
+            tag = {"id": det.tag_id, "corners_px": [[round(x, 3), round(y, 3)] for x, y in det.corners], "partial": det.partial}
             if camera is not None:
                 rvec, tvec, error = tag_pose(det.corners, camera, args.tag_size)
                 tag.update(rotation=[round(v, 6) for v in rvec], translation_m=[round(v, 6) for v in tvec],

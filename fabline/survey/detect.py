@@ -6,6 +6,8 @@ small, dim tags the first pass cannot see; each tag's four edges are then locate
 sub-pixel precision along the edge normal (the intensity-gradient peak, on a cubic spline of the image),
 a line is fitted per edge and the corners are the line intersections, as in the AprilTag library. Corners follow OpenCV's conventions: pixel centres at integer coordinates,
 order top-left, top-right, bottom-right, bottom-left of the upright tag (clockwise in the image).
+A tag cut by the photo's edge is reported `partial` when its data cells are all inside and each edge at least
+half: the corner outside is extrapolated from the edges' parts inside.
 `detect_expected_tags` looks for known tags at predicted corners (the survey's second look).
 """
 
@@ -26,11 +28,18 @@ from fabline.survey.tagmap import TAG_CELLS, TAG_DICTIONARY
 
 EDGE_SAMPLES = 20
 REFINE_PASSES = 2
-BORDER_PAD_PX = 16  # aruco drops quads whose thresholded contour reaches the image border; pad so tags near it survive
+# aruco drops quads whose thresholded contour reaches the image border; a padding at the photo's median grey keeps
+# tags near it, and closes the black square of a tag cut by the border so its quad is found
+BORDER_PAD_PX = 16
 # Second pass for tags of about 2 px cells: blurred, their black border's contrast falls below aruco's default
 # threshold offset (7 grey levels) and the border breaks up; a lower offset at a window of a few cells keeps it whole.
 LOW_CONTRAST_THRESHOLD_OFFSET = 3
 LOW_CONTRAST_WINDOW_PX = 5
+MIN_REACH_PX = 0.75  # edge profiles reach 0.45 cell either side of the edge, at least this far (at most 4 px)
+COARSE_REACH_PX = 2.0  # ... and in a first pass on a coarse quad of a small tag
+MIN_EDGE_INSIDE = 0.5  # a tag cut by the photo's edge: each of its edges at least half inside, to fix its line
+MIN_BORDER_CELLS = 28  # of the black border's 32 cells, all but a corner's few inside the photo
+MIN_QUIET_ZONE_CELLS = 18  # of the 36 cells of the quiet-zone ring, at least half inside the photo to read a tag
 
 
 @dataclass
@@ -39,6 +48,7 @@ class TagDetection:
 
     tag_id: int
     corners: np.ndarray
+    partial: bool = False  # a corner lies outside the photo: it is extrapolated from the edges inside, not measured
 
 
 def read_gray(path: str | os.PathLike) -> np.ndarray:
@@ -77,9 +87,11 @@ def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection
     tags, where its bit sampling on the coarse quad fails) get a second chance: refined first, their
     bits are then read on the refined quad and identified with the dictionary's own error correction.
     A second aruco pass with a lower threshold offset then adds the small, dim tags the first one cannot
-    see; its quads inside tags already found are skipped.
+    see; its quads inside tags already found are skipped. Tags with a corner outside the image come out
+    `partial` (see the module's docstring).
     """
-    padded = cv2.copyMakeBorder(gray, BORDER_PAD_PX, BORDER_PAD_PX, BORDER_PAD_PX, BORDER_PAD_PX, cv2.BORDER_REPLICATE)
+    padded = cv2.copyMakeBorder(gray, BORDER_PAD_PX, BORDER_PAD_PX, BORDER_PAD_PX, BORDER_PAD_PX, cv2.BORDER_CONSTANT,
+                                value=float(np.median(gray[::8, ::8])))
     found: dict[int, np.ndarray] = {}
     for low_contrast in (False, True):
         corners, ids, rejected = _detector(min_side_px, max(padded.shape), low_contrast).detectMarkers(padded)
@@ -100,11 +112,19 @@ def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection
             if tag_id is None and (refined is None or read_id is None):
                 # a tag on a darker background: the quad may be its quiet zone's outline, one cell outside the black square
                 read_id, refined = _refine_and_read(gray, _inside_quiet_zone(quad), None)
-            if refined is None or read_id is None:
+            if refined is None or read_id is None or _edge_inside_fraction(gray, refined).min() < MIN_EDGE_INSIDE:
                 continue
             if read_id not in found or _area(refined) > _area(found[read_id]):
                 found[read_id] = refined
-    return [TagDetection(tag_id, found[tag_id]) for tag_id in sorted(found)]
+    return [TagDetection(tag_id, found[tag_id], bool(_edge_inside_fraction(gray, found[tag_id]).min() < 1))
+            for tag_id in sorted(found)]
+
+
+def _edge_inside_fraction(image: np.ndarray, quad: np.ndarray) -> np.ndarray:
+    """The fraction of each of the quad's four edges (corner i to i + 1) that lies within the image."""
+    steps = np.linspace(0, 1, 33)[None, :, None]
+    points = quad[:, None, :] + steps * (np.roll(quad, -1, axis=0) - quad)[:, None, :]
+    return _inside(image, points).mean(axis=1)
 
 
 def _shortest_side(quad: np.ndarray) -> float:
@@ -170,16 +190,20 @@ def _decode(image: np.ndarray, quad: np.ndarray) -> tuple[int | None, np.ndarray
     xs = (ticks[None, :, None, None] + sub[None, None, None, :]).repeat(len(ticks), 0).repeat(3, 2)
     ys = (ticks[:, None, None, None] + sub[None, None, :, None]).repeat(len(ticks), 1).repeat(3, 3)
     points = cv2.perspectiveTransform(np.stack([xs, ys], axis=-1).reshape(1, -1, 2), to_image)[0]
-    h, w = image.shape
-    if points[:, 0].min() < 0 or points[:, 1].min() < 0 or points[:, 0].max() > w - 1 or points[:, 1].max() > h - 1:
-        return None, quad
-    values = map_coordinates(image, [points[:, 1], points[:, 0]], order=3, prefilter=False)
+    measured = _inside(image, points).reshape(len(ticks), len(ticks), 9).all(axis=2)
+    values = map_coordinates(image, [points[:, 1], points[:, 0]], order=3, mode="mirror", prefilter=False)
     cells = values.reshape(len(ticks), len(ticks), 9).mean(axis=2)
     ring = np.ones((TAG_CELLS + 2, TAG_CELLS + 2), dtype=bool)
     ring[1:-1, 1:-1] = False
     border = np.zeros_like(ring)
     border[1:-1, 1:-1] = True
     border[2:-2, 2:-2] = False
+    # the black square must lie in the image; of its quiet zone (which the photo's edge may cut) at least half
+    if (not measured[2:-2, 2:-2].all() or measured[border].sum() < MIN_BORDER_CELLS
+            or measured[ring].sum() < MIN_QUIET_ZONE_CELLS):
+        return None, quad
+    ring &= measured
+    border &= measured
     dark, light = cells[border], cells[ring]
     threshold = 0.5 * (np.median(dark) + np.median(light))
     if np.median(light) - np.median(dark) < 20 or np.sum(dark > threshold) > 2 or np.sum(light < threshold) > 4:
@@ -189,6 +213,12 @@ def _decode(image: np.ndarray, quad: np.ndarray) -> tuple[int | None, np.ndarray
     if not ok:
         return None, quad
     return int(tag_id), np.roll(quad, int(rotation), axis=0)
+
+
+def _inside(image: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Which of `points` (..., 2) in px lie within `image`, where a cubic spline can be sampled."""
+    h, w = image.shape
+    return (points[..., 0] >= 0) & (points[..., 1] >= 0) & (points[..., 0] <= w - 1) & (points[..., 1] <= h - 1)
 
 
 def _area(quad: np.ndarray) -> float:
@@ -201,9 +231,20 @@ def refine_corners(image: np.ndarray, quad: np.ndarray) -> np.ndarray | None:
 
     `image` holds cubic B-spline coefficients (scipy.ndimage.spline_filter) of the region around the tag.
     Returns None when an edge cannot be located (too small, cut by the image border, no contrast).
+    A small quad too coarse for that (a tag of 2 px cells whose quad is a pixel or two off, beyond the narrow
+    edge profiles of small tags) gets a first pass with profiles reaching COARSE_REACH_PX, then the usual ones;
+    larger tags' profiles reach that far anyway.
     """
-    for _ in range(REFINE_PASSES):
-        lines = _fit_edges(image, quad)
+    refined = _refine_passes(image, quad, [MIN_REACH_PX] * REFINE_PASSES)
+    if refined is None and _profile_reach(quad, MIN_REACH_PX) < COARSE_REACH_PX:
+        refined = _refine_passes(image, quad, [COARSE_REACH_PX] + [MIN_REACH_PX] * REFINE_PASSES)
+    return refined
+
+
+def _refine_passes(image: np.ndarray, quad: np.ndarray, min_reaches: list[float]) -> np.ndarray | None:
+    """Corners refined by one pass of edge fits per entry of `min_reaches` (each pass's shortest profile reach, px)."""
+    for min_reach in min_reaches:
+        lines = _fit_edges(image, quad, min_reach)
         if lines is None:
             return None
         new = np.array([_intersect(lines[i - 1], lines[i]) for i in range(4)])
@@ -214,7 +255,7 @@ def refine_corners(image: np.ndarray, quad: np.ndarray) -> np.ndarray | None:
     return quad
 
 
-def _fit_edges(image: np.ndarray, quad: np.ndarray):
+def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
     """The four edges of `quad` as (point, direction), from the intensity-gradient peaks of profiles across them.
 
     Each edge is sampled at EDGE_SAMPLES points; along each point's outward normal (black border to white
@@ -225,23 +266,26 @@ def _fit_edges(image: np.ndarray, quad: np.ndarray):
     normals = np.column_stack([-directions[:, 1], directions[:, 0]])
     outward = np.einsum("ij,ij->i", normals, (starts + ends) / 2 - quad.mean(axis=0))
     normals *= np.where(outward < 0, -1.0, 1.0)[:, None]
-    across = np.linalg.norm((starts + ends) / 2 - (np.roll(quad, -2, axis=0) + np.roll(quad, -3, axis=0)) / 2, axis=1)
-    reach = float(np.clip(0.45 * across.min() / TAG_CELLS, 0.75, 4.0))
+    reach = _profile_reach(quad, min_reach)
     offsets = np.linspace(-reach, reach, 2 * int(np.ceil(4 * reach)) + 1)
     along = np.linspace(0.15, 0.85, EDGE_SAMPLES)
     points = starts[:, None, :] + along[None, :, None] * (ends - starts)[:, None, :]  # (4, S, 2)
     grid = points[:, :, None, :] + offsets[None, None, :, None] * normals[:, None, None, :]  # (4, S, K, 2)
-    h, w = image.shape
-    if grid[..., 0].min() < 0 or grid[..., 1].min() < 0 or grid[..., 0].max() > w - 1 or grid[..., 1].max() > h - 1:
-        return None
-    profiles = map_coordinates(image, [grid[..., 1].ravel(), grid[..., 0].ravel()], order=3,
+    profiles = map_coordinates(image, [grid[..., 1].ravel(), grid[..., 0].ravel()], order=3, mode="mirror",
                                prefilter=False).reshape(grid.shape[:3])
+    # By the photo's edge a profile's quiet-zone end may lie outside the image: it is cut there (its last sample
+    # inside repeated) and still measures the edge if the rise lies inside; profiles starting outside are left out.
+    inside = _inside(image, grid)
+    last_inside = np.maximum.accumulate(np.where(inside, np.arange(len(offsets)), 0), axis=2)
+    profiles = np.take_along_axis(profiles, last_inside, axis=2)
     slope = np.gradient(profiles, axis=2)
-    peak = np.argmax(slope[:, :, 1:-1], axis=2) + 1
+    rise_inside = inside[:, :, :-2] & inside[:, :, 1:-1] & inside[:, :, 2:]
+    peak = np.argmax(np.where(rise_inside, slope[:, :, 1:-1], -np.inf), axis=2) + 1
     before, at, after = (np.take_along_axis(slope, (peak + d)[..., None], axis=2)[..., 0] for d in (-1, 0, 1))
-    contrast = profiles[:, :, -1] - profiles[:, :, 0]
+    measurable = inside[:, :, 0] & np.take_along_axis(rise_inside, (peak - 1)[..., None], axis=2)[..., 0]
+    contrast = np.where(measurable, profiles[:, :, -1] - profiles[:, :, 0], -np.inf)
     curvature = before - 2 * at + after
-    good = (contrast > 0.25 * contrast.max(axis=1, keepdims=True)) & (curvature < 0)
+    good = measurable & (contrast > 0.25 * contrast.max(axis=1, keepdims=True)) & (curvature < 0)
     shift = np.where(good, 0.5 * (before - after) / np.where(curvature < 0, curvature, -1.0), 0.0)
     crossings = points + ((offsets[peak] + shift * (offsets[1] - offsets[0]))[..., None] * normals[:, None, :])
     lines = []
@@ -253,6 +297,13 @@ def _fit_edges(image: np.ndarray, quad: np.ndarray):
         _, _, vt = np.linalg.svd(pts - mean)
         lines.append((mean, vt[0]))
     return lines
+
+
+def _profile_reach(quad: np.ndarray, min_reach: float) -> float:
+    """How far (px) the edge profiles reach either side of an edge: 0.45 of the narrowest cell, in [min_reach, 4]."""
+    starts, ends = quad, np.roll(quad, -1, axis=0)
+    across = np.linalg.norm((starts + ends) / 2 - (np.roll(quad, -2, axis=0) + np.roll(quad, -3, axis=0)) / 2, axis=1)
+    return float(np.clip(0.45 * across.min() / TAG_CELLS, min_reach, 4.0))
 
 
 def _intersect(line1, line2) -> np.ndarray:

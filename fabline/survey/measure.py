@@ -103,9 +103,12 @@ def find_predicted_tags(photos: list[Path], camera: Camera, tag_size: float, rec
 
 
 def _observations(found: list[tuple[int, TagDetection]], camera: Camera, scale_min_cell_px: float) -> list[Observation]:
-    """(photo index, detection) pairs as observations: corners normalised, scale-free where the cells are small."""
+    """(photo index, detection) pairs as observations: corners normalised, scale-free where the cells are small.
+
+    Tags cut by the photo's edge (`partial`) are left out: a corner of theirs is extrapolated, not measured.
+    """
     return [Observation(k, d.tag_id, camera.normalise(d.corners), cell_width_px(d.corners) < scale_min_cell_px)
-            for k, d in found]
+            for k, d in found if not d.partial]
 
 
 def _reference_mask(option: str | list[str], node_ids: list[str], network: Network) -> np.ndarray:
