@@ -47,10 +47,16 @@ def atomic_output(path: str | os.PathLike, mode: str = "w") -> Iterator[Any]:
 
 
 def write_json(path: str | os.PathLike, data: Any, compact: bool = False) -> None:
-    """Write `data` as JSON, atomically: indented for reading, or compact for bulk geometry (5x faster)."""
-    layout = {"separators": (",", ":")} if compact else {"indent": 1}
+    """Write `data` as JSON, atomically: indented for reading, or compact for bulk geometry.
+
+    Compact JSON is encoded in one piece (`json.dumps`), which uses the C encoder: `json.dump` to a file
+    always takes the pure-Python one, about 5x slower on a large parts file. Same bytes either way.
+    """
     with atomic_output(path) as handle:
-        json.dump(data, handle, allow_nan=False, **layout)
+        if compact:
+            handle.write(json.dumps(data, allow_nan=False, separators=(",", ":")))
+        else:
+            json.dump(data, handle, allow_nan=False, indent=1)
         handle.write("\n")
 
 
