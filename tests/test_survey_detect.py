@@ -213,11 +213,12 @@ TAGS_BY_THE_EDGE = {167: np.array([[1.36, 108.31], [11.68, 39.18], [80.59, 60.65
                     69: np.array([[1.16, 84.12], [1.34, 36.83], [45.92, 41.15], [45.71, 88.31]])}
 
 
-def _tag_by_the_edge(tag_id: int, seed: int) -> np.ndarray:
-    """A tag whose quiet zone the photo's left edge cuts, with the simulator's blur and noise."""
+def _tag_in_crop(tag_id: int, corners: np.ndarray, seed: int) -> np.ndarray:
+    """A 200 x 160 px crop with one tag drawn at `corners` (possibly cut by the crop's edge), with the simulator's
+    blur and noise."""
     rng = np.random.default_rng(seed)
     scene = np.full((160, 200), 120, np.float32) + rng.normal(0, 4, (160, 200)).astype(np.float32)
-    _render_tag(scene, tag_id, TAGS_BY_THE_EDGE[tag_id], 0.9)
+    _render_tag(scene, tag_id, corners, 0.9)
     photo = cv2.GaussianBlur(scene, (0, 0), 0.7) + rng.normal(0, 2, scene.shape).astype(np.float32)
     return np.clip(photo + 0.5, 0, 255).astype(np.uint8)
 
@@ -228,7 +229,7 @@ def test_a_tag_whose_quiet_zone_the_photo_edge_cuts_is_found(tag_id, seed, tmp_p
     """Edge profiles and quiet-zone cells outside the photo are left out, the rest refine and decode the tag:
     found with sub-pixel corners and no other tag, as the AprilTag 3 reference detector finds it (checked when
     it is installed)."""
-    gray = _tag_by_the_edge(tag_id, seed)
+    gray = _tag_in_crop(tag_id, TAGS_BY_THE_EDGE[tag_id], seed)
     found = detect_tags(gray)
     assert [d.tag_id for d in found] == [tag_id]
     errors = np.linalg.norm(found[0].corners - TAGS_BY_THE_EDGE[tag_id], axis=1)
@@ -250,15 +251,6 @@ TAGS_CUT_BY_THE_EDGE = {429: np.array([[176.6, 46.6], [199.9, 102.6], [141.3, 12
                         381: np.array([[166.7, 23.9], [139.4, 105.3], [62.8, 79.7], [89.7, -1.4]])}
 
 
-def _tag_cut_by_the_edge(tag_id: int, seed: int) -> np.ndarray:
-    """A tag whose black square the photo's edge cuts at one corner, with the simulator's blur and noise."""
-    rng = np.random.default_rng(seed)
-    scene = np.full((160, 200), 120, np.float32) + rng.normal(0, 4, (160, 200)).astype(np.float32)
-    _render_tag(scene, tag_id, TAGS_CUT_BY_THE_EDGE[tag_id], 0.9)
-    photo = cv2.GaussianBlur(scene, (0, 0), 0.7) + rng.normal(0, 2, scene.shape).astype(np.float32)
-    return np.clip(photo + 0.5, 0, 255).astype(np.uint8)
-
-
 @pytest.mark.parametrize("tag_id", sorted(TAGS_CUT_BY_THE_EDGE))
 @pytest.mark.parametrize("seed", range(2))
 def test_a_tag_with_a_corner_outside_the_photo_is_found_partial(tag_id, seed, tmp_path):
@@ -266,7 +258,7 @@ def test_a_tag_with_a_corner_outside_the_photo_is_found_partial(tag_id, seed, tm
     corner outside is the intersection of its two edges, fitted on their parts inside: within a few tenths of a
     pixel of the truth, and marked partial. The AprilTag 3 reference detector finds it too (checked when it is
     installed), but its corner outside can be pixels off, so it is compared on the corners inside only."""
-    gray = _tag_cut_by_the_edge(tag_id, seed)
+    gray = _tag_in_crop(tag_id, TAGS_CUT_BY_THE_EDGE[tag_id], seed)
     found = detect_tags(gray)
     assert [(d.tag_id, d.partial) for d in found] == [(tag_id, True)]
     truth = TAGS_CUT_BY_THE_EDGE[tag_id]
@@ -309,8 +301,8 @@ def test_a_tag_with_an_edge_mostly_outside_is_not_reported(seed):
 
 
 def test_detect_json_marks_a_tag_cut_by_the_edge_partial(cli, tmp_path):
-    cv2.imwrite(str(tmp_path / "cut.png"), _tag_cut_by_the_edge(429, 0))
-    cv2.imwrite(str(tmp_path / "edge.png"), _tag_by_the_edge(167, 0))
+    cv2.imwrite(str(tmp_path / "cut.png"), _tag_in_crop(429, TAGS_CUT_BY_THE_EDGE[429], 0))
+    cv2.imwrite(str(tmp_path / "edge.png"), _tag_in_crop(167, TAGS_BY_THE_EDGE[167], 0))
     code, out, err = cli("survey", "detect", tmp_path / "cut.png", tmp_path / "edge.png", "--json")
     assert code == 0, err
     cut, edge = json.loads(out)
