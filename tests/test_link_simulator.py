@@ -202,3 +202,19 @@ def test_line_time_delays_each_answer_but_not_realtime_commands():
         assert 0.18 <= first < 0.35 and 0.38 <= second < 0.6
     finally:
         simulator.close()
+
+
+def test_a_non_motion_line_is_executed_when_it_is_acknowledged(tmp_path):
+    """With nothing in the planner, Grbl executes a non-motion line (M2, G21, ...) in the parser, before its ok:
+    a reset right after the ok must not lose it (a resume would skip it: it was acknowledged on an idle machine)."""
+    log = tmp_path / "executed.log"
+    simulator = GrblSimulator(time_scale=100.0, executed_log=log, tick=0.5)  # a slow main loop widens the window
+    try:
+        simulator.attach()
+        host = Host(simulator)
+        simulator.receive(b"N1G21\n")
+        assert host.read(1, quiet=0) == ["ok"]
+        simulator.receive(b"\x18")
+        assert log.read_text().splitlines() == ["N1G21"]
+    finally:
+        simulator.close()

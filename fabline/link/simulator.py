@@ -445,7 +445,9 @@ class GrblSimulator:
                 planned.programmed_rate = block.modal.feed * (25.4 if block.modal.units == "G20" else 1.0)
                 planned.rate = self._rate(block.segment, planned.programmed_rate)
         self.planner.append(planned)
-        if planned.segment is not None and self.state == "Idle":
+        if planned.segment is None and planned.dwell <= 0 and len(self.planner) == 1:
+            self._complete()  # nothing ahead of it: Grbl executes a non-motion line in the parser, before its ok
+        elif planned.segment is not None and self.state == "Idle":
             self.state = "Jog" if jog else "Run"
 
     def _rate(self, segment: Segment, programmed: float) -> float:
