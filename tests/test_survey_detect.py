@@ -72,29 +72,39 @@ os._exit(0)  # skip the library's teardown, which can crash after the work is do
 
 
 def _pupil_detect(paths):
-    """Run the AprilTag 3 reference detector in a child process: its C core is known to corrupt the heap at
-    times (pupil-labs/apriltags issue #39), which must not take the test session down with it."""
+    """Per image, (tag id, hamming, corners) as the AprilTag 3 reference detector finds them, corners in OpenCV's
+    conventions: pupil-apriltags puts pixel centres at +0.5 (OpenCV at integers) and lists corners
+    counter-clockwise from the bottom-left, i.e. OpenCV's order [1, 0, 3, 2] on the image.
+
+    It runs in a child process: its C core is known to corrupt the heap at times (pupil-labs/apriltags
+    issue #39), which must not take the test session down with it."""
     done = subprocess.run([sys.executable, "-c", PUPIL_SCRIPT, *map(str, paths)], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, f"pupil-apriltags crashed: {done.stderr[-500:]}"
-    return json.loads(done.stdout)
+    return [[(tag_id, hamming, (np.array(corners) - 0.5)[[1, 0, 3, 2]]) for tag_id, hamming, corners in image]
+            for image in json.loads(done.stdout)]
+
+
+def _pupil_tags(gray: np.ndarray, tmp_path) -> dict[int, np.ndarray]:
+    """The tags the reference detector reads without bit errors on one image, id -> corners (OpenCV conventions).
+    Skips the rest of the calling test when the optional pupil-apriltags is not installed."""
+    pytest.importorskip("pupil_apriltags", reason="pupil-apriltags (optional reference detector) not installed: "
+                                                  "the comparison with it is skipped")
+    cv2.imwrite(str(tmp_path / "pupil.png"), gray)
+    [theirs] = _pupil_detect([tmp_path / "pupil.png"])
+    return {tag_id: corners for tag_id, hamming, corners in theirs if hamming == 0}
 
 
 def test_corners_agree_with_pupil_apriltags(photo_set):
-    """Same tags as the AprilTag 3 library; corners within 0.25 px once conventions are aligned.
-
-    pupil-apriltags puts pixel centres at +0.5 (OpenCV at integers) and lists corners
-    counter-clockwise from the bottom-left, i.e. OpenCV's order [1, 0, 3, 2] on the image.
-    """
+    """Same tags as the AprilTag 3 library; corners within 0.25 px once conventions are aligned (`_pupil_detect`)."""
     pytest.importorskip("pupil_apriltags", reason="pupil-apriltags (optional reference detector) not installed")
     out, truth, detections = photo_set
     reference = _pupil_detect([out / record["file"] for record in truth["photos"]])
     gaps = []
     for record, found, theirs_raw in zip(truth["photos"], detections, reference):
         ours = {d.tag_id: d.corners for d in found}
-        theirs = {tag_id: np.array(corners) for tag_id, hamming, corners in theirs_raw if hamming == 0}
+        theirs = {tag_id: corners for tag_id, hamming, corners in theirs_raw if hamming == 0}
         assert set(theirs) <= set(ours), f"pupil-apriltags found {set(theirs) - set(ours)} that we missed"
-        for tag_id, corners in theirs.items():
-            aligned = (corners - 0.5)[[1, 0, 3, 2]]
+        for tag_id, aligned in theirs.items():
             gaps.append(np.linalg.norm(aligned - ours[tag_id], axis=1))
             if str(tag_id) in record["visible"]:
                 truth_corners = np.array(record["visible"][str(tag_id)])
@@ -197,13 +207,7 @@ def test_a_dim_tag_of_2px_cells_is_found_as_pupil_apriltags_finds_it(seed, tmp_p
     found = detect_tags(gray)
     assert [d.tag_id for d in found] == [191]
     assert np.linalg.norm(found[0].corners - DIM_SMALL_TAG, axis=1).max() < 0.4
-    try:
-        import pupil_apriltags  # noqa: F401
-    except ImportError:
-        pytest.skip("pupil-apriltags (optional reference detector) not installed: the comparison with it is skipped")
-    cv2.imwrite(str(tmp_path / "dim.png"), gray)
-    [theirs] = _pupil_detect([tmp_path / "dim.png"])
-    assert [tag_id for tag_id, hamming, _ in theirs if hamming == 0] == [191]
+    assert list(_pupil_tags(gray, tmp_path)) == [191]
 
 
 # Tags by the photo's left edge (the benchmark's tag 167 in photo 5 and tag 69 in photo 20, moved up into a crop):
@@ -234,14 +238,7 @@ def test_a_tag_whose_quiet_zone_the_photo_edge_cuts_is_found(tag_id, seed, tmp_p
     assert [d.tag_id for d in found] == [tag_id]
     errors = np.linalg.norm(found[0].corners - TAGS_BY_THE_EDGE[tag_id], axis=1)
     assert errors.mean() < 0.2 and errors.max() < 0.3
-    try:
-        import pupil_apriltags  # noqa: F401
-    except ImportError:
-        pytest.skip("pupil-apriltags (optional reference detector) not installed: the comparison with it is skipped")
-    cv2.imwrite(str(tmp_path / "edge.png"), gray)
-    [theirs] = _pupil_detect([tmp_path / "edge.png"])
-    [corners] = [np.array(c) for t, hamming, c in theirs if t == tag_id and hamming == 0]
-    assert np.linalg.norm((corners - 0.5)[[1, 0, 3, 2]] - found[0].corners, axis=1).mean() < 0.25
+    assert np.linalg.norm(_pupil_tags(gray, tmp_path)[tag_id] - found[0].corners, axis=1).mean() < 0.25
 
 
 # Tags with a corner just outside the photo (the benchmark's tag 429 in photo 12 by the right edge, 278 in photo 14
@@ -265,14 +262,7 @@ def test_a_tag_with_a_corner_outside_the_photo_is_found_partial(tag_id, seed, tm
     assert np.linalg.norm(found[0].corners - truth, axis=1).max() < 0.3
     outside = np.any((truth < 0) | (truth > [gray.shape[1] - 1, gray.shape[0] - 1]), axis=1)
     assert outside.sum() == 1
-    try:
-        import pupil_apriltags  # noqa: F401
-    except ImportError:
-        pytest.skip("pupil-apriltags (optional reference detector) not installed: the comparison with it is skipped")
-    cv2.imwrite(str(tmp_path / "cut.png"), gray)
-    [theirs] = _pupil_detect([tmp_path / "cut.png"])
-    [corners] = [np.array(c) for t, hamming, c in theirs if t == tag_id and hamming == 0]
-    assert np.linalg.norm((corners - 0.5)[[1, 0, 3, 2]] - found[0].corners, axis=1)[~outside].mean() < 0.25
+    assert np.linalg.norm(_pupil_tags(gray, tmp_path)[tag_id] - found[0].corners, axis=1)[~outside].mean() < 0.25
 
 
 def test_a_tag_cut_beyond_its_data_cells_is_not_reported(tmp_path):
