@@ -229,3 +229,45 @@ def test_straight_outline_shortcut_equals_the_general_construction():
     general = strip_outline(centre, 10.0, 500.0, 100.0, top, bottom)
     assert fast.shape == general.shape == (17, 3)
     assert np.array_equal(fast, general)
+
+
+def test_straightness_follows_the_integrated_centreline_not_the_largest_curvature():
+    """Constant curvature k over L strays k L^2 / 8 from its chord (closed form); curvature noise of alternating
+    sign, large enough to fail the quick k_max L^2 / 8 bound, never adds up to a bend and stays a rectangle."""
+    from fabline.unroll.flat import FlatCentreline, stays_straight
+
+    x = np.linspace(0.0, 3000.0, 301)
+    bend = 8.0 * 0.01 / 3000.0 ** 2                   # sagitta of exactly the 0.01 mm tolerance
+    noise = 1e-8 * np.where(np.arange(301) % 2, 1.0, -1.0)
+    rows = np.array([np.full(301, 0.9 * bend), np.full(301, 1.1 * bend), noise, noise + 1.1 * bend])
+    assert 1e-8 * 3000.0 ** 2 / 8.0 > 0.01            # the quick bound alone would call the noise curved
+    assert stays_straight(np.tile(x, (4, 1)), rows, 0.01).tolist() == [True, False, True, False]
+    for row, straight in zip(rows, (True, False, True, False)):
+        centre = FlatCentreline.build(x, row, 0.01)
+        assert centre.straight == straight
+        if not straight:
+            assert np.abs(centre.at(np.array([1500.0]))[0][0, 1]) == pytest.approx(1.1 * 0.01, rel=1e-3)
+    # a padded row (last station repeated) decides as the unpadded one
+    padded = np.concatenate([x, [x[-1]] * 5]), np.concatenate([noise, [noise[-1]] * 5])
+    assert stays_straight(padded[0][None], padded[1][None], 0.01)[0]
+
+
+def test_a_model_read_from_a_file_unrolls_its_asymptotic_strips_straight_in_one_batch(enneper, tmp_path):
+    """Coordinates written at 1e-9 m leave k_n noise of ~1e-8 /mm: every asymptotic segment must still be found
+    straight by the batch test, agreeing with the one-by-one construction."""
+    from fabline.geometry import analyse
+    from fabline.model import load_network, save_network
+    from fabline.unroll.batch import straight_flags
+    from fabline.unroll.pieces import segment_part
+    from fabline.unroll.seams import split_strip
+    from fabline.unroll.stations import strip_stations
+
+    save_network(enneper, tmp_path / "network.json")
+    opts = UnrollOptions()
+    segments = [s for strip in strip_stations(analyse(load_network(tmp_path / "network.json")), opts)
+                for s in split_strip(strip, opts, 20.0)]
+    noisy = max(np.abs(s.strip.geometry.k_n).max() * (s.end - s.start) ** 2 / 8.0 for s in segments)
+    assert noisy > opts.straight_tolerance             # the quick bound fails on the read-back model
+    flags = straight_flags(segments, opts)
+    assert flags.all()
+    assert all(segment_part(s, opts).kind == "strip" for s in segments[::7])

@@ -38,7 +38,9 @@ LOW_CONTRAST_WINDOW_PX = 5
 MIN_REACH_PX = 0.75  # edge profiles reach 0.45 cell either side of the edge, at least this far (at most 4 px)
 COARSE_REACH_PX = 2.0  # ... and in a first pass on a coarse quad of a small tag
 MIN_EDGE_INSIDE = 0.5  # a tag cut by the photo's edge: each of its edges at least half inside, to fix its line
-MIN_BORDER_CELLS = 28  # of the black border's 32 cells, all but a corner's few inside the photo
+# of the black border's 28 cells, all but a cut corner's few inside the photo (the corner cell and a neighbour or two
+# along each edge; small tags lose more of them to the photo's edge than large ones, as cells are read on their middle)
+MIN_BORDER_CELLS = 24
 MIN_QUIET_ZONE_CELLS = 18  # of the 36 cells of the quiet-zone ring, at least half inside the photo to read a tag
 
 

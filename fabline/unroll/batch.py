@@ -15,18 +15,20 @@ from fabline.unroll.options import TEXT_GAP, UnrollOptions
 from fabline.unroll.parts import Part, Polylines, Slot
 from fabline.unroll.pieces import (ARROW_LENGTH, LABEL_TIE_MM, MIN_LABEL_HEIGHT, SEAM_HOLE_COLUMNS, SEAM_HOLE_ROWS,
                                    is_seam, segment_label, segment_meta)
-from fabline.unroll.flat import circles
+from fabline.unroll.flat import circles, stays_straight
 from fabline.unroll.seams import Segment
 from fabline.unroll.stations import FAMILY_EDGE
 from fabline.unroll.strokes import Characters, TextBlock, characters, gather, join_blocks, split_rows
 
+ROWS_PER_BLOCK = 4096  # segments per block of the full straightness test (rows of up to a few hundred stations)
 
 
 def straight_flags(segments: list[Segment], options: UnrollOptions) -> np.ndarray:
-    """Per segment, True when it is certainly cut straight: the largest in-plane curvature k over it (samples one
-    beyond each end included) keeps it within k L^2 / 8 < tolerance of its chord, as `FlatCentreline.build` checks.
+    """Per segment, True when `FlatCentreline.build` cuts it straight (`flat.stays_straight` on its stations).
 
-    One `maximum.reduceat` over all strips' |k_n| (each followed by a 0 sentinel) with interleaved [lo, hi) bounds.
+    First the quick bound k L^2 / 8 < tolerance with the largest |k_n| over the segment (samples one beyond each
+    end included), from one `maximum.reduceat` over all strips' |k_n| (each followed by a 0 sentinel) with
+    interleaved [lo, hi) bounds; the segments it leaves in doubt get the full test, a block of rows at a time.
     """
     if not segments:
         return np.zeros(0, dtype=bool)
@@ -39,7 +41,40 @@ def straight_flags(segments: list[Segment], options: UnrollOptions) -> np.ndarra
         base += len(k_n) + 1
     k_max = np.maximum.reduceat(np.concatenate(curvature), np.concatenate(bounds))[::2]
     length = np.array([s.end - s.start for s in segments])
-    return k_max * length ** 2 / 8.0 < options.straight_tolerance
+    straight = k_max * length ** 2 / 8.0 < options.straight_tolerance
+    doubtful = np.flatnonzero(~straight)
+    for start in range(0, len(doubtful), ROWS_PER_BLOCK):
+        block = doubtful[start:start + ROWS_PER_BLOCK]
+        x, kappa = _station_rows([segments[k] for k in block])
+        straight[block] = stays_straight(x, kappa, options.straight_tolerance)
+    return straight
+
+
+def _station_rows(segments: list[Segment]) -> tuple[np.ndarray, np.ndarray]:
+    """Each segment's stations (its ends and the samples strictly inside, as `segment_part` takes them) and k_n at
+    them, one row per segment, padded by repeating the end."""
+    xs, ks, first, inside, a, b, ka, kb, base = [], [], [], [], [], [], [], [], 0
+    for strip, group in _by_strip(segments):
+        samples, k_n = strip.curve.s_at_samples, strip.geometry.k_n
+        starts, ends = np.array([(s.start, s.end) for s in group]).T
+        lo, hi = np.searchsorted(samples, starts, side="right"), np.searchsorted(samples, ends, side="left")
+        xs.append(samples)
+        ks.append(k_n)
+        first.append(base + lo)
+        inside.append(hi - lo)
+        a.append(starts)
+        b.append(ends)
+        ka.append(np.interp(starts, samples, k_n))
+        kb.append(np.interp(ends, samples, k_n))
+        base += len(samples)
+    xs, ks, first, inside = np.concatenate(xs), np.concatenate(ks), np.concatenate(first), np.concatenate(inside)
+    column = np.arange(inside.max() + 2)[None, :]
+    sample = np.minimum(first[:, None] + column - 1, len(xs) - 1)
+    interior = (column >= 1) & (column <= inside[:, None])
+    x = np.where(interior, xs[sample], np.concatenate(b)[:, None])
+    kappa = np.where(interior, ks[sample], np.concatenate(kb)[:, None])
+    x[:, 0], kappa[:, 0] = np.concatenate(a), np.concatenate(ka)
+    return x, kappa
 
 
 def straight_parts(segments: list[Segment], options: UnrollOptions) -> list[Part]:

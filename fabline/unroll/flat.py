@@ -33,25 +33,16 @@ class FlatCentreline:
     def build(cls, x: np.ndarray, kappa_at_x: np.ndarray, straight_tolerance: float) -> "FlatCentreline":
         """Integrate the in-plane curvature from station x[0] (mapped to the origin) and lay the chord along +x."""
         x = np.asarray(x, dtype=float)
-        length = x[-1] - x[0]
-        kappa = (kappa_at_x[1:] + kappa_at_x[:-1]) / 2.0
-        line = cls(np.array([x[0], x[-1]]), np.zeros(1), np.zeros(2), np.array([[0.0, 0.0], [length, 0.0]]))
-        if np.abs(kappa).max() * length ** 2 / 8.0 < straight_tolerance:
-            return line  # no curve with |kappa| <= K strays more than K L^2 / 8 from its chord
-        mean = float(np.sum(kappa * np.diff(x)) / length)
-        if np.max(np.abs(kappa - mean)) * length ** 2 / 2.0 < straight_tolerance:
-            x, kappa = np.array([x[0], x[-1]]), np.array([mean])
-        steps = np.diff(x)
-        theta = np.concatenate([[0.0], np.cumsum(kappa * steps)])
-        chords = steps * np.sinc(kappa * steps / (2.0 * np.pi))
-        middle = theta[:-1] + kappa * steps / 2.0
-        points = np.vstack([[0.0, 0.0], np.cumsum(np.column_stack([chords * np.cos(middle), chords * np.sin(middle)]), axis=0)])
-        turn = np.arctan2(points[-1, 1], points[-1, 0])
-        rotation = np.array([[np.cos(turn), np.sin(turn)], [-np.sin(turn), np.cos(turn)]])
-        curved = cls(x, kappa, theta - turn, points @ rotation.T)
-        if np.max(np.abs(curved.points[:, 1])) < straight_tolerance and _sagitta(kappa, steps) < straight_tolerance:
-            return line
-        return curved
+        kappa_at_x = np.asarray(kappa_at_x, dtype=float)
+        if stays_straight(x[None], kappa_at_x[None], straight_tolerance)[0]:
+            return cls(x[[0, -1]], np.zeros(1), np.zeros(2), np.array([[0.0, 0.0], [x[-1] - x[0], 0.0]]))
+        kappa, mean, constant = _arc_curvatures(x[None], kappa_at_x[None], straight_tolerance)
+        if constant[0]:
+            x, kappa = x[[0, -1]], mean[0]
+        else:
+            kappa = kappa[0]
+        theta, points = _integrate(x, kappa)
+        return cls(x, kappa, theta, points)
 
     def at(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Centreline points (N, 2) and tangent angles (N,) at stations x (arcs continued past the ends)."""
@@ -82,9 +73,52 @@ class FlatCentreline:
         return np.tan((self.at(x_to)[1] - self.at(x_from)[1]) / 4.0)
 
 
-def _sagitta(kappa: np.ndarray, steps: np.ndarray) -> float:
-    """Largest sagitta of one arc piece: below the tolerance, a polyline through the stations would do."""
-    return float(np.max(np.abs(kappa) * steps ** 2 / 8.0))
+def stays_straight(x: np.ndarray, kappa_at_x: np.ndarray, tolerance: float) -> np.ndarray:
+    """Per row of stations x (one strip segment each, padded by repeating its last station and curvature), True
+    when its flat centreline stays within `tolerance` of its chord, so it is cut as an exact rectangle.
+
+    Certainly so when the largest |k| keeps it within k L^2 / 8; otherwise the integrated centreline decides: its
+    stations and the sagitta of every arc between them must stay within the tolerance. The second test matters
+    for a model read from a file, whose rounded coordinates leave curvature noise that never adds up to a bend.
+    """
+    kappa, mean, constant = _arc_curvatures(x, kappa_at_x, tolerance)
+    length = x[:, -1] - x[:, 0]
+    straight = np.abs(kappa).max(axis=1) * length ** 2 / 8.0 < tolerance
+    test = np.flatnonzero(~straight & ~constant)
+    if len(test):
+        _, points = _integrate(x[test], kappa[test])
+        sagitta = np.max(np.abs(kappa[test]) * np.diff(x[test], axis=1) ** 2 / 8.0, axis=1)
+        straight[test] = (np.abs(points[..., 1]).max(axis=1) < tolerance) & (sagitta < tolerance)
+    one_arc = ~straight & constant
+    straight[one_arc] = np.abs(mean[one_arc, 0]) * length[one_arc] ** 2 / 8.0 < tolerance
+    return straight
+
+
+def _arc_curvatures(x: np.ndarray, kappa_at_x: np.ndarray, tolerance: float) -> tuple[np.ndarray, ...]:
+    """Per row: the curvature of each arc between stations (the mean of its ends), the mean curvature over the
+    row (shape (rows, 1)), and whether the row is within `tolerance` of one arc of that mean curvature."""
+    kappa = (kappa_at_x[:, 1:] + kappa_at_x[:, :-1]) / 2.0
+    steps = np.diff(x, axis=1)
+    length = x[:, -1] - x[:, 0]
+    mean = np.sum(kappa * steps, axis=1, keepdims=True) / length[:, None]
+    spread = np.max(np.where(steps > 0, np.abs(kappa - mean), 0.0), axis=1)
+    return kappa, mean, spread * length ** 2 / 2.0 < tolerance
+
+
+def _integrate(x: np.ndarray, kappa: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tangent angles and points at stations x of arcs of curvature `kappa` between them (last axis along the
+    strip, leading axes separate centrelines), from the origin with the chord laid along +x."""
+    steps = np.diff(x, axis=-1)
+    theta = np.zeros(x.shape)
+    np.cumsum(kappa * steps, axis=-1, out=theta[..., 1:])
+    chords = steps * np.sinc(kappa * steps / (2.0 * np.pi))
+    middle = theta[..., :-1] + kappa * steps / 2.0
+    along, across = np.zeros(x.shape), np.zeros(x.shape)
+    np.cumsum(chords * np.cos(middle), axis=-1, out=along[..., 1:])
+    np.cumsum(chords * np.sin(middle), axis=-1, out=across[..., 1:])
+    turn = np.arctan2(across[..., -1:], along[..., -1:])
+    cos, sin = np.cos(turn), np.sin(turn)
+    return theta - turn, np.stack([cos * along + sin * across, cos * across - sin * along], axis=-1)
 
 
 @dataclass
