@@ -10,6 +10,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator, TextIO
 
+import orjson
+
 from fabline.errors import FablineError
 
 
@@ -49,14 +51,17 @@ def atomic_output(path: str | os.PathLike, mode: str = "w") -> Iterator[Any]:
 def write_json(path: str | os.PathLike, data: Any, compact: bool = False) -> None:
     """Write `data` as JSON, atomically: indented for reading, or compact for bulk geometry.
 
-    Compact JSON is encoded in one piece (`json.dumps`), which uses the C encoder: `json.dump` to a file
-    always takes the pure-Python one, about 5x slower on a large parts file. Same bytes either way.
+    Compact JSON is encoded by orjson, several times faster than the standard library on a large parts file, and
+    it takes numpy arrays and scalars; the same text but for exponents (1e-6, not 1e-06). It writes NaN as null,
+    so callers check their bulk numbers are finite (parts do, when rounding).
     """
+    if compact:
+        with atomic_output(path, "wb") as handle:
+            handle.write(orjson.dumps(data, option=orjson.OPT_SERIALIZE_NUMPY))
+            handle.write(b"\n")
+        return
     with atomic_output(path) as handle:
-        if compact:
-            handle.write(json.dumps(data, allow_nan=False, separators=(",", ":")))
-        else:
-            json.dump(data, handle, allow_nan=False, indent=1)
+        json.dump(data, handle, allow_nan=False, indent=1)
         handle.write("\n")
 
 
@@ -90,6 +95,10 @@ def read_json(path: str | os.PathLike) -> Any:
     """Read a JSON file; a missing file or bad JSON becomes a FablineError naming file and line."""
     path = Path(path)
     text = read_text(path)
+    try:
+        return orjson.loads(text)  # 2x faster than json.loads on a large file
+    except orjson.JSONDecodeError:
+        pass  # not strict JSON: read as the standard library does (NaN literals, for the caller to name), or say why not
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:

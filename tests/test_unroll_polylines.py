@@ -53,6 +53,29 @@ def test_polylines_write_the_same_json_as_lists():
     assert json.dumps(parts_to_dict(as_lists)) == json.dumps(parts_to_dict(lean))
 
 
+def test_the_saved_file_holds_what_the_json_module_would_write(tmp_path):
+    """save_parts writes numpy row views through orjson; the standard library reads back the very values its own
+    encoder would have written from the list form (tiny values, exponents and numpy scalars included)."""
+    rng = np.random.default_rng(5)
+    outline = np.array([[0, 0], [10, 0], [10, 5], [0, 5], [0, 0]], dtype=float)
+    outline[1:4] += rng.normal(scale=[1.0, 1e-4], size=(3, 2))
+    text = Polylines.of(random_polylines(rng, 5) + [np.array([[1e-5, 0.00005], [2.00015, -0.00004]])])
+    partset = PartSet([Part("P", "strip", outline, holes=random_polylines(rng, 2, width=3), text=text)],
+                      report={"max_in_plane_curvature_per_m": 1e-6, "count": np.int64(3), "ratio": np.float64(0.25)})
+    save_parts(partset, tmp_path / "parts.json")
+    written = json.loads((tmp_path / "parts.json").read_text())
+    as_lists = parts_to_dict(partset)
+    as_lists["report"] = {"max_in_plane_curvature_per_m": 1e-6, "count": 3, "ratio": 0.25}
+    assert written == json.loads(json.dumps(as_lists))
+
+
+def test_a_non_finite_coordinate_is_refused_and_nothing_is_written(tmp_path):
+    outline = np.array([[0, 0], [10, 0], [10, np.nan], [0, 5], [0, 0]], dtype=float)
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        save_parts(PartSet([Part("P", "strip", outline)]), tmp_path / "parts.json")
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.fixture(scope="module")
 def pavilion_file(enneper, tmp_path_factory):
     path = tmp_path_factory.mktemp("parts") / "parts.json"
