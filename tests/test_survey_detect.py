@@ -156,15 +156,21 @@ def test_detected_tags_are_not_shrunk_or_grown(photo_set):
 SMALL_OBLIQUE_TAG = np.array([[64.74, 44.46], [65.76, 62.85], [55.24, 75.54], [54.25, 57.16]])
 
 
-def _under_exposed_small_tag(tag_id: int, seed: int) -> np.ndarray:
-    """The tag where two dark lamellas cross, photographed 40 % under-exposed with the simulator's blur and noise."""
+def _tag_where_lamellas_cross(tag_id: int, corners: np.ndarray, seed: int, exposure: float,
+                              jpeg_quality: int | None = None) -> np.ndarray:
+    """A 120 x 120 px crop with tag `tag_id` drawn at `corners` where two dark lamellas cross, photographed at
+    `exposure` with the simulator's blur and noise (and saved as its JPEG of `jpeg_quality`, when given)."""
     rng = np.random.default_rng(seed)
     scene = np.full((120, 120), 120, np.float32) + rng.normal(0, 4, (120, 120)).astype(np.float32)
     cv2.line(scene, (10, 0), (110, 120), 55.0, 20)
     cv2.line(scene, (110, 0), (10, 120), 55.0, 20)
-    _render_tag(scene, tag_id, SMALL_OBLIQUE_TAG, 0.85)
-    photo = cv2.GaussianBlur(scene * np.float32(0.6), (0, 0), 0.7) + rng.normal(0, 2, scene.shape).astype(np.float32)
-    return np.clip(photo + 0.5, 0, 255).astype(np.uint8)
+    _render_tag(scene, tag_id, corners, 0.85)
+    photo = cv2.GaussianBlur(scene * np.float32(exposure), (0, 0), 0.7)
+    gray = np.clip(photo + rng.normal(0, 2, scene.shape).astype(np.float32) + 0.5, 0, 255).astype(np.uint8)
+    if jpeg_quality is not None:
+        encoded = cv2.imencode(".jpg", gray, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])[1]
+        gray = cv2.imdecode(encoded, cv2.IMREAD_GRAYSCALE)
+    return gray
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -172,7 +178,7 @@ def test_a_small_dim_tag_is_found_where_predicted(seed):
     """2 px cells in a dark photo, at the limit of what the image alone yields (the low-contrast pass finds it for
     some noise seeds, not all). Predicted to within a pixel, as the survey's reconstruction predicts it, the tag
     is found with sub-pixel corners; a wrong id or an empty spot gives nothing."""
-    gray = _under_exposed_small_tag(518, seed)
+    gray = _tag_where_lamellas_cross(518, SMALL_OBLIQUE_TAG, seed, exposure=0.6)
     rng = np.random.default_rng(100 + seed)
     predicted = SMALL_OBLIQUE_TAG + rng.uniform(-0.8, 0.8, (4, 2))
     found = detect_expected_tags(gray, {518: predicted})
@@ -187,27 +193,36 @@ def test_a_small_dim_tag_is_found_where_predicted(seed):
 DIM_SMALL_TAG = np.array([[59.08, 37.49], [70.48, 49.41], [60.78, 82.34], [49.66, 70.77]])
 
 
-def _dim_small_tag(seed: int) -> np.ndarray:
-    """Tag 191 where two dark lamellas cross, photographed at half exposure with the simulator's blur and noise."""
-    rng = np.random.default_rng(seed)
-    scene = np.full((120, 120), 120, np.float32) + rng.normal(0, 4, (120, 120)).astype(np.float32)
-    cv2.line(scene, (10, 0), (110, 120), 55.0, 20)
-    cv2.line(scene, (110, 0), (10, 120), 55.0, 20)
-    _render_tag(scene, 191, DIM_SMALL_TAG, 0.85)
-    photo = cv2.GaussianBlur(scene * np.float32(0.5), (0, 0), 0.7) + rng.normal(0, 2, scene.shape).astype(np.float32)
-    return np.clip(photo + 0.5, 0, 255).astype(np.uint8)
-
-
 @pytest.mark.parametrize("seed", range(4))
 def test_a_dim_tag_of_2px_cells_is_found_as_pupil_apriltags_finds_it(seed, tmp_path):
     """Blurred, the black border of 2 px cells at half exposure has less contrast than aruco's default threshold
     offset, so its first pass yields no quad; the low-contrast pass does, and the tag comes out with sub-pixel
     corners and no other tag. The AprilTag 3 reference detector finds it too (checked when it is installed)."""
-    gray = _dim_small_tag(seed)
+    gray = _tag_where_lamellas_cross(191, DIM_SMALL_TAG, seed, exposure=0.5)
     found = detect_tags(gray)
     assert [d.tag_id for d in found] == [191]
     assert np.linalg.norm(found[0].corners - DIM_SMALL_TAG, axis=1).max() < 0.4
     assert list(_pupil_tags(gray, tmp_path)) == [191]
+
+
+# A tag of 1.7 px cells at 76 degrees, 1.3 px across the tag (the benchmark's tag 396 in photo 27, moved into the crop)
+THIN_SMALL_TAG = np.array([[51.74, 72.85], [60.44, 35.67], [68.23, 47.29], [59.59, 84.2]])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_small_tag_at_76_degrees_is_found(seed, tmp_path):
+    """Its black border is about a pixel across: the low-contrast pass's 5 px threshold window breaks it up where the
+    lamellas cross, its 3 px window keeps it whole, and the tag comes out with sub-pixel corners. The AprilTag 3
+    reference detector finds it in some noise draws only, its corners about 0.55 px off the truth: there (checked when
+    it is installed) ours are closer."""
+    gray = _tag_where_lamellas_cross(396, THIN_SMALL_TAG, seed, exposure=1.0, jpeg_quality=95)
+    found = detect_tags(gray)
+    assert [d.tag_id for d in found] == [396]
+    errors = np.linalg.norm(found[0].corners - THIN_SMALL_TAG, axis=1)
+    assert errors.mean() < 0.3 and errors.max() < 0.45
+    reference = _pupil_tags(gray, tmp_path)
+    if 396 in reference:
+        assert errors.mean() < np.linalg.norm(reference[396] - THIN_SMALL_TAG, axis=1).mean()
 
 
 # Tags by the photo's left edge (the benchmark's tag 167 in photo 5 and tag 69 in photo 20, moved up into a crop):
@@ -217,11 +232,11 @@ TAGS_BY_THE_EDGE = {167: np.array([[1.36, 108.31], [11.68, 39.18], [80.59, 60.65
                     69: np.array([[1.16, 84.12], [1.34, 36.83], [45.92, 41.15], [45.71, 88.31]])}
 
 
-def _tag_in_crop(tag_id: int, corners: np.ndarray, seed: int) -> np.ndarray:
-    """A 200 x 160 px crop with one tag drawn at `corners` (possibly cut by the crop's edge), with the simulator's
-    blur and noise."""
+def _tag_in_crop(tag_id: int, corners: np.ndarray, seed: int, shape: tuple[int, int] = (160, 200)) -> np.ndarray:
+    """A crop of `shape` (default 200 x 160 px) with one tag drawn at `corners` (possibly cut by the crop's edge),
+    with the simulator's blur and noise."""
     rng = np.random.default_rng(seed)
-    scene = np.full((160, 200), 120, np.float32) + rng.normal(0, 4, (160, 200)).astype(np.float32)
+    scene = np.full(shape, 120, np.float32) + rng.normal(0, 4, shape).astype(np.float32)
     _render_tag(scene, tag_id, corners, 0.9)
     photo = cv2.GaussianBlur(scene, (0, 0), 0.7) + rng.normal(0, 2, scene.shape).astype(np.float32)
     return np.clip(photo + 0.5, 0, 255).astype(np.uint8)
@@ -263,6 +278,25 @@ def test_a_tag_with_a_corner_outside_the_photo_is_found_partial(tag_id, seed, tm
     outside = np.any((truth < 0) | (truth > [gray.shape[1] - 1, gray.shape[0] - 1]), axis=1)
     assert outside.sum() == 1
     assert np.linalg.norm(_pupil_tags(gray, tmp_path)[tag_id] - found[0].corners, axis=1)[~outside].mean() < 0.25
+
+
+# A small tag with a corner outside the photo (the benchmark's tag 323 in photo 17: 3 px cells at 72 degrees, its bottom
+# corner 5.7 px below the photo's edge), moved into a crop that keeps the cut
+SMALL_TAG_CUT_BY_THE_EDGE = np.array([[90.8, 164.7], [85.8, 140.1], [109.3, 98.7], [114.5, 122.9]])
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_a_small_tag_with_a_corner_outside_the_photo_is_found_partial(seed, tmp_path):
+    """Read on their middles, two of the black border's 28 cells lie outside the photo (all data cells inside): the tag
+    still decodes, its coarse quad (closed against the padding, pixels off at the cut) refines in a few more passes,
+    and it comes out partial with sub-pixel corners. The AprilTag 3 reference detector finds it too (checked when it
+    is installed); on 3 px cells its corners are about 0.35 px off the truth, so they agree within 0.5 px."""
+    gray = _tag_in_crop(323, SMALL_TAG_CUT_BY_THE_EDGE, seed)
+    found = detect_tags(gray)
+    assert [(d.tag_id, d.partial) for d in found] == [(323, True)]
+    assert np.linalg.norm(found[0].corners - SMALL_TAG_CUT_BY_THE_EDGE, axis=1).max() < 0.3
+    inside = np.all((SMALL_TAG_CUT_BY_THE_EDGE >= 0) & (SMALL_TAG_CUT_BY_THE_EDGE <= [199, 159]), axis=1)
+    assert np.linalg.norm(_pupil_tags(gray, tmp_path)[323] - found[0].corners, axis=1)[inside].mean() < 0.5
 
 
 def test_a_tag_cut_beyond_its_data_cells_is_not_reported(tmp_path):
@@ -335,3 +369,25 @@ def test_a_small_tag_refines_from_a_quad_pixels_off(tag_id, seed):
     assert refined is not None
     assert np.linalg.norm(refined - truth, axis=1).max() < 0.3
     assert _decode(image, refined)[0] == tag_id
+
+
+# Tags seen past 80 degrees, slivers 2 px across their cells and 60-180 px long (the benchmark's tags 118 and 68 in
+# photo 30, moved into a crop)
+SLIVER_TAGS = {118: np.array([[50.13, 171.1], [48.93, 104.23], [69.7, 19.97], [71.25, 86.7]]),
+               68: np.array([[46.45, 73.43], [60.99, 20.9], [73.26, 198.48], [59.29, 255.19]])}
+
+
+@pytest.mark.parametrize("tag_id", sorted(SLIVER_TAGS))
+@pytest.mark.parametrize("seed", range(2))
+def test_a_tag_past_80_degrees_is_found_with_its_corners(tag_id, seed, tmp_path):
+    """aruco's polygon fit at 3 % of the contour's length made tag 68 a triangle, and edge profiles as long as the
+    sides suggest crossed the cells and the background beyond the quiet zone, so tag 118's acute corners came out
+    pixels off. Both are found, their corners (acute ones amplify an edge's error several times) closer to the truth
+    than the AprilTag 3 reference detector's, which are up to 2 px off here (checked when it is installed)."""
+    truth = SLIVER_TAGS[tag_id]
+    gray = _tag_in_crop(tag_id, truth, seed, shape=(int(truth[:, 1].max()) + 20, 120))
+    found = detect_tags(gray)
+    assert [d.tag_id for d in found] == [tag_id]
+    errors = np.linalg.norm(found[0].corners - truth, axis=1)
+    assert errors.mean() < 0.6 and errors.max() < 1.0
+    assert errors.mean() < np.linalg.norm(_pupil_tags(gray, tmp_path)[tag_id] - truth, axis=1).mean()

@@ -2,7 +2,7 @@
 
 OpenCV's aruco finds the quads without corner refinement (its AprilTag refinement silently drops tags,
 its sub-pixel refinement is about 1 px off on real photos), in a second pass with a lower threshold offset for
-small, dim tags the first pass cannot see; each tag's four edges are then located to
+small, dim or grazing tags the first pass cannot see; each tag's four edges are then located to
 sub-pixel precision along the edge normal (the intensity-gradient peak, on a cubic spline of the image),
 a line is fitted per edge and the corners are the line intersections, as in the AprilTag library. Corners follow OpenCV's conventions: pixel centres at integer coordinates,
 order top-left, top-right, bottom-right, bottom-left of the upright tag (clockwise in the image).
@@ -27,14 +27,25 @@ from fabline.survey.camera import Camera
 from fabline.survey.tagmap import TAG_CELLS, TAG_DICTIONARY
 
 EDGE_SAMPLES = 20
+# of a quad's corners (and edges, corner i to i + 1) in order, the next, opposite and previous one (np.roll's, faster)
+NEXT_CORNER, OPPOSITE_CORNER, PREVIOUS_CORNER = [1, 2, 3, 0], [2, 3, 0, 1], [3, 0, 1, 2]
 REFINE_PASSES = 2
+# Edge profiles reach 0.45 cell, so a quad whose edges are off by more than that (the coarse quad of a small tag, or of
+# one the photo's edge cuts) moves part of the way per pass: a tag once read gets up to this many more passes, until
+# no corner moves by more than CONVERGED_PX
+MAX_EXTRA_PASSES = 2
+CONVERGED_PX = 0.1
 # aruco drops quads whose thresholded contour reaches the image border; a padding at the photo's median grey keeps
 # tags near it, and closes the black square of a tag cut by the border so its quad is found
 BORDER_PAD_PX = 16
 # Second pass for tags of about 2 px cells: blurred, their black border's contrast falls below aruco's default
 # threshold offset (7 grey levels) and the border breaks up; a lower offset at a window of a few cells keeps it whole.
+# Seen at 60-80 degrees their cells are a pixel or less across the tag: a 3 px window keeps that thin border whole.
 LOW_CONTRAST_THRESHOLD_OFFSET = 3
-LOW_CONTRAST_WINDOW_PX = 5
+LOW_CONTRAST_WINDOWS_PX = (3, 5)
+# The second pass also fits polygons to the contours more finely than aruco's default (3 % of a contour's length): a tag
+# seen past 80 degrees is a sliver whose two obtuse corners lie within 3 % of its contour's length of its long diagonal.
+SLIVER_POLYGON_ACCURACY = 0.028
 MIN_REACH_PX = 0.75  # edge profiles reach 0.45 cell either side of the edge, at least this far (at most 4 px)
 COARSE_REACH_PX = 2.0  # ... and in a first pass on a coarse quad of a small tag
 MIN_EDGE_INSIDE = 0.5  # a tag cut by the photo's edge: each of its edges at least half inside, to fix its line
@@ -78,7 +89,9 @@ def _detector(min_side_px: float, image_size: int, low_contrast: bool = False) -
     params.minMarkerPerimeterRate = max(4 * min_side_px / image_size, 1e-3)
     if low_contrast:
         params.adaptiveThreshConstant = LOW_CONTRAST_THRESHOLD_OFFSET
-        params.adaptiveThreshWinSizeMin = params.adaptiveThreshWinSizeMax = LOW_CONTRAST_WINDOW_PX
+        params.adaptiveThreshWinSizeMin, params.adaptiveThreshWinSizeMax = LOW_CONTRAST_WINDOWS_PX
+        params.adaptiveThreshWinSizeStep = LOW_CONTRAST_WINDOWS_PX[1] - LOW_CONTRAST_WINDOWS_PX[0]
+        params.polygonalApproxAccuracyRate = SLIVER_POLYGON_ACCURACY
     return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY), params)
 
 
@@ -88,7 +101,7 @@ def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection
     Quads OpenCV decodes are refined; quads it finds but cannot decode (small, oblique or blurred
     tags, where its bit sampling on the coarse quad fails) get a second chance: refined first, their
     bits are then read on the refined quad and identified with the dictionary's own error correction.
-    A second aruco pass with a lower threshold offset then adds the small, dim tags the first one cannot
+    A second aruco pass with a lower threshold offset then adds the small, dim or grazing tags the first one cannot
     see; its quads inside tags already found are skipped. Tags with a corner outside the image come out
     `partial` (see the module's docstring).
     """
@@ -125,12 +138,12 @@ def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection
 def _edge_inside_fraction(image: np.ndarray, quad: np.ndarray) -> np.ndarray:
     """The fraction of each of the quad's four edges (corner i to i + 1) that lies within the image."""
     steps = np.linspace(0, 1, 33)[None, :, None]
-    points = quad[:, None, :] + steps * (np.roll(quad, -1, axis=0) - quad)[:, None, :]
+    points = quad[:, None, :] + steps * (quad[NEXT_CORNER] - quad)[:, None, :]
     return _inside(image, points).mean(axis=1)
 
 
 def _shortest_side(quad: np.ndarray) -> float:
-    return float(np.min(np.linalg.norm(quad - np.roll(quad, 1, axis=0), axis=1)))
+    return float(np.min(np.linalg.norm(quad - quad[PREVIOUS_CORNER], axis=1)))
 
 
 def _inside_quiet_zone(outline: np.ndarray) -> np.ndarray:
@@ -176,6 +189,8 @@ def _refine_and_read(gray: np.ndarray, quad: np.ndarray, tag_id: int | None) -> 
         return tag_id, None
     if tag_id is None:
         tag_id, refined = _decode(window, refined)
+    if tag_id is not None:
+        refined = _settle(window, refined)
     return tag_id, refined + [x0, y0]
 
 
@@ -249,21 +264,36 @@ def _refine_passes(image: np.ndarray, quad: np.ndarray, min_reaches: list[float]
         lines = _fit_edges(image, quad, min_reach)
         if lines is None:
             return None
-        new = np.array([_intersect(lines[i - 1], lines[i]) for i in range(4)])
-        side = np.mean(np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1))
+        new = _corners(lines)
+        side = np.mean(np.linalg.norm(quad[NEXT_CORNER] - quad, axis=1))
         if not np.all(np.isfinite(new)) or np.max(np.linalg.norm(new - quad, axis=1)) > max(3.0, 0.2 * side):
             return None
         quad = new
     return quad
 
 
+def _settle(image: np.ndarray, quad: np.ndarray) -> np.ndarray:
+    """A read tag's corners after further passes, until none moves by more than CONVERGED_PX (at most MAX_EXTRA_PASSES);
+    a pass that cannot locate the edges leaves the corners as they were."""
+    for _ in range(MAX_EXTRA_PASSES):
+        new = _refine_passes(image, quad, [MIN_REACH_PX])
+        if new is None:
+            break
+        moved = np.max(np.linalg.norm(new - quad, axis=1))
+        quad = new
+        if moved <= CONVERGED_PX:
+            break
+    return quad
+
+
 def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
-    """The four edges of `quad` as (point, direction), from the intensity-gradient peaks of profiles across them.
+    """The four edges of `quad` as lines, points and unit directions (4, 2) each, from the intensity-gradient peaks
+    of profiles across them (None when an edge has fewer than four).
 
     Each edge is sampled at EDGE_SAMPLES points; along each point's outward normal (black border to white
     quiet zone) the profile's steepest rise, interpolated with a parabola, is the edge crossing.
     """
-    starts, ends = quad, np.roll(quad, -1, axis=0)
+    starts, ends = quad, quad[NEXT_CORNER]
     directions = (ends - starts) / np.linalg.norm(ends - starts, axis=1)[:, None]
     normals = np.column_stack([-directions[:, 1], directions[:, 0]])
     outward = np.einsum("ij,ij->i", normals, (starts + ends) / 2 - quad.mean(axis=0))
@@ -290,31 +320,43 @@ def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
     good = measurable & (contrast > 0.25 * contrast.max(axis=1, keepdims=True)) & (curvature < 0)
     shift = np.where(good, 0.5 * (before - after) / np.where(curvature < 0, curvature, -1.0), 0.0)
     crossings = points + ((offsets[peak] + shift * (offsets[1] - offsets[0]))[..., None] * normals[:, None, :])
-    lines = []
-    for edge in range(4):
-        pts = crossings[edge][good[edge]]
-        if len(pts) < 4:
-            return None
-        mean = pts.mean(axis=0)
-        _, _, vt = np.linalg.svd(pts - mean)
-        lines.append((mean, vt[0]))
-    return lines
+    # per edge, the total-least-squares line through its good crossings: their mean and the scatter's main axis
+    counts = good.sum(axis=1)
+    if counts.min() < 4:
+        return None
+    means = np.einsum("es,esi->ei", good, crossings) / counts[:, None]
+    spread = crossings - means[:, None, :]
+    scatter = np.einsum("es,esi,esj->eij", good.astype(float), spread, spread)
+    return means, np.linalg.eigh(scatter)[1][:, :, -1]
 
 
 def _profile_reach(quad: np.ndarray, min_reach: float) -> float:
-    """How far (px) the edge profiles reach either side of an edge: 0.45 of the narrowest cell, in [min_reach, 4]."""
-    starts, ends = quad, np.roll(quad, -1, axis=0)
-    across = np.linalg.norm((starts + ends) / 2 - (np.roll(quad, -2, axis=0) + np.roll(quad, -3, axis=0)) / 2, axis=1)
-    return float(np.clip(0.45 * across.min() / TAG_CELLS, min_reach, 4.0))
+    """How far (px) the edge profiles reach either side of an edge: 0.45 of the narrowest cell, in [min_reach, 4].
+
+    Cells are measured along the edges' normals (the depth of the tag from each edge to the opposite one's middle), as
+    the profiles run: a tag seen at a grazing angle is a thin sheared quad whose cells are far narrower across than its
+    side lengths say, and longer profiles would cross the cells inside and the background beyond the quiet zone.
+    """
+    starts, ends = quad, quad[NEXT_CORNER]
+    directions = (ends - starts) / np.linalg.norm(ends - starts, axis=1)[:, None]
+    to_opposite = (quad[OPPOSITE_CORNER] + quad[PREVIOUS_CORNER]) / 2 - starts
+    depth = np.abs(_cross(directions, to_opposite))
+    return float(np.clip(0.45 * depth.min() / TAG_CELLS, min_reach, 4.0))
 
 
-def _intersect(line1, line2) -> np.ndarray:
-    (p1, d1), (p2, d2) = line1, line2
-    matrix = np.column_stack([d1, -d2])
-    if abs(np.linalg.det(matrix)) < 1e-9:
-        return np.full(2, np.nan)
-    s, _ = np.linalg.solve(matrix, p2 - p1)
-    return p1 + s * d1
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The z component of the cross products of 2-D vectors (..., 2)."""
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def _corners(lines: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Corner i (4, 2) where edge line i - 1 meets edge line i, from lines as points and unit directions (4, 2) each;
+    NaN where two are parallel."""
+    points, directions = lines
+    previous_points, previous_directions = points[PREVIOUS_CORNER], directions[PREVIOUS_CORNER]
+    crossing = _cross(previous_directions, directions)
+    along = _cross(points - previous_points, directions) / np.where(np.abs(crossing) < 1e-9, np.nan, crossing)
+    return previous_points + along[:, None] * previous_directions
 
 
 def cell_width_px(corners: np.ndarray) -> float:
