@@ -7,7 +7,8 @@ sub-pixel precision along the edge normal (the intensity-gradient peak, on a cub
 a line is fitted per edge and the corners are the line intersections, as in the AprilTag library. Corners follow OpenCV's conventions: pixel centres at integer coordinates,
 order top-left, top-right, bottom-right, bottom-left of the upright tag (clockwise in the image).
 A tag cut by the photo's edge is reported `partial` when its data cells are all inside and each edge at least
-half: the corner outside is extrapolated from the edges' parts inside.
+half: the corner outside is extrapolated from the edges' parts inside. A tag with a corner hidden under the quiet zone
+of a tag in front of it is found from that tag, its hidden corner likewise extrapolated from the edges' visible parts.
 `detect_expected_tags` looks for known tags at predicted corners (the survey's second look).
 """
 
@@ -35,9 +36,12 @@ REFINE_PASSES = 2
 # no corner moves by more than CONVERGED_PX
 MAX_EXTRA_PASSES = 2
 CONVERGED_PX = 0.1
-# aruco drops quads whose thresholded contour reaches the image border; a padding at the photo's median grey keeps
-# tags near it, and closes the black square of a tag cut by the border so its quad is found
+# aruco drops quads whose thresholded contour reaches the image border; a padding keeps tags near it, and closes the
+# black square of a tag cut by the border so its quad is found. It is as light as the photo's edge nearby (its brightest
+# pixel in the outermost PAD_LIGHT_ROWS rows, within a padding's width along the edge): a uniform grey came out darker
+# than a light quiet zone beside it, thresholded dark there and joined a cut tag's black tip to a dark lamella beside.
 BORDER_PAD_PX = 16
+PAD_LIGHT_ROWS = 2
 # Second pass for tags of about 2 px cells: blurred, their black border's contrast falls below aruco's default
 # threshold offset (7 grey levels) and the border breaks up; a lower offset at a window of a few cells keeps it whole.
 # Seen at 60-80 degrees their cells are a pixel or less across the tag: a 3 px window keeps that thin border whole.
@@ -46,6 +50,22 @@ LOW_CONTRAST_WINDOWS_PX = (3, 5)
 # The second pass also fits polygons to the contours more finely than aruco's default (3 % of a contour's length): a tag
 # seen past 80 degrees is a sliver whose two obtuse corners lie within 3 % of its contour's length of its long diagonal.
 SLIVER_POLYGON_ACCURACY = 0.028
+# A tag in front can hide a corner of the black square of one behind it under its white quiet zone: that square's
+# outline is then a 5-7-gon, cut or notched at the corner, and aruco passes it by. Around each found tag of cells of at
+# least OCCLUDER_MIN_CELL_PX, within OCCLUDED_SEARCH_REACH of its longest side, the photo is thresholded at half
+# resolution (where the cells of such neighbours are still about 2 px), and outlines whose four longest edges make up
+# CUT_POLYGON_MIN_KEPT of them and a convex quad whose missing corners lie under that tag's quiet zone (give or take
+# HIDDEN_CORNER_TOLERANCE_CELLS) are read, with the cells under that tag left out (see `_decode`).
+OCCLUDER_MIN_CELL_PX = 5.0
+OCCLUDED_SEARCH_REACH = 1.2
+OCCLUDED_THRESHOLD_WINDOW_PX, OCCLUDED_THRESHOLD_OFFSET = 5, 10
+CUT_POLYGON_MIN_KEPT = 0.75
+HIDDEN_CORNER_TOLERANCE_CELLS = 0.25
+# a tag's quiet-zone outline in its cell coordinates (the black square from (0, 0) to (TAG_CELLS, TAG_CELLS))
+QUIET_ZONE_OUTLINE = np.array([[-1, -1], [TAG_CELLS + 1, -1], [TAG_CELLS + 1, TAG_CELLS + 1], [-1, TAG_CELLS + 1]],
+                              dtype=float)
+# bits the dictionary corrects, as OpenCV's detector does (60 % of what 36h11's minimum distance allows, 3 bits)
+CORRECTION_RATE = 0.6
 MIN_REACH_PX = 0.75  # edge profiles reach 0.45 cell either side of the edge, at least this far (at most 4 px)
 COARSE_REACH_PX = 2.0  # ... and in a first pass on a coarse quad of a small tag
 MIN_EDGE_INSIDE = 0.5  # a tag cut by the photo's edge: each of its edges at least half inside, to fix its line
@@ -102,37 +122,130 @@ def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection
     tags, where its bit sampling on the coarse quad fails) get a second chance: refined first, their
     bits are then read on the refined quad and identified with the dictionary's own error correction.
     A second aruco pass with a lower threshold offset then adds the small, dim or grazing tags the first one cannot
-    see; its quads inside tags already found are skipped. Tags with a corner outside the image come out
+    see; its quads inside tags already found are skipped. Last, black squares with a corner hidden under the quiet
+    zone of a tag found in front of them are read (`_occluded_quads`). Tags with a corner outside the image come out
     `partial` (see the module's docstring).
     """
-    padded = cv2.copyMakeBorder(gray, BORDER_PAD_PX, BORDER_PAD_PX, BORDER_PAD_PX, BORDER_PAD_PX, cv2.BORDER_CONSTANT,
-                                value=float(np.median(gray[::8, ::8])))
+    padded = _padded(gray)
     found: dict[int, np.ndarray] = {}
     for low_contrast in (False, True):
         corners, ids, rejected = _detector(min_side_px, max(padded.shape), low_contrast).detectMarkers(padded)
         candidates = [(q, int(i)) for q, i in zip(corners, ids.ravel())] if ids is not None else []
         candidates += [(q, None) for q in rejected]
-        known = list(found.values())
-        centres = np.array([q.mean(axis=0) for q in known]).reshape(-1, 2)
-        radii = np.array([0.5 * _shortest_side(q) for q in known])
-        for quad, tag_id in candidates:
-            quad = quad.reshape(4, 2).astype(float) - BORDER_PAD_PX
-            if np.any(quad < 0) or np.any(quad > [gray.shape[1] - 1, gray.shape[0] - 1]):
-                continue  # cut by the image border: its corners cannot be measured
-            if tag_id is None and _shortest_side(quad) < min_side_px:
-                continue
-            if np.any(np.linalg.norm(centres - quad.mean(axis=0), axis=1) < radii):
-                continue  # inside a tag the first pass found
-            read_id, refined = _refine_and_read(gray, quad, tag_id)
-            if tag_id is None and (refined is None or read_id is None):
-                # a tag on a darker background: the quad may be its quiet zone's outline, one cell outside the black square
-                read_id, refined = _refine_and_read(gray, _inside_quiet_zone(quad), None)
-            if refined is None or read_id is None or _edge_inside_fraction(gray, refined).min() < MIN_EDGE_INSIDE:
-                continue
-            if read_id not in found or _area(refined) > _area(found[read_id]):
-                found[read_id] = refined
+        _read_candidates(gray, [(q.reshape(4, 2).astype(float) - BORDER_PAD_PX, i, None) for q, i in candidates],
+                         found, min_side_px)
+    _read_candidates(gray, [(q, None, cover) for q, cover in _occluded_quads(gray, list(found.values()))], found,
+                     min_side_px, try_quiet_zone=False)
     return [TagDetection(tag_id, found[tag_id], bool(_edge_inside_fraction(gray, found[tag_id]).min() < 1))
             for tag_id in sorted(found)]
+
+
+def _read_candidates(gray: np.ndarray, candidates: list[tuple[np.ndarray, int | None, np.ndarray | None]],
+                     found: dict[int, np.ndarray], min_side_px: float, try_quiet_zone: bool = True) -> None:
+    """Refine and read candidate quads (4, 2) in px, each with aruco's id or None and the outline of what hides part of
+    it or None (see `_decode`), into `found` (id -> corners); quads cut by the image border, or inside a tag found
+    before, are skipped. `try_quiet_zone`: an unread quad may be a tag's quiet zone outline, as aruco's quads of tags on
+    a darker background are."""
+    centres = np.array([q.mean(axis=0) for q in found.values()]).reshape(-1, 2)
+    radii = np.array([0.5 * _shortest_side(q) for q in found.values()])
+    for quad, tag_id, hidden_by in candidates:
+        if np.any(quad < 0) or np.any(quad > [gray.shape[1] - 1, gray.shape[0] - 1]):
+            continue  # cut by the image border: its corners cannot be measured
+        if tag_id is None and _shortest_side(quad) < min_side_px:
+            continue
+        if np.any(np.linalg.norm(centres - quad.mean(axis=0), axis=1) < radii):
+            continue  # inside a tag found before
+        read_id, refined = _refine_and_read(gray, quad, tag_id, hidden_by)
+        if try_quiet_zone and tag_id is None and (refined is None or read_id is None):
+            # a tag on a darker background: the quad may be its quiet zone's outline, one cell outside the black square
+            read_id, refined = _refine_and_read(gray, _inside_quiet_zone(quad), None)
+        if refined is None or read_id is None or _edge_inside_fraction(gray, refined).min() < MIN_EDGE_INSIDE:
+            continue
+        if read_id not in found or _area(refined) > _area(found[read_id]):
+            found[read_id] = refined
+
+
+def _occluded_quads(gray: np.ndarray, tags: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Quads (4, 2) in px, clockwise, of black squares with a corner hidden under the quiet zone of one of `tags`
+    (corners (4, 2) each) in front of them (see OCCLUDER_MIN_CELL_PX), each with that tag's quiet-zone outline (4, 2)
+    in px."""
+    occluders = [corners for corners in tags if _shortest_side(corners) >= TAG_CELLS * OCCLUDER_MIN_CELL_PX]
+    if not occluders:
+        return []
+    height, width = gray.shape
+    half = cv2.resize(gray, (width // 2, height // 2), interpolation=cv2.INTER_AREA)
+    quads = []
+    for corners in occluders:
+        sides = np.linalg.norm(corners - corners[PREVIOUS_CORNER], axis=1)
+        reach = OCCLUDED_SEARCH_REACH * sides.max()
+        x0, y0 = np.maximum((corners.min(axis=0) - reach) / 2, 0).astype(int)
+        x1, y1 = np.minimum((corners.max(axis=0) + reach) / 2 + 1, [width // 2, height // 2]).astype(int)
+        dark = cv2.adaptiveThreshold(half[y0:y1, x0:x1], 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV,
+                                     OCCLUDED_THRESHOLD_WINDOW_PX, OCCLUDED_THRESHOLD_OFFSET)
+        outlines, _ = cv2.findContours(dark, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+        perimeter = sides.sum() / 2  # at half resolution
+        outlines = [o for o in outlines if 0.3 * perimeter < len(o) < 2 * perimeter]
+        if not outlines:
+            continue
+        quiet_zone = _tag_points(corners, QUIET_ZONE_OUTLINE)
+        # where the hidden corners must lie, at half resolution in the window
+        cover = _tag_points(corners, QUIET_ZONE_OUTLINE
+                            + HIDDEN_CORNER_TOLERANCE_CELLS * np.sign(QUIET_ZONE_OUTLINE - TAG_CELLS / 2))
+        cover = ((cover + 0.5) / 2 - 0.5 - [x0, y0]).astype(np.float32)
+        for outline in outlines:
+            polygon = cv2.approxPolyDP(outline, 0.03 * len(outline), True).reshape(-1, 2).astype(float)
+            quad = _quad_of_cut_polygon(polygon)
+            if quad is None:
+                continue
+            # corners the edges' lines make where the outline has none (over a half-resolution pixel from its vertices)
+            hidden = quad[np.linalg.norm(quad[:, None, :] - polygon[None], axis=2).min(axis=1) > 1.0]
+            if len(hidden) and all(cv2.pointPolygonTest(cover, (float(x), float(y)), False) >= 0 for x, y in hidden):
+                quad = (quad + [x0, y0] + 0.5) * 2 - 0.5
+                clockwise = _cross(quad[1] - quad[0], quad[2] - quad[1]) > 0
+                quads.append((quad if clockwise else quad[::-1].copy(), quiet_zone))
+    return quads
+
+
+def _quad_of_cut_polygon(polygon: np.ndarray) -> np.ndarray | None:
+    """The convex quad (4, 2) the four longest edges' lines of a 5-7-gon make (a square with a corner cut off or
+    notched), when they are most of its outline; else None."""
+    if not 5 <= len(polygon) <= 7:
+        return None
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    lengths = np.linalg.norm(edges, axis=1)
+    longest = np.sort(np.argsort(lengths)[-4:])
+    if lengths[longest].sum() < CUT_POLYGON_MIN_KEPT * lengths.sum():
+        return None
+    quad = _corners((polygon[longest], edges[longest] / lengths[longest, None]))
+    if not np.all(np.isfinite(quad)) or not cv2.isContourConvex(quad.astype(np.float32)):
+        return None
+    return quad
+
+
+def _tag_points(corners: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Points (n, 2) given in a tag's cell coordinates (its black square from (0, 0) to (TAG_CELLS, TAG_CELLS)) in the
+    image, px, from its corners (4, 2), in perspective."""
+    square = np.float32([[0, 0], [TAG_CELLS, 0], [TAG_CELLS, TAG_CELLS], [0, TAG_CELLS]])
+    to_image = cv2.getPerspectiveTransform(square, corners.astype(np.float32))
+    return cv2.perspectiveTransform(cells.astype(np.float32)[None], to_image)[0].astype(float)
+
+
+def _padded(gray: np.ndarray) -> np.ndarray:
+    """The photo with BORDER_PAD_PX of padding on every side at the local light level of the photo's edge beside it
+    (see BORDER_PAD_PX); the corner squares at the photo's median grey."""
+    pad = BORDER_PAD_PX
+    padded = cv2.copyMakeBorder(gray, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=float(np.median(gray[::8, ::8])))
+    along_edge = np.ones((1, 2 * pad + 1), np.uint8)
+
+    def light(edge_rows: np.ndarray) -> np.ndarray:
+        """Per position along an edge, its light level from the edge's outermost rows (rows, n) -> (n,)."""
+        return cv2.dilate(edge_rows.max(axis=0)[None, :], along_edge)[0]
+
+    padded[:pad, pad:-pad] = light(gray[:PAD_LIGHT_ROWS])
+    padded[-pad:, pad:-pad] = light(gray[-PAD_LIGHT_ROWS:])
+    padded[pad:-pad, :pad] = light(gray[:, :PAD_LIGHT_ROWS].T)[:, None]
+    padded[pad:-pad, -pad:] = light(gray[:, -PAD_LIGHT_ROWS:].T)[:, None]
+    return padded
 
 
 def _edge_inside_fraction(image: np.ndarray, quad: np.ndarray) -> np.ndarray:
@@ -174,8 +287,10 @@ def detect_expected_tags(gray: np.ndarray, expected: dict[int, np.ndarray], min_
     return found
 
 
-def _refine_and_read(gray: np.ndarray, quad: np.ndarray, tag_id: int | None) -> tuple[int | None, np.ndarray | None]:
-    """Refine a candidate quad on the image around it; without a known `tag_id`, read its cells on the refined quad.
+def _refine_and_read(gray: np.ndarray, quad: np.ndarray, tag_id: int | None,
+                     hidden_by: np.ndarray | None = None) -> tuple[int | None, np.ndarray | None]:
+    """Refine a candidate quad on the image around it; without a known `tag_id`, read its cells on the refined quad
+    (`hidden_by`: the outline (4, 2) in px of a tag in front hiding part of it, see `_decode`).
 
     Returns the id (None when unreadable) and the refined corners in px (None when the edges cannot be
     located), in tag order once read.
@@ -188,17 +303,19 @@ def _refine_and_read(gray: np.ndarray, quad: np.ndarray, tag_id: int | None) -> 
     if refined is None:
         return tag_id, None
     if tag_id is None:
-        tag_id, refined = _decode(window, refined)
+        tag_id, refined = _decode(window, refined, None if hidden_by is None else hidden_by - [x0, y0])
     if tag_id is not None:
         refined = _settle(window, refined)
     return tag_id, refined + [x0, y0]
 
 
-def _decode(image: np.ndarray, quad: np.ndarray) -> tuple[int | None, np.ndarray]:
+def _decode(image: np.ndarray, quad: np.ndarray, hidden_by: np.ndarray | None = None) -> tuple[int | None, np.ndarray]:
     """Read a refined quad's cells (spline image) and identify it; returns the id (or None) and corners in tag order.
 
     The black border must be dark and the quiet zone around it light; data cells are thresholded
     halfway between the two and matched with OpenCV's dictionary (3 bits corrected, as its detector).
+    Cells under `hidden_by` (a convex outline (4, 2) in px of a tag in front) are not measured, as cells outside the
+    image; data cells under it are read anyway but each counts as a wrong bit against the 3 the dictionary corrects.
     """
     canonical = np.array([[0, 0], [TAG_CELLS, 0], [TAG_CELLS, TAG_CELLS], [0, TAG_CELLS]], dtype=np.float32)
     to_image = cv2.getPerspectiveTransform(canonical, quad.astype(np.float32))
@@ -207,7 +324,10 @@ def _decode(image: np.ndarray, quad: np.ndarray) -> tuple[int | None, np.ndarray
     xs = (ticks[None, :, None, None] + sub[None, None, None, :]).repeat(len(ticks), 0).repeat(3, 2)
     ys = (ticks[:, None, None, None] + sub[None, None, :, None]).repeat(len(ticks), 1).repeat(3, 3)
     points = cv2.perspectiveTransform(np.stack([xs, ys], axis=-1).reshape(1, -1, 2), to_image)[0]
-    measured = _inside(image, points).reshape(len(ticks), len(ticks), 9).all(axis=2)
+    inside = _inside(image, points).reshape(len(ticks), len(ticks), 9).all(axis=2)
+    measured = inside.copy()
+    if hidden_by is not None:
+        measured &= ~_in_convex(hidden_by, points).reshape(len(ticks), len(ticks), 9).any(axis=2)
     values = map_coordinates(image, [points[:, 1], points[:, 0]], order=3, mode="mirror", prefilter=False)
     cells = values.reshape(len(ticks), len(ticks), 9).mean(axis=2)
     ring = np.ones((TAG_CELLS + 2, TAG_CELLS + 2), dtype=bool)
@@ -216,7 +336,7 @@ def _decode(image: np.ndarray, quad: np.ndarray) -> tuple[int | None, np.ndarray
     border[1:-1, 1:-1] = True
     border[2:-2, 2:-2] = False
     # the black square must lie in the image; of its quiet zone (which the photo's edge may cut) at least half
-    if (not measured[2:-2, 2:-2].all() or measured[border].sum() < MIN_BORDER_CELLS
+    if (not inside[2:-2, 2:-2].all() or measured[border].sum() < MIN_BORDER_CELLS
             or measured[ring].sum() < MIN_QUIET_ZONE_CELLS):
         return None, quad
     ring &= measured
@@ -226,9 +346,16 @@ def _decode(image: np.ndarray, quad: np.ndarray) -> tuple[int | None, np.ndarray
     if np.median(light) - np.median(dark) < 20 or np.sum(dark > threshold) > 2 or np.sum(light < threshold) > 4:
         return None, quad
     bits = (cells[2:-2, 2:-2] > threshold).astype(np.uint8)
-    ok, tag_id, rotation = cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY).identify(bits, 0.6)
+    dictionary = cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY)
+    ok, tag_id, rotation = dictionary.identify(bits, CORRECTION_RATE)
     if not ok:
         return None, quad
+    hidden_bits = ~measured[2:-2, 2:-2]
+    if hidden_bits.any():
+        code = cv2.aruco.Dictionary.getBitsFromByteList(dictionary.bytesList[tag_id:tag_id + 1], dictionary.markerSize)
+        wrong = min(np.sum((np.rot90(code, turns) != bits) & ~hidden_bits) for turns in range(4))
+        if wrong + hidden_bits.sum() > int(CORRECTION_RATE * dictionary.maxCorrectionBits):
+            return None, quad
     return int(tag_id), np.roll(quad, int(rotation), axis=0)
 
 
@@ -236,6 +363,13 @@ def _inside(image: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Which of `points` (..., 2) in px lie within `image`, where a cubic spline can be sampled."""
     h, w = image.shape
     return (points[..., 0] >= 0) & (points[..., 1] >= 0) & (points[..., 0] <= w - 1) & (points[..., 1] <= h - 1)
+
+
+def _in_convex(polygon: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Which of `points` (n, 2) lie inside the convex `polygon` (k, 2), in either winding."""
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    sides = _cross(edges[None], points[:, None, :] - polygon[None])
+    return np.all(sides >= 0, axis=1) | np.all(sides <= 0, axis=1)
 
 
 def _area(quad: np.ndarray) -> float:
