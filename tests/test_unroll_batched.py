@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fabline.geometry import analyse
-from fabline.geometry.offsets import OffsetCurve, SplineTable, offset_arc_lengths
+from fabline.geometry.offsets import OffsetCurve, OffsetCurves, SplineTable, offset_arc_lengths
 from fabline.unroll.batch import label_spots
 from fabline.unroll.pieces import label_spot
 from test_unroll_geometry import polar_grid
@@ -46,10 +46,11 @@ def test_offset_arc_lengths_of_concentric_circles():
     geos = [geo for geo in analyse(polar_grid(radii, angles)).lamellas.values() if geo.lamella.family == "A"]
     table = SplineTable([geo.fit for geo in geos])
     offsets = [12.5, -12.5, 40.0]
-    curves = [OffsetCurve.of(geo, o) for geo in geos for o in offsets]
+    curves = OffsetCurves.of([geo for geo in geos for _ in offsets], offsets * len(geos),
+                             [1.0] * len(offsets) * len(geos))
     fit_of_curve = np.repeat(np.arange(len(geos)), len(offsets))
     rng = np.random.default_rng(5)
-    curve = rng.integers(0, len(curves), 500)
+    curve = rng.integers(0, len(curves.curves), 500)
     fits = [geos[f].fit for f in fit_of_curve[curve]]
     tau = np.array([fit.tau[-1] * u for fit, u in zip(fits, rng.random(len(curve)))])
     measured = offset_arc_lengths(table, curves, fit_of_curve, curve, tau)
@@ -60,6 +61,21 @@ def test_offset_arc_lengths_of_concentric_circles():
         radius = np.hypot(*start[:2])
         turned = np.arctan2(here[1], here[0]) - np.arctan2(start[1], start[0])
         assert measured[k] == pytest.approx((radius - offset) * turned, abs=2e-3), (c, t)
+
+
+def test_offset_curves_made_together_equal_each_made_alone(pavilion_geometry):
+    """The batch adds up each curve's length pieces in its own order: bit for bit the trapezoid sums of the
+    length element sqrt((1 - o k_g)^2 + (o tau_g)^2) ds taken curve by curve, with and without a per-sample stretch."""
+    geos = pavilion_geometry[:12]
+    offsets = [25.0, -25.0, 0.0] * 4
+    stretches = [1.0 + 1e-4 * np.sin(geo.s) if k % 3 == 1 else 1.0 for k, geo in enumerate(geos)]
+    together = OffsetCurves.of(geos, offsets, stretches)
+    for geo, offset, stretch, curve in zip(geos, offsets, stretches, together.curves):
+        ratio = np.hypot(1.0 - offset * geo.k_g, offset * geo.tau_g) * stretch
+        s_at = np.concatenate([[0.0], np.cumsum(np.diff(geo.s) * (ratio[1:] + ratio[:-1]) / 2.0)])
+        assert np.array_equal(curve.ratio, ratio) and np.array_equal(curve.s_at_samples, s_at)
+        assert curve.geometry is geo and curve.offset == offset
+    assert np.array_equal(OffsetCurve.of(geos[1], -25.0, stretches[1]).s_at_samples, together.curves[1].s_at_samples)
 
 
 def random_segments(rng, count):

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from fabline.geometry import analyse
-from fabline.geometry.offsets import SplineTable
+from fabline.geometry.offsets import SplineTable, _speed
 from fabline.unroll.collector import collector_paused
 
 
@@ -50,13 +50,35 @@ def test_the_queries_last_speed_is_numpys_norm_bit_for_bit(table):
     low = table.knots[table.first_knot[fit]]
     high = table.knots[table.first_knot[fit] + table.pieces[fit]]
     tau = low - 20.0 + rng.random(len(fit)) * (high - low + 40.0)
-    piece = table.local_piece(fit, tau)
-    dx = tau - table.knots[table.first_knot[fit] + piece]
-    expected = np.linalg.norm(table.evaluate(fit, piece, tau, 1)[:, :3], axis=1)
-    assert np.array_equal(table._speed(fit, piece, dx), expected)
+    location = table.locate(fit, tau)
+    dx = tau - location.knot
+    expected = np.linalg.norm(table.evaluate(fit, location.piece, tau, 1)[:, :3], axis=1)
+    assert np.array_equal(_speed(location.coefficients, dx), expected)
     steps = np.stack([dx * f for f in (0.1, 0.5, 0.9)])     # (3, N): several offsets per query at once
-    together = table._speed(fit, piece, steps)
-    assert all(np.array_equal(together[k], table._speed(fit, piece, steps[k])) for k in range(3))
+    together = _speed(location.coefficients, steps)
+    assert all(np.array_equal(together[k], _speed(location.coefficients, steps[k])) for k in range(3))
+
+
+def test_offset_points_by_column_equal_the_row_formula_bit_for_bit(table):
+    """Points c + o u and c' from the column layout against the same formula on (N, 6) rows of `evaluate`, and
+    arc lengths on a reused location against a fresh search: equal to the last bit, so the parts cannot change."""
+    rng = np.random.default_rng(13)
+    fit = rng.integers(0, len(table.pieces), 5000)
+    low = table.knots[table.first_knot[fit]]
+    high = table.knots[table.first_knot[fit] + table.pieces[fit]]
+    tau = low - 20.0 + rng.random(len(fit)) * (high - low + 40.0)
+    offset = rng.uniform(-30.0, 30.0, len(fit))
+    piece = table.local_piece(fit, tau)
+    value, d1 = table.evaluate(fit, piece, tau, 0), table.evaluate(fit, piece, tau, 1)[:, :3]
+    t = d1 / np.linalg.norm(d1, axis=1)[:, None]
+    n = value[:, 3:] - np.einsum("ij,ij->i", value[:, 3:], t)[:, None] * t
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    points, derivative = table.offset_points(fit, tau, offset)
+    assert np.array_equal(points, value[:, :3] + offset[:, None] * np.cross(n, t)) and np.array_equal(derivative, d1)
+    moved = tau + rng.uniform(-5.0, 5.0, len(tau))
+    reused = table.locate(fit, moved, table.locate(fit, tau))
+    for got, want in zip(table.arc_length(fit, moved, reused), table.arc_length(fit, moved)):
+        assert np.array_equal(got, want)
 
 
 class _Cycle:

@@ -106,3 +106,25 @@ def test_per_interval_check_of_a_circular_lamella(s235):
         assert interval["k_g_per_m"] == pytest.approx(1000.0 / radius, rel=1e-3)  # spline curvature
         assert interval["bending"] == pytest.approx(expected, abs=1e-3) and interval["shear"] == 0.0
     assert len(check.warnings) == 1 and "lamella A-000, nodes" in check.warnings[0] and "(and 3 more intervals)" in check.warnings[0]
+
+
+def test_lamellas_checked_together_equal_each_checked_alone(enneper, s235):
+    """`check_lamellas` works on all lamellas' samples at once: every number of every lamella's check, warnings
+    included, must equal the check of that lamella alone, to the last bit."""
+    from fabline.geometry import analyse
+    from fabline.unroll.structure import check_lamella, check_lamellas, helix_edge_extension
+
+    profile = Profile(60.0, 2.0)  # thick enough for some intervals to warn
+    geometries = list(analyse(enneper).lamellas.values())
+    together = check_lamellas(geometries, s235, profile)
+    assert len(together) == len(geometries) and any(check.warnings for check in together)
+    for geo, check in zip(geometries, together):
+        alone = check_lamella(geo, s235, profile)
+        assert check.summary(s235, profile) == alone.summary(s235, profile) and check.warnings == alone.warnings
+        for name in ("max_k_g", "max_tau_g", "max_k_n"):
+            assert np.array_equal(getattr(check, name), getattr(alone, name))
+        assert (check.centre_contraction, check.top_extension) == (alone.centre_contraction, alone.top_extension)
+        assert check.top_extension == helix_edge_extension(geo, profile.h / 2.0)
+        expected_max = [np.abs(geo.k_g[(geo.s >= a) & (geo.s <= b)]).max()
+                        for a, b in zip(geo.node_s[:-1], geo.node_s[1:])]
+        assert np.array_equal(check.max_k_g, expected_max)  # samples from node to node, both included

@@ -57,17 +57,18 @@ class SplineTable:
         return _horner(self.piece_coefficients(fit, piece),
                        (tau - self.knots[self.first_knot[fit] + piece])[:, None], derivative)
 
-    def arc_length(self, fit: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def arc_length(self, fit: np.ndarray, tau: np.ndarray,
+                   location: "Location | None" = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """`CurveFit.arc_length` of many queries: the length from the fit's start, the local piece, and the part of
-        the length within that piece (5-point Gauss-Legendre on the spline speed, as CurveFit integrates)."""
-        piece = self.local_piece(fit, tau)
-        knot = self.first_knot[fit] + piece
-        lo = self.knots[knot]
+        the length within that piece (5-point Gauss-Legendre on the spline speed, as CurveFit integrates); pass the
+        `location` of these parameters (from `locate`) to reuse its pieces and coefficients."""
+        location = location if location is not None else self.locate(fit, tau)
+        piece, lo = location.piece, location.knot
         half, mid = (tau - lo) / 2.0, (tau + lo) / 2.0
         gauss = mid[:, None] + half[:, None] * GAUSS_X[None, :]            # (N, 5), all on the query's piece
-        speed = np.ascontiguousarray(self._speed(fit, piece, (gauss - lo[:, None]).T).T)  # (N, 5)
+        speed = np.ascontiguousarray(_speed(location.coefficients, (gauss - lo[:, None]).T).T)  # (N, 5)
         within = half * (speed @ GAUSS_W)
-        return self.s_at_knots[knot] + within, piece, within
+        return self.s_at_knots[self.first_knot[fit] + piece] + within, piece, within
 
     def parameter_at(self, fit: np.ndarray, s: np.ndarray) -> np.ndarray:
         """`CurveFit.parameter_at` of many queries: the parameter at arc length s, by Newton steps from the chord."""
@@ -77,19 +78,13 @@ class SplineTable:
         s0, s1 = self.s_at_knots[knot], self.s_at_knots[knot + 1]
         fraction = np.clip((s - s0) / (s1 - s0), 0.0, 1.0)
         tau = self.knots[knot] + fraction * (self.knots[knot + 1] - self.knots[knot])
+        location = None
         for _ in range(3):
-            length, piece, _ = self.arc_length(fit, tau)
-            tau = tau - (length - s) / self._speed(fit, piece, tau - self.knots[self.first_knot[fit] + piece])
+            location = self.locate(fit, tau, location)  # few parameters change piece from one step to the next
+            length, _, _ = self.arc_length(fit, tau, location)
+            tau = tau - (length - s) / _speed(location.coefficients, tau - location.knot)
         low, high = self.knots[self.first_knot[fit]], self.knots[self.first_knot[fit] + self.pieces[fit]]
         return np.clip(tau, low, high)
-
-    def _speed(self, fit: np.ndarray, piece: np.ndarray, dx: np.ndarray) -> np.ndarray:
-        """|c'|, the centreline's speed, at offsets dx (..., N) into the N queries' pieces, as np.linalg.norm of the
-        derivative gives it (x^2 + y^2, then + z^2). Queries come last so that numpy's inner loops run over all of
-        them rather than over 3 columns: four times faster, the same operations on every value."""
-        by_column = self.piece_coefficients(fit, piece)[:, :, :3].transpose(0, 2, 1)  # (4, 3, N)
-        squares = _horner(by_column[(slice(None), slice(None)) + (None,) * (dx.ndim - 1)], dx, 1) ** 2
-        return np.sqrt(squares[0] + squares[1] + squares[2])
 
     def locate(self, fit: np.ndarray, tau: np.ndarray, previous: "Location | None" = None) -> "Location":
         """The local pieces of parameters `tau` (as `local_piece`) with their coefficients and knots.
@@ -99,16 +94,20 @@ class SplineTable:
         """
         if previous is None:
             piece = self.local_piece(fit, tau)
-            return Location(piece, self.piece_coefficients(fit, piece),
-                            self.knots[self.first_knot[fit] + piece])
+            return Location(piece, self._by_column(fit, piece), self.knots[self.first_knot[fit] + piece])
         moved = np.flatnonzero(~self._holds(fit, previous.piece, tau))
         if not moved.size:
             return previous
         piece, coefficients, knot = previous.piece.copy(), previous.coefficients.copy(), previous.knot.copy()
         piece[moved] = self.local_piece(fit[moved], tau[moved])
-        coefficients[:, moved] = self.piece_coefficients(fit[moved], piece[moved])
+        coefficients[:, :, moved] = self._by_column(fit[moved], piece[moved])
         knot[moved] = self.knots[self.first_knot[fit[moved]] + piece[moved]]
         return Location(piece, coefficients, knot)
+
+    def _by_column(self, fit: np.ndarray, piece: np.ndarray) -> np.ndarray:
+        """`piece_coefficients` as (4 powers; 6; N): the table is read piece by piece (a few cache lines a query), then
+        laid out so that the repeated evaluations of a `Location` run numpy's loops along all queries."""
+        return np.ascontiguousarray(self.piece_coefficients(fit, piece).transpose(0, 2, 1))
 
     def _holds(self, fit: np.ndarray, piece: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """Whether `local_piece` would still give `piece`: the very comparisons its search makes, on the same keys."""
@@ -129,21 +128,38 @@ class SplineTable:
         """
         location = location if location is not None else self.locate(fit, tau)
         coefficients, dx = location.coefficients, tau - location.knot
-        value, d1 = _horner(coefficients, dx[:, None], 0), _horner(coefficients[..., :3], dx[:, None], 1)
-        t = d1 / np.linalg.norm(d1, axis=1)[:, None]
-        n = value[:, 3:] - np.einsum("ij,ij->i", value[:, 3:], t)[:, None] * t
+        value, d1 = _horner(coefficients, dx, 0), _horner(coefficients[:, :3], dx, 1)   # (6, N), (3, N)
+        squares = d1 * d1
+        t = np.ascontiguousarray((d1 / np.sqrt(squares[0] + squares[1] + squares[2])).T)  # np.linalg.norm's sum
+        normal = np.ascontiguousarray(value[3:].T)  # rows again for einsum, whose summation order depends on layout
+        n = normal - np.einsum("ij,ij->i", normal, t)[:, None] * t
         n /= np.linalg.norm(n, axis=1)[:, None]
-        return value[:, :3] + offset[:, None] * np.cross(n, t), d1
+        return value[:3].T + offset[:, None] * np.cross(n, t), np.ascontiguousarray(d1.T)
 
 
 @dataclass(frozen=True)
 class Location:
     """Where parameters fall in a `SplineTable`: each one's local piece, that piece's coefficients (4 powers, highest
-    first; N; 6) and its starting knot."""
+    first; 6 columns; N) and its starting knot."""
 
     piece: np.ndarray
     coefficients: np.ndarray
     knot: np.ndarray
+
+    def take(self, rows: np.ndarray) -> "Location":
+        """The location of queries `rows` (e.g. each node once per strip through it), from these compact arrays rather
+        than from the network's table."""
+        return Location(self.piece[rows], np.take(self.coefficients, rows, axis=2), self.knot[rows])
+
+
+def _speed(coefficients: np.ndarray, dx: np.ndarray) -> np.ndarray:
+    """|c'|, the centreline's speed, from pieces' coefficients laid out by column (4 powers; 3 or 6 columns; N, as
+    `Location` holds them) at offsets dx (..., N) into the N queries' pieces, as np.linalg.norm of the derivative
+    gives it (x^2 + y^2, then + z^2). Queries come last so that numpy's inner loops run over all of them rather than
+    over 3 columns: four times faster, the same operations on every value."""
+    by_column = coefficients[:, :3]
+    squares = _horner(by_column[(slice(None), slice(None)) + (None,) * (dx.ndim - 1)], dx, 1) ** 2
+    return np.sqrt(squares[0] + squares[1] + squares[2])
 
 
 def _horner(coefficients: np.ndarray, dx: np.ndarray, derivative: int) -> np.ndarray:
@@ -171,43 +187,73 @@ class OffsetCurve:
     @classmethod
     def of(cls, geometry: LamellaGeometry, offset: float, stretch: np.ndarray | float = 1.0) -> "OffsetCurve":
         """The offset curve; `stretch` (per sample) scales its length element, e.g. to undo the helix contraction."""
-        ratio = np.hypot(1.0 - offset * geometry.k_g, offset * geometry.tau_g) * stretch
-        pieces = np.diff(geometry.s) * (ratio[1:] + ratio[:-1]) / 2.0
-        return cls(geometry, float(offset), ratio, np.concatenate([[0.0], np.cumsum(pieces)]))
+        return OffsetCurves.of([geometry], [offset], [stretch]).curves[0]
 
     @property
     def length(self) -> float:
         return float(self.s_at_samples[-1])
 
 
-def offset_arc_lengths(table: SplineTable, curves: list[OffsetCurve], fit_of_curve: np.ndarray, curve: np.ndarray,
-                       tau: np.ndarray) -> np.ndarray:
-    """Arc length along offset curve curves[curve[i]] (beside fit fit_of_curve[curve[i]] of `table`) from its start
-    to parameter tau[i], for many queries at once (negative before the start, past `length` after the end).
+@dataclass(frozen=True)
+class OffsetCurves:
+    """Many offset curves made together, their samples in flat arrays (curve k's rows from first[k]), as
+    `offset_arc_lengths` reads them; each of `curves` holds views into those arrays."""
 
-    Within a sample interval the length element ratio is taken as linear in the centreline's arc length.
+    curves: list[OffsetCurve]
+    ratio: np.ndarray
+    s_at_samples: np.ndarray
+    first: np.ndarray
+
+    @classmethod
+    def of(cls, geometries: list[LamellaGeometry], offsets: list[float],
+           stretches: list[np.ndarray | float]) -> "OffsetCurves":
+        """`OffsetCurve.of` of every (geometry, offset, stretch), written curve by curve into the flat arrays (a curve's
+        few thousand samples stay in the CPU cache through all the steps, which whole-network arrays would not)."""
+        sizes = [len(geo.s) for geo in geometries]
+        bounds = np.cumsum([0] + sizes).tolist()
+        ratio, s_at = np.empty(bounds[-1]), np.empty(bounds[-1])
+        curves = []
+        for geo, offset, stretch, a, b in zip(geometries, offsets, stretches, bounds[:-1], bounds[1:]):
+            here = ratio[a:b]
+            np.hypot(1.0 - offset * geo.k_g, offset * geo.tau_g, out=here)
+            here *= stretch
+            s_at[a] = 0.0
+            np.cumsum(np.diff(geo.s) * (here[1:] + here[:-1]) / 2.0, out=s_at[a + 1:b])
+            curves.append(OffsetCurve(geo, float(offset), here, s_at[a:b]))
+        first = np.array(bounds[:-1], dtype=int)
+        return cls(curves, ratio, s_at, first)
+
+
+def offset_arc_lengths(table: SplineTable, curves: OffsetCurves, fit_of_curve: np.ndarray, curve: np.ndarray,
+                       tau: np.ndarray, location: Location | None = None) -> np.ndarray:
+    """Arc length along offset curve curves.curves[curve[i]] (beside fit fit_of_curve[curve[i]] of `table`) from its
+    start to parameter tau[i], for many queries at once (negative before the start, past `length` after the end).
+
+    Within a sample interval the length element ratio is taken as linear in the centreline's arc length. Pass the
+    `location` of the parameters in `table` (`SplineTable.locate`) when it is known.
     """
     fit = fit_of_curve[curve]
-    _, piece, along = table.arc_length(fit, tau)
+    _, piece, along = table.arc_length(fit, tau, location)
     knot = table.first_knot[fit] + piece
     step = table.s_at_knots[knot + 1] - table.s_at_knots[knot]
-    sizes = np.array([len(c.ratio) for c in curves])
-    row = (np.cumsum(sizes) - sizes)[curve] + piece
-    ratio = np.concatenate([c.ratio for c in curves])
-    s_at = np.concatenate([c.s_at_samples for c in curves])
+    row = curves.first[curve] + piece
+    ratio, s_at = curves.ratio, curves.s_at_samples
     ratio_here = ratio[row] + (ratio[row + 1] - ratio[row]) * along / step
     return s_at[row] + along * (ratio[row] + ratio_here) / 2.0
 
 
 def closest_approach(table: SplineTable, first: np.ndarray, tau_first: np.ndarray, offset_first: np.ndarray,
                      second: np.ndarray, tau_second: np.ndarray, offset_second: np.ndarray,
-                     iterations: int = 6, reach: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     iterations: int = 6, reach: float = 0.0,
+                     near: Location | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, Location]:
     """Where the offset curve beside fit first[i] of `table` comes closest to the one beside fit second[i], near the guesses.
 
     Solves all crossings together by Gauss-Newton on |p(a) - q(b)|^2 (Jacobian from the centrelines, see
     `SplineTable.offset_points`: each step shrinks the error about a hundredfold), all queries of all fits in
-    one evaluation per iteration. Parameters stay within `reach` of each curve's ends. Returns both
-    parameters and the remaining gap (mm): a crossing of curves on one surface has a gap near zero.
+    one evaluation per iteration. Parameters stay within `reach` of each curve's ends; `near` may give the location
+    of nearby parameters (first's, then second's), where the search for the guesses' pieces starts. Returns both
+    parameters, the remaining gap (mm): a crossing of curves on one surface has a gap near zero, and the
+    `Location` of the parameters (first's, then second's) for further queries there.
     """
     index = np.concatenate([first, second])
     tau = np.concatenate([tau_first, tau_second]).astype(float)
@@ -215,7 +261,7 @@ def closest_approach(table: SplineTable, first: np.ndarray, tau_first: np.ndarra
     low = table.knots[table.first_knot[index]] - reach
     high = table.knots[table.first_knot[index] + table.pieces[index]] + reach
     m = len(first)
-    location = None
+    location = near
     for step in range(iterations + 1):
         location = table.locate(index, tau, location)  # after the first step few parameters change piece
         points, derivs = table.offset_points(index, tau, offset, location)
@@ -233,4 +279,4 @@ def closest_approach(table: SplineTable, first: np.ndarray, tau_first: np.ndarra
         tau[:m] += (b1 * a22 - a12 * b2) / det
         tau[m:] += (a11 * b2 - a12 * b1) / det
         tau = np.clip(tau, low, high)
-    return tau[:m], tau[m:], np.linalg.norm(gap, axis=1)
+    return tau[:m], tau[m:], np.linalg.norm(gap, axis=1), location

@@ -43,16 +43,17 @@ def straight_flags(segments: list[Segment], options: UnrollOptions) -> np.ndarra
     length = np.array([s.end - s.start for s in segments])
     straight = k_max * length ** 2 / 8.0 < options.straight_tolerance
     doubtful = np.flatnonzero(~straight)
-    for start in range(0, len(doubtful), ROWS_PER_BLOCK):
-        block = doubtful[start:start + ROWS_PER_BLOCK]
-        x, kappa = _station_rows([segments[k] for k in block])
-        straight[block] = stays_straight(x, kappa, options.straight_tolerance)
+    if len(doubtful):
+        stations = _stations([segments[k] for k in doubtful])
+        for start in range(0, len(doubtful), ROWS_PER_BLOCK):
+            x, kappa = _station_rows(stations, slice(start, start + ROWS_PER_BLOCK))
+            straight[doubtful[start:start + ROWS_PER_BLOCK]] = stays_straight(x, kappa, options.straight_tolerance)
     return straight
 
 
-def _station_rows(segments: list[Segment]) -> tuple[np.ndarray, np.ndarray]:
-    """Each segment's stations (its ends and the samples strictly inside, as `segment_part` takes them) and k_n at
-    them, one row per segment, padded by repeating the end."""
+def _stations(segments: list[Segment]) -> tuple[np.ndarray, ...]:
+    """What `_station_rows` reads, one pass over the strips: all strips' samples and k_n there (concatenated), and per
+    segment its first sample strictly inside (a row of those), how many lie inside, its ends and k_n at its ends."""
     xs, ks, first, inside, a, b, ka, kb, base = [], [], [], [], [], [], [], [], 0
     for strip, group in _by_strip(segments):
         samples, k_n = strip.curve.s_at_samples, strip.geometry.k_n
@@ -67,13 +68,20 @@ def _station_rows(segments: list[Segment]) -> tuple[np.ndarray, np.ndarray]:
         ka.append(np.interp(starts, samples, k_n))
         kb.append(np.interp(ends, samples, k_n))
         base += len(samples)
-    xs, ks, first, inside = np.concatenate(xs), np.concatenate(ks), np.concatenate(first), np.concatenate(inside)
+    return tuple(np.concatenate(column) for column in (xs, ks, first, inside, a, b, ka, kb))
+
+
+def _station_rows(stations: tuple[np.ndarray, ...], rows: slice) -> tuple[np.ndarray, np.ndarray]:
+    """The stations of segments `rows` of a `_stations` table (their ends and the samples strictly inside, as
+    `segment_part` takes them) and k_n at them, one row per segment, padded by repeating the end."""
+    xs, ks, *columns = stations
+    first, inside, a, b, ka, kb = (column[rows] for column in columns)
     column = np.arange(inside.max() + 2)[None, :]
     sample = np.minimum(first[:, None] + column - 1, len(xs) - 1)
     interior = (column >= 1) & (column <= inside[:, None])
-    x = np.where(interior, xs[sample], np.concatenate(b)[:, None])
-    kappa = np.where(interior, ks[sample], np.concatenate(kb)[:, None])
-    x[:, 0], kappa[:, 0] = np.concatenate(a), np.concatenate(ka)
+    x = np.where(interior, xs[sample], b[:, None])
+    kappa = np.where(interior, ks[sample], kb[:, None])
+    x[:, 0], kappa[:, 0] = a, ka
     return x, kappa
 
 
@@ -144,7 +152,7 @@ def straight_parts(segments: list[Segment], options: UnrollOptions) -> list[Part
     # the per-part assembly below only slices Python lists with Python ints, the cheapest way to build objects
     node_ids = nodes["ids"]
     hole_at = np.concatenate([[0], np.cumsum(hole_count)]).tolist()
-    slot_list = [Slot(n, c, e) for n, c, e in zip(slots["nodes"], slot_contours, slots["edges"])]
+    slot_list = list(map(Slot, slots["nodes"], list(slot_contours), slots["edges"]))
     mark_points = marks.reshape(-1, 2)
     mark_starts = 2 * (np.arange(len(node_x)) - node_range[node_seg])   # two vertices a mark, from its part's first
     node_s = np.round(node_x - a[node_seg], 4).tolist()
@@ -154,11 +162,12 @@ def straight_parts(segments: list[Segment], options: UnrollOptions) -> list[Part
     for k, segment in enumerate(segments):
         s0, s1, n0, n1 = slot_bounds[k], slot_bounds[k + 1], node_bounds[k], node_bounds[k + 1]
         t0, t1 = text_stroke_at[k], text_stroke_at[k + 1]
-        parts.append(Part(
-            segment.id, "strip", outlines[k], lamella=segment.strip.lamella, holes=holes[hole_at[k]:hole_at[k + 1]],
-            slots=slot_list[s0:s1], marks=Polylines(mark_points[2 * n0:2 * n1], mark_starts[n0:n1]),
-            text=Polylines(text[text_point_at[k]:text_point_at[k + 1]], text_starts[t0:t1]), nodes=node_rows[n0:n1],
-            label=labels[k], grain=True, meta=segment_meta(segment, None)))
+        parts.append(Part(  # fields by position (id, kind, outline, lamella, holes, slots, marks, text, nodes, label,
+            # grain, meta): keywords double the cost of making a dataclass
+            segment.id, "strip", outlines[k], segment.strip.lamella, holes[hole_at[k]:hole_at[k + 1]],
+            slot_list[s0:s1], Polylines(mark_points[2 * n0:2 * n1], mark_starts[n0:n1]),
+            Polylines(text[text_point_at[k]:text_point_at[k + 1]], text_starts[t0:t1]), node_rows[n0:n1],
+            labels[k], True, segment_meta(segment, None)))
     return parts
 
 

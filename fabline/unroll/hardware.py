@@ -90,9 +90,12 @@ def washer_keys(angles: np.ndarray, bounds: list[int]) -> list[tuple[float, ...]
 def washers(node: str, angles: tuple[float, ...], sizes: HardwareSizes) -> list[Part]:
     """The two star washers (top, bottom) of a node: one arm pair along each lamella pair, at `angles` (`washer_keys`)."""
     outline, hole, label = _washer_shape(angles, sizes)
-    # all fields by position: tens of thousands of washers, and keywords and defaults double the cost of each
-    return [Part(f"W-{node}-{side}", "washer", outline, None, [hole], [], [], [], [], label, False,
-                 {"node": node, "arm_angles_deg": list(angles), "side": side}) for side in ("T", "B")]
+    # all fields by position, both parts written out: tens of thousands of washers, and keywords, defaults or a
+    # comprehension's own call add a third to the cost of each
+    return [Part(f"W-{node}-T", "washer", outline, None, [hole], [], [], [], [], label, False,
+                 {"node": node, "arm_angles_deg": list(angles), "side": "T"}),
+            Part(f"W-{node}-B", "washer", outline, None, [hole], [], [], [], [], label, False,
+                 {"node": node, "arm_angles_deg": list(angles), "side": "B"})]
 
 
 @lru_cache(maxsize=1024)

@@ -61,9 +61,10 @@ def split_strip(strip: Strip, options: UnrollOptions, setback: float,
     start, end = strip_extent(strip, options)
     runs: list[tuple[float, float, Join | None, Join | None]] = []
     run_start, start_join = start, None
-    for nid, x in zip(strip.node_ids, strip.node_x.tolist()):  # node_x increases (stations checks it)
-        if nid not in strip.joint_nodes:
-            continue
+    # in order along the strip (node_x increases: stations checks it); most strips have no joints, so no loop
+    joints = ([(nid, x) for nid, x in zip(strip.node_ids, strip.node_x.tolist()) if nid in strip.joint_nodes]
+              if strip.joint_nodes else [])
+    for nid, x in joints:
         joint = Join("joint", x, nid)
         if x - setback > run_start + options.end:
             runs.append((run_start, x - setback, start_join, joint))

@@ -15,7 +15,8 @@ import numpy as np
 
 from fabline.errors import FablineError
 from fabline.geometry.darboux import LamellaGeometry, NetworkGeometry
-from fabline.geometry.offsets import OffsetCurve, SplineTable, closest_approach, offset_arc_lengths
+from fabline.geometry.offsets import (Location, OffsetCurve, OffsetCurves, SplineTable, closest_approach,
+                                      offset_arc_lengths)
 from fabline.unroll.options import UnrollOptions
 from fabline.unroll.structure import helix_strains
 
@@ -91,30 +92,35 @@ def strip_stations(geometry: NetworkGeometry, options: UnrollOptions) -> list[St
     node_counts = np.array([len(geo.node_ids) for geo in geos])
     node_lamella = np.repeat(np.arange(len(geos)), node_counts)
     node_tau = table.parameter_at(node_lamella, np.concatenate([geo.node_s for geo in geos]))
-    curves = [OffsetCurve.of(geo, offset, helix_stretch(geo, options)) for geo in geos for _, offset in sides]
+    curves = OffsetCurves.of([geo for geo in geos for _ in sides], [offset for _ in geos for _, offset in sides],
+                             [helix_stretch(geo, options) for geo in geos for _ in sides])
     fit_of_curve = np.repeat(np.arange(len(geos)), len(sides))
     # every node on every strip: curve index = lamella * len(sides) + side, the lamella's nodes in order
     per_curve = np.repeat(node_counts, len(sides))
-    curve_of_node = np.repeat(np.arange(len(curves)), per_curve)
+    curve_of_node = np.repeat(np.arange(len(curves.curves)), per_curve)
     lamella_rows = np.split(np.arange(len(node_tau)), np.cumsum(node_counts)[:-1])
     node_row = np.concatenate([rows for rows in lamella_rows for _ in sides])
-    node_x = offset_arc_lengths(table, curves, fit_of_curve, curve_of_node, node_tau[node_row])
+    # where each node lies on each of its lamellas' splines: its strips' queries there and the crossing guesses
+    # nearby start from it instead of searching the network's table again
+    node_location = table.locate(node_lamella, node_tau)
+    node_x = offset_arc_lengths(table, curves, fit_of_curve, curve_of_node, node_tau[node_row],
+                                node_location.take(node_row))
     singular = singular_nodes(geometry)
     joint_mode = options.singularity == "joint"
     pairs = _crossing_pairs(geos, geometry, singular if joint_mode else set(), options)
     slot_curve, slot_x, slot_node, slot_names, slot_edges = _solve_crossings(
-        geos, geometry, table, node_tau, pairs, sides, options, curves, fit_of_curve)
+        geos, geometry, table, node_tau, node_location, pairs, sides, options, curves, fit_of_curve)
     # a paired strip's node mark lies midway between the slots it gets at that node
     node_first = np.cumsum(per_curve) - per_curve
     row = node_first[slot_curve] + slot_node
     total = np.bincount(row, weights=slot_x, minlength=len(node_x))
     count = np.bincount(row, minlength=len(node_x))
-    paired = np.array([curve.offset != 0.0 for curve in curves])[curve_of_node]
+    paired = np.array([curve.offset != 0.0 for curve in curves.curves])[curve_of_node]
     node_x = np.where(paired & (count > 0), total / np.maximum(count, 1), node_x)
     node_bounds = np.append(node_first, len(node_x)).tolist()
-    slot_bounds = np.searchsorted(slot_curve, np.arange(len(curves) + 1)).tolist()
+    slot_bounds = np.searchsorted(slot_curve, np.arange(len(curves.curves) + 1)).tolist()
     strips = []
-    for c, curve in enumerate(curves):
+    for c, curve in enumerate(curves.curves):
         geo = geos[c // len(sides)]
         lo, hi = slot_bounds[c], slot_bounds[c + 1]
         strip = Strip(geo, sides[c % len(sides)][0], curve, list(geo.node_ids), node_x[node_bounds[c]:node_bounds[c + 1]],
@@ -148,12 +154,12 @@ def _crossing_pairs(geos: list[LamellaGeometry], geometry: NetworkGeometry, skip
 
 
 def _solve_crossings(geos: list[LamellaGeometry], geometry: NetworkGeometry, table: SplineTable, node_tau: np.ndarray,
-                     pairs: list[tuple[str, int, int, int, int]], sides: list[tuple[str, float]], options: UnrollOptions,
-                     curves: list[OffsetCurve], fit_of_curve: np.ndarray
+                     node_location: Location, pairs: list[tuple[str, int, int, int, int]], sides: list[tuple[str, float]], options: UnrollOptions,
+                     curves: OffsetCurves, fit_of_curve: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str], list[str]]:
     """Solve every strip-strip crossing: per slot its strip (curve index = lamella * len(sides) + side), arc length
     along it, node index within the lamella, node id and edge; sorted by strip, then along it. `node_tau` holds
-    every lamella's node parameters in order."""
+    every lamella's node parameters in order, `node_location` where they lie in `table`."""
     if not pairs:
         return np.zeros(0, dtype=int), np.zeros(0), np.zeros(0, dtype=int), [], []
     nodes = [p[0] for p in pairs]
@@ -162,8 +168,9 @@ def _solve_crossings(geos: list[LamellaGeometry], geometry: NetworkGeometry, tab
     # every lamella's node tangents and parameters in one table, row = first row of the lamella + node index
     first_row = np.cumsum([0] + [len(geo.node_ids) for geo in geos[:-1]])
     tangents, taus = np.concatenate([geo.node_tangents for geo in geos]), node_tau
-    t_i, t_j = tangents[first_row[li] + ki], tangents[first_row[lj] + kj]
-    tau_i0, tau_j0 = taus[first_row[li] + ki], taus[first_row[lj] + kj]
+    row_i, row_j = first_row[li] + ki, first_row[lj] + kj
+    t_i, t_j = tangents[row_i], tangents[row_j]
+    tau_i0, tau_j0 = taus[row_i], taus[row_j]
     offsets = np.array([o for _, o in sides])
     count = len(sides)
     # every pair crossed with every side combination: index = pair * count^2 + side_i * count + side_j
@@ -179,8 +186,10 @@ def _solve_crossings(geos: list[LamellaGeometry], geometry: NetworkGeometry, tab
     b = (o_i - o_j * across_j) / sin_ij
     a = b * cos_ij + o_j * along_j
     reach = options.end + abs(offsets).max() * 2.0
-    tau_i, tau_j, gap = closest_approach(table, np.repeat(li, rep), np.repeat(tau_i0, rep) + a, o_i,
-                                         np.repeat(lj, rep), np.repeat(tau_j0, rep) + b, o_j, iterations=NEWTON_STEPS, reach=reach)
+    near = node_location.take(np.concatenate([np.repeat(row_i, rep), np.repeat(row_j, rep)]))
+    tau_i, tau_j, gap, location = closest_approach(table, np.repeat(li, rep), np.repeat(tau_i0, rep) + a, o_i,
+                                                   np.repeat(lj, rep), np.repeat(tau_j0, rep) + b, o_j,
+                                                   iterations=NEWTON_STEPS, reach=reach, near=near)
     bad = np.flatnonzero(gap > CROSSING_GAP_MM)
     if bad.size:
         k = int(bad[np.argmax(gap[bad])])
@@ -194,7 +203,7 @@ def _solve_crossings(geos: list[LamellaGeometry], geometry: NetworkGeometry, tab
     pair_of = np.arange(len(tau_i)) // rep
     lam = np.concatenate([np.repeat(li, rep), np.repeat(lj, rep)])
     key = lam * count + np.concatenate([side_i, side_j])
-    x = offset_arc_lengths(table, curves, fit_of_curve, key, np.concatenate([tau_i, tau_j]))
+    x = offset_arc_lengths(table, curves, fit_of_curve, key, np.concatenate([tau_i, tau_j]), location)
     node_index = np.concatenate([np.repeat(ki, rep), np.repeat(kj, rep)])
     # object arrays hand back the same str objects in tolist (numpy strings would each become a new one)
     edges = np.concatenate([np.array(edge_i, dtype=object)[pair_of], np.array(edge_j, dtype=object)[pair_of]])

@@ -118,22 +118,29 @@ def gather(block: TextBlock, which: np.ndarray, scale: np.ndarray | float = 1.0,
     counts, strokes = point_count[which], stroke_count[which]
     row = np.cumsum(counts) - counts
     source = point_first[which] - row
-    points = np.empty((int(counts.sum()), block.points.shape[1]))
+    points = np.empty((int(counts.sum()), 2))
+    xs, ys = np.ascontiguousarray(block.points[:, 0]), np.ascontiguousarray(block.points[:, 1])
     for lo in range(0, len(which), GATHER_CHUNK):
         hi = lo + GATHER_CHUNK
         count = counts[lo:hi]
         first_row = int(row[lo])
         chunk = points[first_row:first_row + int(count.sum())]
-        np.take(block.points, np.repeat(source[lo:hi], count) + np.arange(first_row, first_row + len(chunk)), axis=0,
-                out=chunk)
+        index = np.repeat(source[lo:hi], count)
+        index += np.arange(first_row, first_row + len(chunk))
+        x, y = xs[index], ys[index]   # column by column: numpy's loops then run along the chunk, not along 2 columns
         if advance is not None:
-            chunk[:, 0] += np.repeat(advance[lo:hi], count)
+            x += np.repeat(advance[lo:hi], count)
         if np.ndim(scale):
-            chunk *= np.repeat(scale[lo:hi], count)[:, None]
+            factor = np.repeat(scale[lo:hi], count)
+            x *= factor
+            y *= factor
         elif scale != 1.0:
-            chunk *= scale
+            x *= scale
+            y *= scale
         if shift is not None:
-            chunk += np.repeat(shift[lo:hi], count, axis=0)
+            x += np.repeat(shift[lo:hi, 0], count)
+            y += np.repeat(shift[lo:hi, 1], count)
+        chunk[:, 0], chunk[:, 1] = x, y
     instance = np.arange(len(which))
     first = np.cumsum(strokes) - strokes
     stroke_index = np.repeat(stroke_first[which] - first, strokes) + np.arange(strokes.sum())

@@ -141,9 +141,9 @@ class LamellaCheck:
         """Per node interval: the largest k_g and tau_g (1/m) and the utilisations, rounded for the report."""
         columns = {"k_g_per_m": np.round(self.max_k_g * MM_PER_M, 6), "tau_g_per_m": np.round(self.max_tau_g * MM_PER_M, 6),
                    **{k: np.round(v, 4) for k, v in self.use.items()}}
-        names, values = list(columns), zip(*(c.tolist() for c in columns.values()))
-        return [{"from": a, "to": b, **dict(zip(names, row))}
-                for a, b, row in zip(self.node_ids[:-1], self.node_ids[1:], values)]
+        keys = ("from", "to", *columns)  # one dict(zip) per interval: tens of thousands of rows in a large network
+        rows = zip(self.node_ids[:-1], self.node_ids[1:], *(c.tolist() for c in columns.values()))
+        return [dict(zip(keys, row)) for row in rows]
 
 
 def check_lamella(geometry: LamellaGeometry, material: Material, profile: Profile) -> LamellaCheck:
@@ -152,24 +152,51 @@ def check_lamella(geometry: LamellaGeometry, material: Material, profile: Profil
     Warns (naming the lamella, the two nodes and the numbers) where a separate check exceeds 100 %:
     a radius below r_min, a twist above kappa_max, or a helix edge stress above f_y.
     """
-    s = geometry.s
-    k_g, tau_g, k_n = np.abs(geometry.k_g), np.abs(geometry.tau_g), np.abs(geometry.k_n)
-    node_s = geometry.node_s
-    starts = np.searchsorted(s, node_s[:-1], side="left")
-    starts[0] = 0
-    starts = np.minimum(starts, len(s) - 1)
-    ends = np.minimum(np.searchsorted(s, node_s[1:], side="right"), len(s))
-    ends[-1] = len(s)
-    max_k_g, max_tau_g, max_k_n = (_interval_max(a, starts, ends) for a in (k_g, tau_g, k_n))
+    return check_lamellas([geometry], material, profile)[0]
+
+
+def check_lamellas(geometries: list[LamellaGeometry], material: Material, profile: Profile) -> list[LamellaCheck]:
+    """`check_lamella` of every lamella: the per-sample and per-interval arithmetic of all of them in whole-array
+    operations on their samples one lamella after another; only each lamella's sums (over its own slice, in its
+    own order) and its warnings one by one. A network has hundreds of lamellas of thousands of samples."""
+    if not geometries:
+        return []
+    sizes = [len(geo.s) for geo in geometries]
+    first = np.cumsum([0] + sizes[:-1]).tolist()
+    s = np.concatenate([geo.s for geo in geometries])
+    raw_k_n = np.concatenate([geo.k_n for geo in geometries])
+    raw_tau_g = np.concatenate([geo.tau_g for geo in geometries])
+    k_g, tau_g, k_n = np.abs(np.concatenate([geo.k_g for geo in geometries])), np.abs(raw_tau_g), np.abs(raw_k_n)
+    starts, ends, reduce_at = [], [], []
+    for geo, base, size in zip(geometries, first, sizes):
+        lo = np.searchsorted(geo.s, geo.node_s[:-1], side="left")
+        lo[0] = 0
+        lo = np.minimum(lo, size - 1)
+        hi = np.minimum(np.searchsorted(geo.s, geo.node_s[1:], side="right"), size)
+        hi[-1] = size
+        starts.append(lo + base)
+        ends.append(hi + base)
+        reduce_at += [lo + base, [base + size]]  # the lamella's end closes its last interval (dropped below)
+    interval_rows = np.cumsum([0] + [len(lo) for lo in starts]).tolist()
+    is_start = np.ones(interval_rows[-1] + len(starts) - 1, dtype=bool)
+    is_start[np.cumsum([len(lo) + 1 for lo in starts[:-1]], dtype=int) - 1] = False
+    reduce_at, ends = np.concatenate(reduce_at[:-1]), np.concatenate(ends)  # the last lamella's runs to the end anyway
+    max_k_g, max_tau_g, max_k_n = (_interval_max(a, reduce_at, is_start, ends) for a in (k_g, tau_g, k_n))
     use = utilisations(material, profile, max_k_g, max_tau_g)
-    ds = np.diff(s)
-    mid_tau = (tau_g[1:] + tau_g[:-1]) / 2.0
-    contraction = float(-np.sum(helix_strains(profile, mid_tau)[0] * ds))
-    top, bottom = (helix_edge_extension(geometry, r) for r in (profile.h / 2.0, -profile.h / 2.0))
-    check = LamellaCheck(geometry.lamella.id, geometry.length, list(geometry.node_ids), max_k_g, max_tau_g, max_k_n,
-                         use, contraction, top, bottom)
-    check.warnings = _warnings(check, material, profile)
-    return check
+    ds = np.diff(s)  # the pairs across two lamellas are computed too, and left out of every sum
+    contraction_terms = helix_strains(profile, (tau_g[1:] + tau_g[:-1]) / 2.0)[0] * ds
+    top_terms, bottom_terms = (_edge_extension_terms(ds, raw_k_n, raw_tau_g, r)
+                               for r in (profile.h / 2.0, -profile.h / 2.0))
+    checks = []
+    for k, (geo, base, size) in enumerate(zip(geometries, first, sizes)):
+        pairs, rows = slice(base, base + size - 1), slice(interval_rows[k], interval_rows[k + 1])
+        check = LamellaCheck(geo.lamella.id, geo.length, list(geo.node_ids), max_k_g[rows], max_tau_g[rows],
+                             max_k_n[rows], {key: value[rows] for key, value in use.items()},
+                             float(-np.sum(contraction_terms[pairs])), float(np.sum(top_terms[pairs])),
+                             float(np.sum(bottom_terms[pairs])))
+        check.warnings = _warnings(check, material, profile)
+        checks.append(check)
+    return checks
 
 
 def helix_edge_extension(geometry: LamellaGeometry, r: float) -> float:
@@ -178,18 +205,21 @@ def helix_edge_extension(geometry: LamellaGeometry, r: float) -> float:
     The fibre c + r n has length element sqrt((1 - r k_n)^2 + (r tau_g)^2) ds; the flat strip, bent in
     plane by k_n, gives it (1 - r k_n) ds; the difference is the non-developable helix part.
     """
-    ds = np.diff(geometry.s)
-    k_n = (geometry.k_n[1:] + geometry.k_n[:-1]) / 2.0
-    tau_g = (geometry.tau_g[1:] + geometry.tau_g[:-1]) / 2.0
-    flat = 1.0 - r * k_n
-    return float(np.sum((np.hypot(flat, r * tau_g) - flat) * ds))
+    return float(np.sum(_edge_extension_terms(np.diff(geometry.s), geometry.k_n, geometry.tau_g, r)))
 
 
-def _interval_max(values: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """Maximum of values[starts[i]:ends[i]] for each i (intervals may overlap by their shared sample)."""
-    out = np.maximum.reduceat(values, starts)
-    closing = values[np.minimum(ends, len(values)) - 1]
-    return np.maximum(out, closing)
+def _edge_extension_terms(ds: np.ndarray, k_n: np.ndarray, tau_g: np.ndarray, r: float) -> np.ndarray:
+    """`helix_edge_extension`'s length difference of every sample interval (curvatures at the samples, ds between)."""
+    flat = 1.0 - r * ((k_n[1:] + k_n[:-1]) / 2.0)
+    return (np.hypot(flat, r * ((tau_g[1:] + tau_g[:-1]) / 2.0)) - flat) * ds
+
+
+def _interval_max(values: np.ndarray, reduce_at: np.ndarray, is_start: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Maximum of values[start_i:ends[i]] of every interval i (neighbours share a sample): one `maximum.reduceat` at
+    the interval starts and the lamella ends (`is_start` tells which are which), then each interval's closing
+    sample values[ends[i] - 1], which the next interval's start at that shared sample leaves out."""
+    out = np.maximum.reduceat(values, reduce_at)[is_start]
+    return np.maximum(out, values[ends - 1])
 
 
 def _warnings(check: LamellaCheck, material: Material, profile: Profile) -> list[str]:

@@ -23,7 +23,7 @@ from fabline.unroll.parts import Part, PartSet
 from fabline.unroll.pieces import is_seam, segment_part
 from fabline.unroll.seams import Segment, split_strip
 from fabline.unroll.stations import Strip, singular_nodes, strip_stations
-from fabline.unroll.structure import check_lamella, limits
+from fabline.unroll.structure import check_lamellas, limits
 
 
 def unroll_network(network: Network, options: UnrollOptions | None = None,
@@ -53,7 +53,7 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
         segments.extend(pieces)
         strip_rows.append(_strip_row(strip, pieces, seams, options))
     parts = _segment_parts(segments, options)
-    checks = [check_lamella(geo, options.material, options.profile) for geo in geometry.lamellas.values()]
+    checks = check_lamellas(list(geometry.lamellas.values()), options.material, options.profile)
     warnings = [line for check in checks for line in check.warnings]
     if options.strict and warnings:
         more = f" (and {len(warnings) - 1} more warnings)" if len(warnings) > 1 else ""
