@@ -61,7 +61,8 @@ OCCLUDED_SEARCH_REACH = 1.2
 OCCLUDED_THRESHOLD_WINDOW_PX, OCCLUDED_THRESHOLD_OFFSET = 5, 10
 CUT_POLYGON_MIN_KEPT = 0.75
 HIDDEN_CORNER_TOLERANCE_CELLS = 0.25
-# a tag's quiet-zone outline in its cell coordinates (the black square from (0, 0) to (TAG_CELLS, TAG_CELLS))
+# a tag's black square and its quiet zone's outline in the tag's cell coordinates, corners in tag order
+TAG_SQUARE = np.array([[0, 0], [TAG_CELLS, 0], [TAG_CELLS, TAG_CELLS], [0, TAG_CELLS]], dtype=float)
 QUIET_ZONE_OUTLINE = np.array([[-1, -1], [TAG_CELLS + 1, -1], [TAG_CELLS + 1, TAG_CELLS + 1], [-1, TAG_CELLS + 1]],
                               dtype=float)
 # bits the dictionary corrects, as OpenCV's detector does (60 % of what 36h11's minimum distance allows, 3 bits)
@@ -222,12 +223,11 @@ def _quad_of_cut_polygon(polygon: np.ndarray) -> np.ndarray | None:
     return quad
 
 
-def _tag_points(corners: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """Points (n, 2) given in a tag's cell coordinates (its black square from (0, 0) to (TAG_CELLS, TAG_CELLS)) in the
-    image, px, from its corners (4, 2), in perspective."""
-    square = np.float32([[0, 0], [TAG_CELLS, 0], [TAG_CELLS, TAG_CELLS], [0, TAG_CELLS]])
-    to_image = cv2.getPerspectiveTransform(square, corners.astype(np.float32))
-    return cv2.perspectiveTransform(cells.astype(np.float32)[None], to_image)[0].astype(float)
+def _tag_points(corners: np.ndarray, cells: np.ndarray, frame: np.ndarray = TAG_SQUARE) -> np.ndarray:
+    """Points (n, 2) given in a tag's cell coordinates in the image, px, in perspective: `corners` (4, 2) are where the
+    cell-coordinate quad `frame` (by default the black square, TAG_SQUARE) lies in the image."""
+    to_image = cv2.getPerspectiveTransform(frame.astype(np.float32), corners.astype(np.float32))
+    return cv2.perspectiveTransform(np.asarray(cells, dtype=float).reshape(1, -1, 2), to_image)[0]
 
 
 def _padded(gray: np.ndarray) -> np.ndarray:
@@ -261,10 +261,7 @@ def _shortest_side(quad: np.ndarray) -> float:
 
 def _inside_quiet_zone(outline: np.ndarray) -> np.ndarray:
     """The black square's corners (4, 2) of a tag whose quiet zone's outer outline is `outline`, in perspective."""
-    span = TAG_CELLS + 2
-    to_image = cv2.getPerspectiveTransform(np.float32([[0, 0], [span, 0], [span, span], [0, span]]), outline.astype(np.float32))
-    square = np.float32([[1, 1], [span - 1, 1], [span - 1, span - 1], [1, span - 1]])
-    return cv2.perspectiveTransform(square[None], to_image)[0].astype(float)
+    return _tag_points(outline, TAG_SQUARE, frame=QUIET_ZONE_OUTLINE)
 
 
 def detect_expected_tags(gray: np.ndarray, expected: dict[int, np.ndarray], min_side_px: float = 12.0) -> list[TagDetection]:
@@ -317,13 +314,11 @@ def _decode(image: np.ndarray, quad: np.ndarray, hidden_by: np.ndarray | None = 
     Cells under `hidden_by` (a convex outline (4, 2) in px of a tag in front) are not measured, as cells outside the
     image; data cells under it are read anyway but each counts as a wrong bit against the 3 the dictionary corrects.
     """
-    canonical = np.array([[0, 0], [TAG_CELLS, 0], [TAG_CELLS, TAG_CELLS], [0, TAG_CELLS]], dtype=np.float32)
-    to_image = cv2.getPerspectiveTransform(canonical, quad.astype(np.float32))
     ticks = np.arange(-1, TAG_CELLS + 1) + 0.5
     sub = np.array([-0.25, 0.0, 0.25])
     xs = (ticks[None, :, None, None] + sub[None, None, None, :]).repeat(len(ticks), 0).repeat(3, 2)
     ys = (ticks[:, None, None, None] + sub[None, None, :, None]).repeat(len(ticks), 1).repeat(3, 3)
-    points = cv2.perspectiveTransform(np.stack([xs, ys], axis=-1).reshape(1, -1, 2), to_image)[0]
+    points = _tag_points(quad, np.stack([xs, ys], axis=-1))
     inside = _inside(image, points).reshape(len(ticks), len(ticks), 9).all(axis=2)
     measured = inside.copy()
     if hidden_by is not None:
