@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -78,6 +79,21 @@ def read_bytes(path: str | os.PathLike) -> bytes:
         raise FablineError(f"{path}: file not found") from None
     except OSError as exc:
         raise FablineError(f"{path}: cannot read: {exc.strerror}") from None
+
+
+def check_regular_file(path: str | os.PathLike, max_bytes: int) -> None:
+    """Refuse, before reading it, a path that is not a regular file (a FIFO or a device would block or never
+    end) or that is larger than `max_bytes`, with a one-line FablineError naming it."""
+    try:
+        info = os.stat(path)
+    except FileNotFoundError:
+        raise FablineError(f"{path}: file not found") from None
+    except OSError as exc:
+        raise FablineError(f"{path}: cannot read: {exc.strerror}") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise FablineError(f"{path}: not a regular file")
+    if info.st_size > max_bytes:
+        raise FablineError(f"{path}: {info.st_size} bytes, more than the {max_bytes} this kind of file may have")
 
 
 def read_text(path: str | os.PathLike, what: str = "") -> str:

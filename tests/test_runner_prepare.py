@@ -1,5 +1,6 @@
 """The runner takes job files from its folder: a good one is prepared (model to G-code) and cut, a bad one
-is queued as failed with its one-line error; `fabline runner status/confirm/pause` work on the same queue."""
+is queued as failed with its one-line error; `fabline runner status/confirm/pause` work on the same queue.
+Every job's outputs stay in its own folder under the runner's `runs` folder, whatever output folder it names."""
 
 from __future__ import annotations
 
@@ -51,7 +52,8 @@ def test_job_folder_to_cut_sheets(tmp_path, cli):
         wait_for(lambda: queue.job(tiny).state not in ("queued", "preparing"), 240)
         job = queue.job(tiny)
         assert job.state == "ready", job.describe()
-        assert job.report.endswith("out/tiny/report.html")
+        assert job.report == str(db.parent / "runs" / f"job-{tiny}" / "report.html"), "the job's own folder"
+        assert not (tmp_path / "out").exists(), "the job file's output.folder is not used by the runner"
         time.sleep(0.5)
         assert queue.job(tiny).state == "ready", "no sheet starts before the operator confirms it"
         code, out, _ = cli("runner", "status", "--db", db)

@@ -1,5 +1,6 @@
-"""The runner survives kill -9: 20 SIGKILLs at random moments of a 3-sheet job, then completion, and the
-controller (a simulator in its own process) executed every program line exactly once, in order."""
+"""The runner survives kill -9: 20 SIGKILLs at random moments of a 3-sheet job, each followed by the operator's
+"resume here" on the job that needs attention, then completion, and the controller (a simulator in its own
+process) executed every program line exactly once, in order. A restarted runner never resumes by itself."""
 
 from __future__ import annotations
 
@@ -37,6 +38,24 @@ def progress(queue: JobQueue, job_id: int) -> tuple[str, int]:
     return job.state, sum(s.done_lines for s in queue.sheets(job_id))
 
 
+def restart_runner(tmp_path: Path, db: Path, url: str, queue: JobQueue, job_id: int) -> subprocess.Popen:
+    """Start a runner again. A job cut off mid-sheet then waits for the operator, without moving the machine,
+    until the operator chooses "resume here"."""
+    interrupted = queue.job(job_id).state == "cutting"
+    runner = start_runner(tmp_path, db, url)
+    if interrupted:
+        deadline = time.monotonic() + 60
+        while queue.job(job_id).state != "attention":
+            assert time.monotonic() < deadline and runner.poll() is None, f"no attention: {queue.job(job_id).describe()}"
+            time.sleep(0.02)
+        _, done = progress(queue, job_id)
+        time.sleep(0.3)
+        assert progress(queue, job_id) == ("attention", done), "the runner resumed by itself"
+        assert queue.job(job_id).checkpoint()["reason"] == "the runner stopped while the sheet was being cut"
+        queue.resolve(job_id, "resume")
+    return runner
+
+
 def test_twenty_sigkills_during_a_three_sheet_job(tmp_path):
     (tmp_path / "jobs").mkdir()
     sheets = [square_program(tmp_path / "gcode" / f"sheet{k + 1}.gcode", 20, 20 + 30 * k, squares=14) for k in range(3)]
@@ -48,7 +67,7 @@ def test_twenty_sigkills_during_a_three_sheet_job(tmp_path):
     rng = random.Random(20171)
     with SimulatorServer(log=log, time_scale=5.0) as simulator:
         for kill in range(KILLS):
-            runner = start_runner(tmp_path, db, simulator.url)
+            runner = restart_runner(tmp_path, db, simulator.url, queue, job_id)
             _, before = progress(queue, job_id)
             # a random moment while this runner streams: after 1 to 4 more lines are done, plus up to 0.2 s
             target = before + rng.randint(1, 4)
@@ -62,7 +81,7 @@ def test_twenty_sigkills_during_a_three_sheet_job(tmp_path):
             os.killpg(runner.pid, signal.SIGKILL)
             runner.wait()
             runner.stderr.close()
-        runner = start_runner(tmp_path, db, simulator.url)
+        runner = restart_runner(tmp_path, db, simulator.url, queue, job_id)
         try:
             deadline = time.monotonic() + 120
             while progress(queue, job_id)[0] not in ("done", "failed") and time.monotonic() < deadline:

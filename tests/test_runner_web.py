@@ -54,10 +54,17 @@ def served(tmp_path):
     runner.stop()
 
 
-def test_state_changes_need_the_token(served):
+def test_everything_but_the_page_shell_needs_the_token(served):
     url, job = served["url"], served["job"]
     with httpx.Client(base_url=url, timeout=10) as client:
-        assert client.get("/api/state").status_code == 200
+        shell = client.get("/")
+        assert shell.status_code == 200 and "web-job" not in shell.text
+        for path in ("/api/state", f"/api/jobs/{job}/sheets/0.svg", "/api/state?token=wrong"):
+            answer = client.get(path)
+            assert answer.status_code == 403 and answer.json() == {"error": "forbidden: a valid token is required"}
+        with client.stream("GET", "/api/events") as events:
+            assert events.status_code == 403
+        assert client.get("/api/state", headers={TOKEN_HEADER: TOKEN}).status_code == 200
         assert client.post(f"/api/jobs/{job}/confirm").status_code == 403
         assert client.post(f"/api/jobs/{job}/cancel", headers={TOKEN_HEADER: "wrong"}).status_code == 403
         assert client.post("/api/jobs", json={"job_file": "x.toml"}).status_code == 403
@@ -67,9 +74,20 @@ def test_state_changes_need_the_token(served):
         answer = client.post(f"/api/jobs/{job}/resume", headers={TOKEN_HEADER: TOKEN})
         assert answer.status_code == 409 and "not paused" in answer.json()["error"]
         assert client.post("/api/jobs/77/confirm", headers={TOKEN_HEADER: TOKEN}).status_code == 409
-        picture = client.get(f"/api/jobs/{job}/sheets/0.svg")
+        picture = client.get(f"/api/jobs/{job}/sheets/0.svg?token={TOKEN}")
         assert picture.status_code == 200 and picture.text.startswith("<svg")
-        assert client.get(f"/api/jobs/{job}/sheets/5.svg").status_code == 404
+        assert client.get(f"/api/jobs/{job}/sheets/5.svg?token={TOKEN}").status_code == 404
+        assert client.get(f"/api/jobs/{10 ** 20}/sheets/0.svg?token={TOKEN}").status_code == 404
+
+
+def test_a_request_naming_another_host_is_refused_dns_rebinding(served):
+    with httpx.Client(base_url=served["url"], timeout=10) as client:
+        for host in ("evil.example", "127.0.0.1.nip.io", "attacker.test:8080"):
+            answer = client.get("/api/state", headers={"Host": host, TOKEN_HEADER: TOKEN})
+            assert answer.status_code == 400, host
+            assert client.get("/", headers={"Host": host}).status_code == 400
+        for host in ("localhost", "127.0.0.1:80", "[::1]:8080"):
+            assert client.get("/", headers={"Host": host}).status_code == 200, host
 
 
 def test_the_server_binds_to_localhost_only_by_default():
@@ -148,7 +166,7 @@ def test_serve_prints_a_fresh_token_and_binds_to_localhost(tmp_path):
         deadline = time.monotonic() + 30
         while True:
             try:
-                state = httpx.get(f"http://127.0.0.1:{port}/api/state", timeout=5)
+                state = httpx.get(f"http://127.0.0.1:{port}/api/state", headers={TOKEN_HEADER: token}, timeout=5)
                 break
             except httpx.ConnectError:
                 assert time.monotonic() < deadline and server.poll() is None, server.stderr.read()

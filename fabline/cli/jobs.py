@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 import secrets
+import shlex
+import signal
 import sys
 import threading
 from pathlib import Path
@@ -12,7 +14,11 @@ from pathlib import Path
 from fabline.cli import positive
 from fabline.errors import FablineError
 
-RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm")
+RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm", "restart", "skip")
+_ACTION_HELP = {"pause": "pause a job (feed hold while cutting)", "resume": "resume a paused job, or a job that "
+                "needs attention where its sheet stopped", "cancel": "cancel a job", "confirm": "confirm the job's "
+                "next sheet is loaded", "restart": "restart the sheet of a job that needs attention from its first line",
+                "skip": "skip the sheet of a job that needs attention"}
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -22,8 +28,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     run.add_argument("-y", "--yes", action="store_true",
                      help="do not ask before each sheet on a real machine (the sheets are already loaded)")
     run.add_argument("-q", "--quiet", action="store_true", help="print only where the report is")
-    run.add_argument("--resume", action="store_true",
-                     help="continue an interrupted run from the sheets' journals instead of cutting every sheet afresh")
+    again = run.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true",
+                       help="continue an interrupted run from the sheets' journals instead of cutting every sheet afresh")
+    again.add_argument("--restart", action="store_true",
+                       help="cut every sheet afresh although an earlier run of this job stopped before finishing")
     run.set_defaults(func=run_job_command)
 
     runner = subparsers.add_parser("runner", help="the shop-floor runner: a persistent job queue with a web page")
@@ -33,7 +42,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     serve.add_argument("--port", type=positive(int, 65535), default=8080, help="web page port (default 8080)")
     serve.add_argument("--machine", action="append", default=[], metavar="NAME=PORT",
                        help="a machine and its port, repeatable (default: sim1=sim://sim1)")
-    serve.add_argument("--token", help="the token for state-changing requests (default: a new random one, printed)")
+    serve.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                       help="a host name the page may be reached by besides the loopback names and --host, repeatable "
+                       "(requests naming any other host are refused)")
+    serve.add_argument("--token", help="the token for everything but the bare page (default: a new random one, printed)")
     serve.add_argument("--auto-confirm", action="store_true",
                        help="start every sheet without an operator's confirmation (sheets fed automatically)")
     serve.add_argument("--scan", type=positive(float), default=2.0, help="seconds between scans of the jobs folder")
@@ -48,9 +60,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     status.add_argument("--json", action="store_true", help="print the state as JSON")
     status.set_defaults(func=run_status)
     for action in RUNNER_ACTIONS:
-        sub = commands.add_parser(action, help=f"{action} a job" if action != "confirm" else
-                                  "confirm the job's next sheet is loaded")
+        sub = commands.add_parser(action, help=_ACTION_HELP[action])
         sub.add_argument("job_id", type=int, metavar="JOB", help="job number (see `fabline runner status`)")
+        if action == "resume":
+            sub.add_argument("--from-line", type=positive(int), metavar="N",
+                             help="resume a job that needs attention from this file line (the operator's override)")
+        if action in ("resume", "restart", "skip", "cancel"):
+            sub.add_argument("-y", "--yes", action="store_true",
+                             help="do not ask before acting on a job that needs attention")
         sub.set_defaults(func=run_action, action=action)
     for sub in (serve, submit, status, *(commands.choices[a] for a in RUNNER_ACTIONS)):
         sub.add_argument("--jobs", default="jobs", help="the jobs folder (default ./jobs)")
@@ -62,8 +79,11 @@ def _db(args: argparse.Namespace) -> Path:
 
 
 def run_job_command(args: argparse.Namespace) -> int:
-    """Run every stage of the job and print where the report is."""
+    """Run every stage of the job and print where the report is; Ctrl-C, SIGTERM and SIGHUP stop the machines
+    safely (exit 130, resumable with --resume)."""
+    from fabline.jobs.jobfile import load_job_file
     from fabline.jobs.pipeline import run_job
+    from fabline.locks import exclusive_lock, folder_lock_path
 
     said = threading.Lock()  # the machines report from their own threads: one whole line at a time
 
@@ -73,19 +93,27 @@ def run_job_command(args: argparse.Namespace) -> int:
                 print(text, flush=True)
 
     def confirm(k: int, count: int, sheet: str) -> None:
-        input(f"load sheet {k + 1} of {count} ({sheet}) on the machine, then press Enter ")
-
-    from fabline.jobs.jobfile import load_job_file
+        answer = _ask(f"load sheet {k + 1} of {count} ({sheet}) on the machine, then press Enter ")
+        if answer is None:
+            raise FablineError(f"sheet {k + 1} of {count} ({sheet}) was not confirmed: standard input closed; "
+                               "nothing more is cut (run it again with --resume)")
 
     spec = load_job_file(args.job)
-    real_machine = any(not port.startswith("sim://") for port in spec.machine["ports"])
-    interactive = real_machine and not args.yes and sys.stdin.isatty()
+    real_machine = "stream" in spec.stages and any(not port.startswith("sim://") for port in spec.machine["ports"])
+    if real_machine and not args.yes and not _can_ask():
+        raise FablineError(f"{args.job}: the job cuts on a real machine and asks before each sheet, but standard input "
+                           "is closed; run it from a terminal, or pass --yes if the sheets are loaded")
+    stop_signals = _stop_on_signals()
     try:
-        result = run_job(spec, say, confirm if interactive else None, resume=args.resume)
+        with exclusive_lock(folder_lock_path(spec.output_folder), f"job output folder {spec.output_folder}"):
+            result = run_job(spec, say, confirm if real_machine and not args.yes else None, resume=args.resume,
+                             restart=args.restart)
     except KeyboardInterrupt:
         print(f"fabline run: interrupted; the machines stopped safely and their journals are kept: "
-              f"fabline run {args.job} --resume continues where they stopped", file=sys.stderr)
+              f"{shlex.join(['fabline', 'run', args.job, '--resume'])} continues where they stopped", file=sys.stderr)
         return 130
+    finally:
+        stop_signals()
     total = sum(result.timings.values())
     if result.report_path:
         print(f"report: {result.report_path} (JSON: {result.report_path.with_suffix('.json')}); {total:.1f} s")
@@ -94,30 +122,55 @@ def run_job_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def _can_ask() -> bool:
+    """Whether standard input can answer a question (it is open; a pipe or a terminal)."""
+    return sys.stdin is not None and not sys.stdin.closed
+
+
+def _ask(question: str) -> str | None:
+    """The operator's answer to `question`, or None when standard input is closed or at its end."""
+    if not _can_ask():
+        return None
+    try:
+        return input(question)
+    except EOFError:
+        return None
+
+
+def _stop_on_signals():
+    """SIGTERM and SIGHUP (a `kill`, a service stop, a closed terminal) stop the job like Ctrl-C does; returns
+    the function that puts the previous handlers back."""
+    previous = {number: signal.signal(number, signal.default_int_handler) for number in (signal.SIGTERM, signal.SIGHUP)}
+    return lambda: [signal.signal(number, handler) for number, handler in previous.items()]
+
+
 def run_serve(args: argparse.Namespace) -> int:
     """Start the runner's threads and the web page; stop cleanly on Ctrl-C (the queue keeps its state)."""
     import uvicorn
 
     from fabline.jobs.runner import MachineConfig, Runner, parse_machine
     from fabline.jobs.web import create_app
+    from fabline.locks import exclusive_lock
 
     jobs = Path(args.jobs)
     if not jobs.is_dir():
         raise FablineError(f"--jobs {args.jobs}: not a folder")
     machines = [parse_machine(m) for m in args.machine] or [MachineConfig("sim1", "sim://sim1")]
     token = args.token or secrets.token_urlsafe(18)
-    runner = Runner(_db(args), machines, auto_confirm=args.auto_confirm)
-    runner.watch_folder(jobs, args.scan)
-    runner.start()
-    print(f"fabline runner: {len(machines)} machine(s): {', '.join(f'{m.name}={m.port}' for m in machines)}; "
-          f"queue {_db(args)}", flush=True)
-    print(f"token: {token}", flush=True)
-    print(f"open http://{args.host}:{args.port}/?token={token}", flush=True)
-    try:
-        uvicorn.Server(uvicorn.Config(create_app(_db(args), token), host=args.host, port=args.port,
-                                      log_level="warning")).run()
-    finally:
-        runner.stop()
+    hosts = (*args.allow_host, *([args.host] if args.host not in ("0.0.0.0", "::") else []))
+    with exclusive_lock(Path(f"{_db(args)}.lock"), f"runner queue {_db(args)}"):  # one runner per queue
+        runner = Runner(_db(args), machines, auto_confirm=args.auto_confirm)
+        runner.watch_folder(jobs, args.scan)
+        runner.start()
+        print(f"fabline runner: {len(machines)} machine(s): {', '.join(f'{m.name}={m.port}' for m in machines)}; "
+              f"queue {_db(args)}", flush=True)
+        print(f"token: {token}", flush=True)
+        print(f"open http://{args.host}:{args.port}/?token={token}", flush=True)
+        try:
+            uvicorn.Server(uvicorn.Config(create_app(_db(args), token, hosts=hosts), host=args.host, port=args.port,
+                                          log_level="warning")).run()
+        finally:
+            runner.stop()
     return 0
 
 
@@ -167,6 +220,23 @@ def run_action(args: argparse.Namespace) -> int:
     if not _db(args).is_file():
         raise FablineError(f"{_db(args)}: no runner queue here")
     queue = JobQueue(_db(args))
-    job = queue.confirm_sheet(args.job_id) if args.action == "confirm" else queue.request(args.job_id, args.action)
+    before = queue.job(args.job_id)
+    if before.state == "attention" and args.action in ("resume", "restart", "skip", "cancel"):
+        print(f"job {before.id}: {before.describe()}")
+        question = {"resume": "resume the sheet where it stopped (the same sheet on the bed, the origin unchanged)",
+                    "restart": "restart the sheet from its first line (a new sheet loaded)",
+                    "skip": "skip the sheet (its parts stay uncut)", "cancel": "cancel the job"}[args.action]
+        if not args.yes:
+            answer = _ask(f"{question}? [y/N] ")
+            if answer is None:
+                raise FablineError(f"job {before.id}: cannot ask for confirmation (standard input closed); add --yes")
+            if answer.strip().lower() not in ("y", "yes"):
+                print("nothing done")
+                return 1
+        job = queue.resolve(args.job_id, args.action, getattr(args, "from_line", None))
+    elif args.action in ("restart", "skip") or getattr(args, "from_line", None):
+        job = queue.resolve(args.job_id, args.action, getattr(args, "from_line", None))  # says why it cannot
+    else:
+        job = queue.confirm_sheet(args.job_id) if args.action == "confirm" else queue.request(args.job_id, args.action)
     print(f"job {job.id}: {job.describe()}" + (f" ({args.action} requested)" if job.request else ""))
     return 0

@@ -20,7 +20,7 @@ except ImportError:  # Python 3.10
     import tomli as tomllib
 
 from fabline.errors import FablineError
-from fabline.fileio import read_text
+from fabline.fileio import check_regular_file, read_text
 
 if TYPE_CHECKING:  # the nesting stage pulls in shapely; a job file is read before any stage runs
     from fabline.nest.nester import NestOptions
@@ -32,6 +32,8 @@ DEFAULT_STAGES = ("unroll", "nest", "export", "stream", "report")
 """The stages of a job that does not list its own; `survey` joins them when the job sets `survey.simulate`."""
 DEFAULT_PORT = "sim://grbl"
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+JOB_FILE_LIMIT = 1 << 20
+"""Bytes a job file may have (a job file is a page of TOML; anything larger is a mistake or an attack)."""
 _TYPE_NAMES = {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
                dict: "a table"}
 
@@ -109,6 +111,7 @@ def inside(folder: Path, relative: str | os.PathLike, where: str) -> Path:
 def load_job_file(path: str | os.PathLike) -> JobSpec:
     """Read and check a job file; every problem is a one-line FablineError naming the file and key path."""
     path = Path(path)
+    check_regular_file(path, JOB_FILE_LIMIT)
     try:
         raw = tomllib.loads(read_text(path))
     except tomllib.TOMLDecodeError as exc:

@@ -88,12 +88,16 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
 
 
 def run_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None,
-            confirm_sheet: Callable[[int, int, str], None] | None = None, resume: bool = False) -> JobResult:
+            confirm_sheet: Callable[[int, int, str], None] | None = None, resume: bool = False,
+            restart: bool = False) -> JobResult:
     """The whole job: prepare, then stream every sheet (asking `confirm_sheet(k, n, sheet)` before each one
     when given), then the survey, then the report with the streaming log and the survey. `resume` continues
     an interrupted run from the sheets' journals (finished sheets are not cut again); otherwise every sheet
-    is cut afresh."""
+    is cut afresh, which an interrupted earlier run refuses unless `restart` says so. The caller holds the
+    output folder's lock (`fabline.locks`), so no other run touches these journals meanwhile."""
     spec = job if isinstance(job, JobSpec) else load_job_file(job)
+    if "stream" in spec.stages and not resume and not restart:
+        _refuse_over_an_interrupted_run(spec)
     result = prepare_job(spec, say)
     if "stream" not in spec.stages and "survey" not in spec.stages:
         return result
@@ -209,6 +213,24 @@ def machine_ports(spec: JobSpec) -> list[str]:
     return ports
 
 
+def _refuse_over_an_interrupted_run(spec: JobSpec) -> None:
+    """An earlier run of this job stopped before it finished a sheet: a new run would cut that sheet from its
+    first line again, so it must be asked for (--restart) or the old run continued (--resume)."""
+    from fabline.link import read_journal
+
+    unfinished = []
+    for journal in sorted(spec.output("gcode").glob("*.journal")):
+        try:
+            if not read_journal(journal).finished:
+                unfinished.append(journal.name.removesuffix(".journal"))
+        except FablineError:
+            unfinished.append(journal.name.removesuffix(".journal"))
+    if unfinished:
+        raise FablineError(f"{spec.path.name}: an earlier run stopped before finishing {', '.join(unfinished[:3])}"
+                           f"{' and more' if len(unfinished) > 3 else ''}; continue it with --resume, "
+                           "or cut every sheet afresh with --restart")
+
+
 def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, str], None] | None,
                 resume: bool) -> None:
     """Cut every sheet: each machine takes the next sheet when it is free (one sheet at a time per machine);
@@ -216,8 +238,7 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
     streams from a process of its own, so that machines stream on all CPU cores; Ctrl-C stops them safely."""
     import multiprocessing
 
-    from fabline.jobs.streaming import journal_summary, stream_in_process
-    from fabline.link import default_journal_path
+    from fabline.jobs.streaming import STOP_SIGNALS, journal_summary, stream_in_process
 
     sheets = list(enumerate(result.sheet_files))
     count = len(sheets)
@@ -234,16 +255,19 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
                 if not sheets or errors:
                     return
                 k, sheet = sheets.pop(0)
-                if confirm_sheet is not None:
-                    confirm_sheet(k, count, sheet["sheet"])
-            if not resume:
-                default_journal_path(sheet["gcode"]).unlink(missing_ok=True)
+                try:
+                    if confirm_sheet is not None:
+                        confirm_sheet(k, count, sheet["sheet"])
+                except FablineError as exc:  # nobody confirmed the sheet: it is not cut, nor any after it
+                    errors.append(exc)
+                    return
             started = time.perf_counter()
             receiver, sender = context.Pipe(duplex=False)
-            link = context.Process(target=stream_in_process, args=(port, sheet["gcode"], sender), daemon=True)
+            link = context.Process(target=stream_in_process, args=(port, sheet["gcode"], resume, sender), daemon=True)
             with lock:
-                signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})  # inherited: a Ctrl-C waits for the handler
+                signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS))  # inherited: a signal waits for the handlers
                 link.start()
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, set(STOP_SIGNALS))
                 running.add(link)
             link.join()
             with lock:

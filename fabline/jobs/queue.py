@@ -5,6 +5,12 @@ States of a job:
   ready means "the next sheet is prepared and waits for a machine and for the operator to confirm it is
   loaded"; cutting is "sheet k of n" on one machine. Any live state may go to paused (and back to the state
   it left) or to cancelled; preparing or cutting may go to failed. done, failed and cancelled are final.
+  attention: a sheet's cutting stopped without finishing (the runner restarted, the link failed); the job
+  waits until the operator chooses: resume the sheet where it stopped, restart it, skip it, or cancel.
+  Cutting never continues by itself: nobody else knows whether the sheet, the machine and its origin are
+  still as they were.
+Every stream of a sheet is one run with an id of its own and its own journal (sheets.run_id, sheets.journal):
+a journal of another job, run or program never decides where a new run starts.
 Every change is one short IMMEDIATE transaction, so several runner threads (or processes) never claim the
 same job or sheet twice, and a runner killed at any moment leaves the database consistent.
 """
@@ -15,6 +21,7 @@ import json
 import os
 import sqlite3
 import time
+import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,11 +35,15 @@ TRANSITIONS: dict[str, frozenset[str]] = {
     "queued": frozenset({"preparing", "paused", "cancelled", "failed"}),
     "preparing": frozenset({"queued", "ready", "failed", "paused", "cancelled"}),
     "ready": frozenset({"cutting", "paused", "cancelled", "failed"}),
-    "cutting": frozenset({"ready", "done", "failed", "paused", "cancelled"}),
-    "paused": frozenset({"queued", "ready", "cutting", "cancelled", "failed"}),
+    "cutting": frozenset({"ready", "done", "failed", "paused", "cancelled", "attention"}),
+    "paused": frozenset({"queued", "ready", "cutting", "cancelled", "failed", "attention"}),
+    "attention": frozenset({"cutting", "ready", "done", "cancelled"}),
     "failed": frozenset(), "cancelled": frozenset(), "done": frozenset(),
 }
 REQUESTS = ("pause", "resume", "cancel")
+CHOICES = ("resume", "restart", "skip", "cancel")
+"""What the operator may do with a job that needs attention: resume the sheet where it stopped (optionally
+from a given file line), restart the sheet from its first line, skip the sheet, or cancel the job."""
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS jobs (
@@ -48,6 +59,8 @@ CREATE TABLE IF NOT EXISTS jobs (
     request TEXT,
     error TEXT,
     report TEXT,
+    attention TEXT,
+    output TEXT,
     created REAL NOT NULL,
     updated REAL NOT NULL
 );
@@ -62,6 +75,11 @@ CREATE TABLE IF NOT EXISTS sheets (
     machine TEXT,
     started REAL,
     finished REAL,
+    run_id TEXT,
+    journal TEXT,
+    resume INTEGER NOT NULL DEFAULT 0,
+    from_line INTEGER,
+    skipped INTEGER NOT NULL DEFAULT 0,
     PRIMARY KEY (job_id, k)
 );
 CREATE TABLE IF NOT EXISTS machines (
@@ -96,6 +114,11 @@ class SheetRow:
     machine: str | None
     started: float | None
     finished: float | None
+    run_id: str | None = None
+    journal: str | None = None
+    resume: int = 0
+    from_line: int | None = None
+    skipped: int = 0
 
 
 @dataclass(frozen=True)
@@ -116,9 +139,15 @@ class JobRow:
     report: str | None
     created: float
     updated: float
+    attention: str | None = None
+    output: str | None = None
 
     def describe(self) -> str:
         """The state as an operator reads it: 'cutting sheet 2 of 3', 'ready: load sheet 1 of 3'."""
+        if self.state == "attention":
+            detail = self.checkpoint()
+            return (f"needs attention: sheet {self.sheet + 1} of {self.sheets} stopped after file line "
+                    f"{detail.get('file_line') or 'none'}: {detail.get('reason', 'interrupted')}")
         if self.state == "cutting":
             return f"cutting sheet {self.sheet + 1} of {self.sheets}"
         if self.state == "ready":
@@ -127,6 +156,11 @@ class JobRow:
         if self.state == "failed" and self.error:
             return f"failed: {self.error}"
         return self.state
+
+    def checkpoint(self) -> dict[str, Any]:
+        """Why a job needs attention and where its sheet stopped: reason, done (lines known executed), lines,
+        file_line (the last one known executed) and position (the machine's last reported work position)."""
+        return json.loads(self.attention) if self.attention else {}
 
 
 class JobQueue:
@@ -145,8 +179,20 @@ class JobQueue:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=FULL")
             self._db.executescript(_SCHEMA)
+            self._add_new_columns()
         except sqlite3.DatabaseError as exc:
             raise FablineError(f"{self.path}: not a runner database: {exc}") from None
+        self.journals = self.path.parent / "journals"
+
+    def _add_new_columns(self) -> None:
+        """A queue made by an older fabline gets the columns added since (with their defaults)."""
+        for table in ("jobs", "sheets"):
+            have = {row[1] for row in self._db.execute(f"PRAGMA table_info({table})")}
+            create = _SCHEMA.split(f"CREATE TABLE IF NOT EXISTS {table} (", 1)[1].split(");", 1)[0]
+            for line in create.strip().splitlines():
+                name = line.split()[0]
+                if name not in have and name != "PRIMARY":
+                    self._db.execute(f"ALTER TABLE {table} ADD COLUMN {line.strip().rstrip(',')}")
 
     def close(self) -> None:
         """Close the connection."""
@@ -233,17 +279,20 @@ class JobQueue:
             self._move(db, job, "preparing")
         return self.job(job.id)
 
-    def prepared(self, job_id: int, programs: list[tuple[str, str, str]], report: str | None) -> None:
-        """A job's sheet programs are made: preparing -> ready (unless it was paused or cancelled meanwhile)."""
+    def prepared(self, job_id: int, programs: list[tuple[str, str, str]], report: str | None,
+                 output: str | None = None) -> None:
+        """A job's sheet programs are made (in its output folder): preparing -> ready (unless it was paused or
+        cancelled meanwhile)."""
         with self.transaction() as db:
             job = self._locked_job(db, job_id)
             if job.state in FINAL_STATES:
                 return
             self._add_sheets(db, job_id, programs)
             if job.state == "paused":
-                db.execute("UPDATE jobs SET paused_from = 'ready', report = ? WHERE id = ?", (report, job_id))
+                db.execute("UPDATE jobs SET paused_from = 'ready', report = ?, output = ? WHERE id = ?",
+                           (report, output, job_id))
             else:
-                self._move(db, job, "ready", report=report)
+                self._move(db, job, "ready", report=report, output=output)
             self._event(db, job_id, None, f"job {job_id} prepared: {len(programs)} sheet(s)")
 
     def fail(self, job_id: int, error: str) -> None:
@@ -284,7 +333,7 @@ class JobQueue:
         """The job this machine works on: the one already assigned to it (after a restart), else the oldest
         ready job nobody has; None when there is nothing to do."""
         with self.transaction() as db:
-            row = db.execute("SELECT * FROM jobs WHERE machine = ? AND state IN ('ready', 'cutting', 'paused') "
+            row = db.execute("SELECT * FROM jobs WHERE machine = ? AND state IN ('ready', 'cutting', 'paused', 'attention') "
                              "ORDER BY id LIMIT 1", (machine,)).fetchone()
             if row is None:
                 row = db.execute("SELECT * FROM jobs WHERE machine IS NULL AND state = 'ready' "
@@ -298,19 +347,29 @@ class JobQueue:
         return self.job(row["id"])
 
     def start_sheet(self, job_id: int, machine: str) -> SheetRow | None:
-        """ready -> cutting for the job's current sheet if the operator confirmed it; None if not (yet)."""
+        """ready -> cutting for the job's current sheet if the operator confirmed it, as a new run with a journal
+        of its own; a cutting job's sheet as the operator's choice after an interruption left it (resume or
+        restart); None if the sheet may not start (yet)."""
         with self.transaction() as db:
             job = self._locked_job(db, job_id)
             if job.state == "cutting" and job.machine == machine:
-                pass  # a restarted runner resumes the sheet it was cutting
+                pass  # the operator chose to resume or restart this sheet (resolve): its run is set
             elif job.state == "ready" and job.machine == machine and job.confirmed >= job.sheet:
                 self._move(db, job, "cutting")
+                self._new_run(db, job)
                 db.execute("UPDATE sheets SET machine = ?, started = ? WHERE job_id = ? AND k = ?",
                            (machine, time.time(), job_id, job.sheet))
                 self._event(db, job_id, machine, f"job {job_id}: cutting sheet {job.sheet + 1} of {job.sheets}")
             else:
                 return None
         return self.sheets(job_id)[job.sheet]
+
+    def _new_run(self, db: sqlite3.Connection, job: JobRow) -> None:
+        """A new run of the job's current sheet: a fresh run id and a journal nobody has written."""
+        run_id = uuid.uuid4().hex[:12]
+        journal = self.journals / f"job{job.id}-sheet{job.sheet + 1}-{run_id}.journal"
+        db.execute("UPDATE sheets SET run_id = ?, journal = ?, resume = 0, from_line = NULL, done_lines = 0 "
+                   "WHERE job_id = ? AND k = ?", (run_id, str(journal), job.id, job.sheet))
 
     def sheet_progress(self, job_id: int, k: int, done_lines: int) -> None:
         """How many lines of sheet k the controller has executed."""
@@ -351,10 +410,14 @@ class JobQueue:
         and its machine's worker carries it out (feed hold, cycle start, abort) and records the outcome."""
         if action not in REQUESTS:
             raise FablineError(f"unknown action {action!r} (use one of {', '.join(REQUESTS)})")
+        if action in ("resume", "cancel") and self.job(job_id).state == "attention":
+            return self.resolve(job_id, action)
         with self.transaction() as db:
             job = self._locked_job(db, job_id)
             if job.state in FINAL_STATES:
                 raise FablineError(f"job {job_id}: already {job.state}")
+            if job.state == "attention":
+                raise FablineError(f"job {job_id}: {job.describe()}; choose one of: {', '.join(CHOICES)}")
             cutting = job.state == "cutting" or (job.state == "paused" and job.paused_from == "cutting")
             if action == "pause" and job.state != "paused":
                 if cutting:
@@ -396,6 +459,55 @@ class JobQueue:
                 db.execute("UPDATE machines SET job_id = NULL WHERE name = ?", (job.machine,))
             self._event(db, job_id, job.machine, f"job {job_id}: {state}")
 
+    def resolve(self, job_id: int, choice: str, from_line: int | None = None) -> JobRow:
+        """The operator's choice for a job that needs attention: resume its sheet where it stopped (from its
+        journal, or from file line `from_line`), restart the sheet, skip it, or cancel the job."""
+        if choice not in CHOICES:
+            raise FablineError(f"unknown choice {choice!r} (use one of {', '.join(CHOICES)})")
+        if from_line is not None and (choice != "resume" or from_line < 1):
+            raise FablineError("a start line goes with resume, and is a file line number from 1")
+        with self.transaction() as db:
+            job = self._locked_job(db, job_id)
+            if job.state != "attention":
+                raise FablineError(f"job {job_id}: does not need attention ({job.describe()})")
+            where = (job_id, job.sheet)
+            if choice == "resume":
+                db.execute("UPDATE sheets SET resume = 1, from_line = ? WHERE job_id = ? AND k = ?", (from_line, *where))
+                self._move(db, job, "cutting", attention=None)
+            elif choice == "restart":
+                self._new_run(db, job)
+                self._move(db, job, "cutting", attention=None)
+            elif choice == "skip":
+                db.execute("UPDATE sheets SET skipped = 1, finished = ? WHERE job_id = ? AND k = ?", (time.time(), *where))
+                last = job.sheet + 1 >= job.sheets
+                self._move(db, job, "done" if last else "ready", sheet=job.sheet if last else job.sheet + 1,
+                           attention=None)
+                if last:
+                    db.execute("UPDATE machines SET job_id = NULL WHERE name = ?", (job.machine,))
+            else:
+                self._move(db, job, "cancelled", attention=None)
+                db.execute("UPDATE machines SET job_id = NULL WHERE name = ?", (job.machine,))
+            line = f" from file line {from_line}" if from_line else ""
+            self._event(db, job_id, job.machine, f"job {job_id}: operator chose to {choice} sheet {job.sheet + 1}{line}"
+                        if choice != "cancel" else f"job {job_id}: operator cancelled the job")
+        return self.job(job_id)
+
+    def need_attention(self, job_id: int, checkpoint: dict[str, Any]) -> None:
+        """A sheet stopped without finishing: the job waits for the operator's choice (`resolve`). `checkpoint`
+        says why and where (see JobRow.checkpoint)."""
+        with self.transaction() as db:
+            job = self._locked_job(db, job_id)
+            if job.state in FINAL_STATES:
+                return
+            self._move(db, job, "attention", attention=json.dumps(checkpoint), request=None, paused_from=None)
+            self._event(db, job_id, job.machine, f"job {job_id}: {self._locked_job(db, job_id).describe()}")
+
+    def interrupted(self) -> list[JobRow]:
+        """Jobs whose sheet was being cut (or held in a pause) when the runner stopped: no stream runs for them."""
+        rows = self._db.execute("SELECT * FROM jobs WHERE state = 'cutting' OR (state = 'paused' AND paused_from = 'cutting') "
+                                "ORDER BY id").fetchall()
+        return [JobRow(**dict(r)) for r in rows]
+
     # --- recovery and log -------------------------------------------------------------------------------
 
     def recover(self) -> int:
@@ -422,9 +534,11 @@ class JobQueue:
         jobs = []
         for job in self.jobs():
             sheets = self.sheets(job.id)
-            jobs.append({**job.__dict__, "status": job.describe(),
+            skipped = sum(s.skipped for s in sheets)
+            status = job.describe() + (f" ({skipped} sheet(s) skipped)" if skipped else "")
+            jobs.append({**job.__dict__, "status": status, "checkpoint": job.checkpoint(),
                          "sheet_list": [{"k": s.k, "name": s.name, "lines": s.lines, "done_lines": s.done_lines,
-                                         "machine": s.machine} for s in sheets]})
+                                         "machine": s.machine, "skipped": bool(s.skipped)} for s in sheets]})
         return {"jobs": jobs, "machines": self.machines(), "events": self.events(limit=20)}
 
 

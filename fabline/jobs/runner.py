@@ -1,22 +1,26 @@
 """The shop-floor runner: prepares queued jobs and cuts their sheets on several machines, one sheet at a time each.
 
-One preparer thread turns queued job files into sheet programs (the pipeline up to export); one worker
+One preparer thread turns queued job files into sheet programs (the pipeline up to export) inside the
+job's own folder under the runner's `runs` folder, whatever output folder the job file names; one worker
 thread per machine takes a ready job, waits for the operator to confirm the sheet is loaded, and streams
-its program through the link stage with a journal beside the program. Everything lives in the SQLite
-queue and the journals, so a runner killed at any moment (kill -9 included) picks up where it stopped:
-a sheet being cut resumes from its journal without repeating or skipping a line.
+its program through the link stage, each run of a sheet with a journal of its own. Everything lives in the
+SQLite queue and the journals, so a runner killed at any moment (kill -9 included) loses nothing: a sheet
+that was being cut waits for the operator ("needs attention", with the last line known executed), who
+resumes it from its journal without repeating or skipping a line, restarts it, skips it or cancels the job.
 """
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from fabline.errors import FablineError
 from fabline.jobs.queue import JobQueue, JobRow, SheetRow
-from fabline.jobs.streaming import SheetStream
+from fabline.jobs.streaming import SheetStream, checkpoint
+from fabline.locks import exclusive_lock, folder_lock_path
 
 
 @dataclass(frozen=True)
@@ -39,10 +43,11 @@ class Runner:
     """The runner's threads over the queue at `db_path`; `start()` them, `stop()` to end (the state stays)."""
 
     def __init__(self, db_path: str | Path, machines: list[MachineConfig], auto_confirm: bool = False,
-                 poll: float = 0.2, prepare: bool = True):
+                 poll: float = 0.2, prepare: bool = True, runs: str | Path | None = None):
         if len({m.name for m in machines}) != len(machines):
             raise FablineError("runner: two machines with the same name")
         self.db_path = Path(db_path)
+        self.runs = Path(runs) if runs else self.db_path.parent / "runs"
         self.machines = machines
         self.auto_confirm = auto_confirm
         self.poll = poll
@@ -51,6 +56,11 @@ class Runner:
         self._threads: list[threading.Thread] = []
         queue = JobQueue(self.db_path)
         queue.recover()
+        for job in queue.interrupted():  # no stream runs for them now: the operator decides how to go on
+            sheet = queue.sheets(job.id)[job.sheet]
+            where = checkpoint(sheet.program, sheet.journal, "the runner stopped while the sheet was being cut")
+            position = next((m["position"] for m in queue.machines() if m["name"] == job.machine), None)
+            queue.need_attention(job.id, {**where, "position": position})
         for machine in machines:
             queue.register_machine(machine.name, machine.port)
         queue.close()
@@ -111,6 +121,7 @@ class Runner:
     # --- preparation ------------------------------------------------------------------------------------
 
     def _prepare_loop(self) -> None:
+        from fabline.jobs.jobfile import load_job_file
         from fabline.jobs.pipeline import prepare_job
 
         queue = JobQueue(self.db_path)
@@ -120,8 +131,10 @@ class Runner:
                 self._stop.wait(self.poll)
                 continue
             try:
-                prepared = prepare_job(job.job_file)
-                queue.prepared(job.id, prepared.sheet_programs(), str(prepared.report_path))
+                spec = replace(load_job_file(job.job_file), output_folder=self.runs / f"job-{job.id}")
+                with exclusive_lock(folder_lock_path(spec.output_folder), f"job folder {spec.output_folder}"):
+                    prepared = prepare_job(spec)
+                queue.prepared(job.id, prepared.sheet_programs(), str(prepared.report_path), str(spec.output_folder))
             except FablineError as exc:
                 queue.fail(job.id, str(exc))
             except Exception as exc:  # a bug in a stage must not take the runner down; the job records it
@@ -144,22 +157,18 @@ class Runner:
                 continue
             try:
                 self._cut(queue, job, sheet, machine)
-            except Exception as exc:  # the job records why it stopped; the machine's worker carries on
+            except Exception as exc:  # the job waits for the operator's choice; the machine's worker carries on
                 reason = str(exc) if isinstance(exc, FablineError) else f"internal error: {type(exc).__name__}: {exc}"
-                queue.fail(job.id, f"sheet {sheet.k + 1} on {machine.name}: {reason}")
-                queue.set_machine(machine.name, state="idle")
+                where = checkpoint(sheet.program, sheet.journal, f"on {machine.name}: {reason}")
+                position = next((m["position"] for m in queue.machines() if m["name"] == machine.name), None)
+                queue.need_attention(job.id, {**where, "position": position})
         queue.close()
 
     def _next_sheet(self, queue: JobQueue, job: JobRow, machine: MachineConfig) -> SheetRow | None:
-        """The sheet to cut now, or None while it waits for the operator (confirmation or resume)."""
-        if job.state == "paused" and job.paused_from == "cutting":
-            request = queue.take_request(job.id)  # no stream runs (the runner restarted): carry it out here
-            if request == "cancel":
-                queue.set_cutting_state(job.id, "cancelled")
-                return None
-            if request == "resume":
-                queue.set_cutting_state(job.id, "cutting")
-                return queue.start_sheet(job.id, machine.name)
+        """The sheet to cut now, or None while it waits for the operator (confirmation or a choice)."""
+        if job.state == "attention":
+            queue.set_machine(machine.name, state=f"needs attention: job {job.id} sheet {job.sheet + 1} of {job.sheets}")
+            return None
         if job.state == "paused":
             queue.set_machine(machine.name, state="paused")
             return None
@@ -183,11 +192,15 @@ class Runner:
                 if position is not None:
                     queue.set_machine(machine.name, position=list(position))
 
-        stream = SheetStream(machine.port, sheet.program, on_progress)
+        stream = SheetStream(machine.port, sheet.program, on_progress, journal=sheet.journal,
+                             resume=bool(sheet.resume), from_line=sheet.from_line)
         watcher = threading.Thread(target=self._watch_requests, args=(job.id, stream, machine), daemon=True)
+        folder = (exclusive_lock(folder_lock_path(job.output), f"job folder {job.output}") if job.output
+                  else contextlib.nullcontext())
         watcher.start()
         try:
-            outcome = stream.run()
+            with folder:
+                outcome = stream.run()
         finally:
             stream.closed.set()
             watcher.join()
@@ -199,7 +212,7 @@ class Runner:
             queue.set_cutting_state(job.id, "cancelled")
             queue.set_machine(machine.name, state="idle")
         else:
-            queue.set_machine(machine.name, state="stopped (resumes on restart)")
+            queue.set_machine(machine.name, state="stopped (the operator decides how to go on)")
 
     def _watch_requests(self, job_id: int, stream: SheetStream, machine: MachineConfig) -> None:
         """While a sheet streams: carry out pause, resume and cancel requests; a stopping runner stops the stream

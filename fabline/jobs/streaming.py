@@ -1,9 +1,11 @@
-"""One sheet's program streamed through the link stage's Streamer, resumed from its journal when one is left.
+"""One sheet's program streamed through the link stage's Streamer, with a journal of the run.
 
-The journal lives beside the program (`<program>.journal`); a sheet whose journal is unfinished is
-resumed (nothing repeated, nothing skipped), one whose journal says finished is not sent again.
-`pause`, `resume` and `cancel` may be called from another thread while `run` streams.
-`stream_in_process` runs one sheet in a process of its own (the main job's machines stream in parallel).
+Where the journal lives and whether a run resumes it is the caller's decision, never the file system's:
+`fabline run` keeps journals beside the programs and resumes only with `--resume`; the runner gives every
+run of a sheet a journal of its own and resumes only when the operator chooses to. A resumed journal that
+says the sheet is finished sends nothing. `pause`, `resume` and `cancel` may be called from another thread
+while `run` streams. `stream_in_process` runs one sheet in a process of its own (the main job's machines
+stream in parallel).
 """
 
 from __future__ import annotations
@@ -18,15 +20,20 @@ from fabline.errors import FablineError
 from fabline.link import Progress, Streamer, default_journal_path, load_program, read_journal
 
 OnProgress = Callable[[int, "tuple[float, ...] | None"], None]
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""Ctrl-C, `kill` and a closed terminal or service stop: each stops a stream safely (feed hold, reset, journal)."""
 
 
 class SheetStream:
     """Stream `program` to `port`; `on_progress(lines done, work position)` is called as lines complete."""
 
-    def __init__(self, port: str, program: str | os.PathLike, on_progress: OnProgress):
+    def __init__(self, port: str, program: str | os.PathLike, on_progress: OnProgress,
+                 journal: str | os.PathLike | None = None, resume: bool = False, from_line: int | None = None):
         self.port = port
         self.program_path = Path(program)
-        self.journal_path = default_journal_path(self.program_path)
+        self.journal_path = Path(journal) if journal else default_journal_path(self.program_path)
+        self.resume_journal = resume
+        self.from_line = from_line
         self.on_progress = on_progress
         self.streamer = Streamer(port)
         self.cancelled = False
@@ -37,24 +44,28 @@ class SheetStream:
 
     def run(self) -> str:
         """Stream to the end: 'finished', or 'aborted' after `cancel()`/`stop()` (the journal resumes the rest).
+        Without `resume` the sheet starts at its first line whatever journal is left; with it, the run continues
+        its journal (from `from_line` if given; from the first line if the run never got as far as a journal).
         An error, alarm or lost connection raises the link stage's StreamInterrupted (a FablineError)."""
         program = load_program(self.program_path)
         self.total = len(program.lines)
-        previous = read_journal(self.journal_path) if self.journal_path.is_file() else None
+        previous = read_journal(self.journal_path) if self.resume_journal and self.journal_path.is_file() else None
         if previous is not None and previous.sha256 == program.sha256 and previous.finished:
             self.executed = self.total
             self.on_progress(self.total, None)
             return "finished"
-        resume = previous is not None and previous.sha256 == program.sha256 and previous.total > 0
-        if previous is not None and not resume:
-            self.journal_path.unlink()  # a journal of an earlier version of this file: start afresh
+        resume = previous is not None
+        if self.from_line is not None and not resume:
+            raise FablineError(f"{self.program_path.name}: no journal of this run to resume from line {self.from_line}; "
+                               "restart the sheet instead")
         self.resumed_from = previous.done if resume else None
 
         def progress(report: Progress) -> None:
             self.executed = report.acked
             self.on_progress(report.acked, report.position)
 
-        result = self.streamer.run(program, on_progress=progress, journal=self.journal_path, resume=resume)
+        result = self.streamer.run(program, on_progress=progress, journal=self.journal_path, resume=resume,
+                                   start_line=self.from_line, restart=not resume)
         self.executed = result.executed
         self.on_progress(result.executed, None)
         return "finished" if result.completed else "aborted"
@@ -82,12 +93,13 @@ class SheetStream:
                 "resumed_from": self.resumed_from}
 
 
-def stream_in_process(port: str, program: str, connection) -> None:
-    """Process target: stream one sheet, stop it safely on SIGINT (Ctrl-C: feed hold, reset, journal kept)
-    and send (outcome in words, summary) through `connection`."""
-    stream = SheetStream(port, program, lambda done, position: None)
-    signal.signal(signal.SIGINT, lambda signum, frame: stream.stop())
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by the parent until the handler is in place
+def stream_in_process(port: str, program: str, resume: bool, connection) -> None:
+    """Process target: stream one sheet (continuing its journal with `resume`), stop it safely on any of
+    STOP_SIGNALS (feed hold, reset, journal kept) and send (outcome in words, summary) through `connection`."""
+    stream = SheetStream(port, program, lambda done, position: None, resume=resume)
+    for number in STOP_SIGNALS:
+        signal.signal(number, lambda signum, frame: stream.stop())
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, set(STOP_SIGNALS))  # blocked by the parent until the handlers are in place
     try:
         outcome = stream.run()
     except FablineError as exc:
@@ -101,3 +113,18 @@ def journal_summary(port: str, program: str | os.PathLike) -> dict:
     state = read_journal(journal) if journal.is_file() else None
     return {"port": port, "lines": state.total if state else 0, "executed": state.done if state else 0,
             "journal": str(journal), "resumed_from": state.resumed_at if state else None}
+
+
+def checkpoint(program: str | os.PathLike, journal: str | os.PathLike | None, reason: str) -> dict:
+    """Where a stopped sheet stands, for the operator: `reason`, lines known executed (`done`) of `lines`, and
+    the `file_line` of the last one, from the run's journal (none written yet: nothing was sent)."""
+    entry: dict = {"reason": reason, "done": 0, "lines": 0, "file_line": None}
+    try:
+        lines = load_program(program).lines
+        entry["lines"] = len(lines)
+        if journal and Path(journal).is_file():
+            entry["done"] = read_journal(journal).done
+            entry["file_line"] = lines[entry["done"] - 1].file_line if entry["done"] else None
+    except FablineError as exc:
+        entry["reason"] = f"{reason}; {exc}"
+    return entry

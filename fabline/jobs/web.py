@@ -1,8 +1,11 @@
 """The runner's web page and API (Starlette): queue, machines, live sheet pictures, operator buttons.
 
-Reads are open (the server binds to 127.0.0.1 by default); every state-changing request must carry the
-token printed at start-up, as the `X-Fabline-Token` header or a `token` query parameter, or it gets 403.
-Live updates go out as server-sent events: the whole snapshot whenever it changes.
+Who may see and do what: the page shell (`/`, static HTML with no data in it) is open; every other route,
+reads included, needs the token printed at start-up, as the `X-Fabline-Token` header or a `token` query
+parameter (what the page's event stream and pictures use), or it gets 403 and nothing else: job names,
+file paths and errors are for the operator only. Requests must name an allowed host in their Host header
+(loopback names by default, `--allow-host` adds more), so a web page elsewhere cannot reach the runner
+through DNS rebinding. Live updates go out as server-sent events: the whole snapshot whenever it changes.
 """
 
 from __future__ import annotations
@@ -14,6 +17,8 @@ from importlib import resources
 from pathlib import Path
 
 from starlette.applications import Starlette
+from starlette.middleware import Middleware
+from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.requests import Request
 from starlette.responses import HTMLResponse, JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
@@ -24,17 +29,28 @@ from fabline.jobs.pictures import progress_svg
 from fabline.jobs.queue import JobQueue
 
 TOKEN_HEADER = "X-Fabline-Token"
-ACTIONS = ("confirm", "pause", "resume", "cancel")
+ACTIONS = ("confirm", "pause", "resume", "cancel", "restart", "skip")
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
+_LARGEST_ID = 2 ** 62  # ids beyond SQLite's integers are no job
 
 
-def create_app(db_path: str | Path, token: str, poll: float = 0.25) -> Starlette:
-    """The web application over the queue at `db_path`; `token` guards every POST."""
+def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple[str, ...] = ()) -> Starlette:
+    """The web application over the queue at `db_path`; `token` guards everything but the page shell;
+    requests must name one of the loopback `LOOPBACK_HOSTS` or of `hosts` in their Host header."""
     queue = JobQueue(db_path)
     page = resources.files("fabline.jobs").joinpath("static/index.html").read_text(encoding="utf-8")
 
     def authorised(request: Request) -> bool:
         given = request.headers.get(TOKEN_HEADER) or request.query_params.get("token") or ""
         return hmac.compare_digest(given.encode(), token.encode())
+
+    def guarded(handler):
+        """`handler` for token holders only; anyone else gets 403 and nothing of the queue."""
+        async def route(request: Request) -> Response:
+            if not authorised(request):
+                return JSONResponse({"error": "forbidden: a valid token is required"}, status_code=403)
+            return await handler(request)
+        return route
 
     async def index(request: Request) -> Response:
         return HTMLResponse(page)
@@ -60,6 +76,8 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25) -> Starlette
     async def sheet_picture(request: Request) -> Response:
         job_id, k = int(request.path_params["job"]), int(request.path_params["k"])
         try:
+            if job_id >= _LARGEST_ID:
+                raise FablineError(f"job {job_id}: no such job")
             sheets = queue.sheets(job_id)
             if not 0 <= k < len(sheets):
                 raise FablineError(f"job {job_id}: no sheet {k + 1}")
@@ -70,23 +88,27 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25) -> Starlette
         return Response(svg, media_type="image/svg+xml", headers={"Cache-Control": "no-store"})
 
     async def act(request: Request) -> Response:
-        if not authorised(request):
-            return JSONResponse({"error": "forbidden: a valid token is required"}, status_code=403)
         job_id, action = int(request.path_params["job"]), request.path_params["action"]
         if action not in ACTIONS:
             return JSONResponse({"error": f"unknown action {action!r}"}, status_code=404)
         try:
-            job = queue.confirm_sheet(job_id) if action == "confirm" else queue.request(job_id, action)
+            from_line = await _from_line(request)
+            if job_id >= _LARGEST_ID:
+                raise FablineError(f"job {job_id}: no such job")
+            if action == "confirm":
+                job = queue.confirm_sheet(job_id)
+            elif action in ("restart", "skip") or from_line is not None:
+                job = queue.resolve(job_id, action, from_line)
+            else:
+                job = queue.request(job_id, action)
         except FablineError as exc:
             return JSONResponse({"error": str(exc)}, status_code=409)
         return JSONResponse({"id": job.id, "state": job.state, "status": job.describe()})
 
     async def submit(request: Request) -> Response:
-        if not authorised(request):
-            return JSONResponse({"error": "forbidden: a valid token is required"}, status_code=403)
         try:
             body = await request.json()
-            spec = load_job_file(body["job_file"])
+            spec = await asyncio.to_thread(load_job_file, body["job_file"])  # a slow disk never stalls the page
             job_id = queue.submit(spec.name, job_file=str(spec.path))
         except (KeyError, TypeError, ValueError):
             return JSONResponse({"error": "expected JSON {\"job_file\": PATH}"}, status_code=400)
@@ -96,10 +118,27 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25) -> Starlette
 
     routes = [
         Route("/", index),
-        Route("/api/state", state),
-        Route("/api/events", events),
-        Route("/api/jobs/{job:int}/sheets/{k:int}.svg", sheet_picture),
-        Route("/api/jobs/{job:int}/{action}", act, methods=["POST"]),
-        Route("/api/jobs", submit, methods=["POST"]),
+        Route("/api/state", guarded(state)),
+        Route("/api/events", guarded(events)),
+        Route("/api/jobs/{job:int}/sheets/{k:int}.svg", guarded(sheet_picture)),
+        Route("/api/jobs/{job:int}/{action}", guarded(act), methods=["POST"]),
+        Route("/api/jobs", guarded(submit), methods=["POST"]),
     ]
-    return Starlette(routes=routes)
+    allowed = [*LOOPBACK_HOSTS, *hosts]
+    return Starlette(routes=routes, middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=allowed)])
+
+
+async def _from_line(request: Request) -> int | None:
+    """The optional `from_line` (a file line to resume from) of an action's JSON body."""
+    body = await request.body()
+    if not body.strip():
+        return None
+    try:
+        value = json.loads(body).get("from_line")
+    except (ValueError, AttributeError):
+        raise FablineError("expected a JSON object such as {\"from_line\": 158}") from None
+    if value is None:
+        return None
+    if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value < _LARGEST_ID:
+        raise FablineError(f"from_line: expected a file line number from 1, got {value!r}")
+    return value
