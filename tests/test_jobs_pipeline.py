@@ -287,9 +287,11 @@ INTERRUPTED_JOB = (JOB[:JOB.index("[survey]")] + '[output]\nfolder = "out"\n').r
     "time_scale = 1000.0", "time_scale = 40.0").replace("sim://pipeline-", "sim://ctrl-c-")
 
 
-def test_ctrl_c_stops_every_machine_safely_and_resume_cuts_each_line_exactly_once(tmp_path):
-    """A Ctrl-C in the terminal reaches fabline and every link process; the run stops with a one-line hint
-    and exit 130, and `--resume` finishes the job: each program line executed once, in order, on one machine."""
+@pytest.mark.parametrize("stop", ["SIGINT", "SIGTERM"])
+def test_ctrl_c_or_a_service_stop_stops_every_machine_safely_and_resume_cuts_each_line_exactly_once(tmp_path, stop):
+    """A Ctrl-C in the terminal (SIGINT) or a service stop (SIGTERM) reaches fabline and every link process; the
+    run stops with a one-line hint and exit 130, and `--resume` finishes the job: each program line executed
+    once, in order, on one machine."""
     import os
     import signal
     import subprocess
@@ -306,10 +308,12 @@ def test_ctrl_c_stops_every_machine_safely_and_resume_cuts_each_line_exactly_onc
     deadline = time.monotonic() + 120
     while first.poll() is None and time.monotonic() < deadline and sum(j.stat().st_size for j in journals.glob("*.journal")) < 20_000:
         time.sleep(0.05)
-    os.killpg(first.pid, signal.SIGINT)  # what the terminal does on Ctrl-C: the whole process group
+    os.killpg(first.pid, getattr(signal, stop))  # what a terminal's Ctrl-C or systemd's stop does: the whole group
     out, err = first.communicate(timeout=60)
     assert first.returncode == 130, err
-    assert "Traceback" not in err and err.strip().endswith("--resume continues where they stopped")
+    assert "Traceback" not in err and err.strip().endswith(f"fabline run {job} --resume continues where they stopped")
+    again = subprocess.run(command, capture_output=True, text=True, timeout=60)  # a new run must not cut over it
+    assert again.returncode == 2 and "an earlier run stopped before finishing" in again.stderr, again.stderr
     assert " aborted in " in out
     done = sum(len(executed_program_lines(Path(f"{log}{k}"))) for k in (1, 2))
 
