@@ -80,6 +80,19 @@ def test_everything_but_the_page_shell_needs_the_token(served):
         assert client.get(f"/api/jobs/{10 ** 20}/sheets/0.svg?token={TOKEN}").status_code == 404
 
 
+def test_a_job_file_that_is_a_fifo_or_a_device_is_refused_at_once_and_the_page_keeps_answering(served, tmp_path):
+    fifo = tmp_path / "job.toml"
+    os.mkfifo(fifo)  # reading it would block until a writer comes
+    big = tmp_path / "big.toml"
+    big.write_bytes(b"#" * (1 << 20) + b"\n")
+    with httpx.Client(base_url=served["url"], timeout=10, headers={TOKEN_HEADER: TOKEN}) as client:
+        for path, error in ((fifo, f"{fifo}: not a regular file"), ("/dev/zero", "/dev/zero: not a regular file"),
+                            (big, f"{big}: 1048577 bytes, more than the 1048576 this kind of file may have")):
+            answer = client.post("/api/jobs", json={"job_file": str(path)})
+            assert answer.status_code == 400 and answer.json() == {"error": error}
+        assert client.get("/api/state").status_code == 200
+
+
 def test_a_request_naming_another_host_is_refused_dns_rebinding(served):
     with httpx.Client(base_url=served["url"], timeout=10) as client:
         for host in ("evil.example", "127.0.0.1.nip.io", "attacker.test:8080"):
