@@ -197,3 +197,57 @@ def test_serve_prints_a_fresh_token_and_binds_to_localhost(tmp_path):
         server.wait(timeout=30)
         server.stdout.close()
         server.stderr.close()
+
+
+def test_page_keeps_its_buttons_under_live_updates_confirms_cancel_requeues_and_fits_phone_and_desktop(served, tmp_path):
+    if not os.path.exists(CHROMIUM):
+        pytest.skip(f"{CHROMIUM} is missing (CI installs it: apt-get install -y chromium)")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright for Python is missing (pip install playwright)")
+    job, queue = served["job"], served["queue"]
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=shutil.which(CHROMIUM) or CHROMIUM, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1366, "height": 900})
+        page.goto(f"{served['url']}/?token={TOKEN}")
+        sync_api.expect(page.locator("#live")).to_have_text("live")
+        sync_api.expect(page.locator("#ports")).to_contain_text("serial ports found: ")
+        row = page.locator(f"#queue tr[data-job='{job}']")
+        page.locator(f".machine button.confirm[data-job='{job}']").click()
+        sync_api.expect(row).to_have_attribute("data-state", "cutting", timeout=20000)
+        page.evaluate("(job) => { window.kept = [document.querySelector(`#queue tr[data-job='${job}'] button[data-action='cancel']`),"
+                      " document.querySelector('.machine img'), document.querySelector('.machine .sheet-progress')]; }", job)
+        for _ in range(3):  # live updates come and go while the pointer rests on the cancel button
+            before = page.locator(".machine .sheet-progress").get_attribute("data-done")
+            row.locator("button[data-action='cancel']").hover()
+            page.wait_for_function(f"() => document.querySelector('.machine .sheet-progress').dataset.done !== '{before}'",
+                                   timeout=20000)
+        assert page.evaluate("() => window.kept.every((node) => node && node.isConnected)"), "rebuilt under the pointer"
+        page.screenshot(path=str(tmp_path / "desktop.png"), full_page=True)
+        page.set_viewport_size({"width": 390, "height": 844})
+        assert page.evaluate("() => document.documentElement.scrollWidth") <= 390, "wider than a phone"
+        page.screenshot(path=str(tmp_path / "phone.png"), full_page=True)
+        row.locator("button[data-action='cancel']").click()
+        dialog = page.locator("#confirm")
+        sync_api.expect(dialog).to_contain_text(f"Cancel job {job} (web-job)? The machine stops")
+        page.locator("#confirm-yes").click()
+        sync_api.expect(row).to_have_attribute("data-state", "cancelled", timeout=20000)
+        row.locator("button[data-action='requeue']").click()
+        again = page.locator(f"#queue tr[data-job='{job + 1}']")
+        sync_api.expect(again).to_have_attribute("data-state", "ready", timeout=20000)
+        browser.close()
+    for name in ("desktop.png", "phone.png"):
+        assert (tmp_path / name).stat().st_size > 10_000, f"{name}: the page rendered"
+    assert queue.job(job).state == "cancelled" and queue.job(job + 1).name == "web-job"
+
+
+def test_report_of_a_prepared_job_for_token_holders_only(served, tmp_path):
+    report = tmp_path / "report.html"
+    report.write_text("<html><body>the report</body></html>", encoding="utf-8")
+    queue = served["queue"]
+    job_id = queue.submit("with-report", job_file=str(tmp_path / "x.toml"))
+    queue.claim_preparation()
+    queue.prepared(job_id, [("S1", str(served["sheets"][0]), "")], str(report), str(tmp_path))
+    with httpx.Client(base_url=served["url"], timeout=10) as client:
+        assert client.get(f"/api/jobs/{job_id}/report").status_code == 403
+        answer = client.get(f"/api/jobs/{job_id}/report?token={TOKEN}")
+        assert answer.status_code == 200 and answer.text == report.read_text(encoding="utf-8")
+        assert client.get(f"/api/jobs/{served['job']}/report?token={TOKEN}").status_code == 404

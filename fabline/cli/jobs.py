@@ -14,11 +14,12 @@ from pathlib import Path
 from fabline.cli import positive
 from fabline.errors import FablineError
 
-RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm", "restart", "skip")
+RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm", "restart", "skip", "requeue")
 _ACTION_HELP = {"pause": "pause a job (feed hold while cutting)", "resume": "resume a paused job, or a job that "
                 "needs attention where its sheet stopped", "cancel": "cancel a job", "confirm": "confirm the job's "
                 "next sheet is loaded", "restart": "restart the sheet of a job that needs attention from its first line",
-                "skip": "skip the sheet of a job that needs attention"}
+                "skip": "skip the sheet of a job that needs attention",
+                "requeue": "queue a failed or cancelled job again, as a new job"}
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -61,7 +62,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     status.set_defaults(func=run_status)
     for action in RUNNER_ACTIONS:
         sub = commands.add_parser(action, help=_ACTION_HELP[action])
-        sub.add_argument("job_id", type=int, metavar="JOB", help="job number (see `fabline runner status`)")
+        sub.add_argument("job_id", metavar="JOB", help="job number or name (the newest job of that name; "
+                         "see `fabline runner status`)")
         if action == "resume":
             sub.add_argument("--from-line", type=positive(int), metavar="N",
                              help="resume a job that needs attention from this file line (the operator's override)")
@@ -120,6 +122,16 @@ def run_job_command(args: argparse.Namespace) -> int:
     else:
         print(f"done in {total:.1f} s; outputs in {spec.output_folder} (no report stage)")
     return 0
+
+
+def _job_number(queue, given: str) -> int:
+    """A job named by its number, or by its name (the newest job of that name)."""
+    if given.isdigit():
+        return int(given)
+    named = [job.id for job in queue.jobs() if job.name == given]
+    if not named:
+        raise FablineError(f"no job named {given!r} in {queue.path} (see `fabline runner status`)")
+    return named[-1]
 
 
 def _can_ask() -> bool:
@@ -220,6 +232,10 @@ def run_action(args: argparse.Namespace) -> int:
     if not _db(args).is_file():
         raise FablineError(f"{_db(args)}: no runner queue here")
     queue = JobQueue(_db(args))
+    args.job_id = _job_number(queue, args.job_id)
+    if args.action == "requeue":
+        print(f"job {args.job_id} queued again as job {queue.requeue(args.job_id)}")
+        return 0
     before = queue.job(args.job_id)
     if before.state == "attention" and args.action in ("resume", "restart", "skip", "cancel"):
         print(f"job {before.id}: {before.describe()}")

@@ -492,6 +492,18 @@ class JobQueue:
                         if choice != "cancel" else f"job {job_id}: operator cancelled the job")
         return self.job(job_id)
 
+    def requeue(self, job_id: int) -> int:
+        """A failed or cancelled job again, as a new job (its file prepared afresh, or its programs ready to cut,
+        each sheet a new run); returns the new job's id."""
+        job = self.job(job_id)
+        if job.state not in ("failed", "cancelled"):
+            raise FablineError(f"job {job_id}: only a failed or cancelled job can be queued again ({job.describe()})")
+        programs = None if job.job_file else [(s.name, s.program, s.svg) for s in self.sheets(job_id)]
+        new = self.submit(job.name, job_file=job.job_file, programs=programs)
+        with self.transaction() as db:
+            self._event(db, job_id, None, f"job {job_id} queued again as job {new}")
+        return new
+
     def need_attention(self, job_id: int, checkpoint: dict[str, Any]) -> None:
         """A sheet stopped without finishing: the job waits for the operator's choice (`resolve`). `checkpoint`
         says why and where (see JobRow.checkpoint)."""

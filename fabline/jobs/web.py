@@ -20,7 +20,7 @@ from starlette.applications import Starlette
 from starlette.middleware import Middleware
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.requests import Request
-from starlette.responses import HTMLResponse, JSONResponse, Response, StreamingResponse
+from starlette.responses import FileResponse, HTMLResponse, JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 
 from fabline.errors import FablineError
@@ -29,7 +29,7 @@ from fabline.jobs.pictures import progress_svg
 from fabline.jobs.queue import JobQueue
 
 TOKEN_HEADER = "X-Fabline-Token"
-ACTIONS = ("confirm", "pause", "resume", "cancel", "restart", "skip")
+ACTIONS = ("confirm", "pause", "resume", "cancel", "restart", "skip", "requeue")
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
 _LARGEST_ID = 2 ** 62  # ids beyond SQLite's integers are no job
 
@@ -55,14 +55,17 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
     async def index(request: Request) -> Response:
         return HTMLResponse(page)
 
+    def snapshot() -> dict:
+        return {**queue.snapshot(), "ports": serial_ports()}
+
     async def state(request: Request) -> Response:
-        return JSONResponse(queue.snapshot())
+        return JSONResponse(snapshot())
 
     async def events(request: Request) -> Response:
         async def stream():
             last = None
             while not await request.is_disconnected():
-                text = json.dumps(queue.snapshot(), separators=(",", ":"))
+                text = json.dumps(snapshot(), separators=(",", ":"))
                 if text != last:
                     last = text
                     yield f"event: state\ndata: {text}\n\n"
@@ -95,6 +98,9 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
             from_line = await _from_line(request)
             if job_id >= _LARGEST_ID:
                 raise FablineError(f"job {job_id}: no such job")
+            if action == "requeue":
+                new = queue.requeue(job_id)
+                return JSONResponse({"id": new, "requeued": job_id})
             if action == "confirm":
                 job = queue.confirm_sheet(job_id)
             elif action in ("restart", "skip") or from_line is not None:
@@ -104,6 +110,16 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
         except FablineError as exc:
             return JSONResponse({"error": str(exc)}, status_code=409)
         return JSONResponse({"id": job.id, "state": job.state, "status": job.describe()})
+
+    async def report(request: Request) -> Response:
+        job_id = int(request.path_params["job"])
+        try:
+            path = queue.job(job_id).report if job_id < _LARGEST_ID else None
+        except FablineError:
+            path = None
+        if not path or not Path(path).is_file():
+            return JSONResponse({"error": f"job {job_id}: no report (yet)"}, status_code=404)
+        return FileResponse(path, media_type="text/html")
 
     async def submit(request: Request) -> Response:
         try:
@@ -121,11 +137,30 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
         Route("/api/state", guarded(state)),
         Route("/api/events", guarded(events)),
         Route("/api/jobs/{job:int}/sheets/{k:int}.svg", guarded(sheet_picture)),
+        Route("/api/jobs/{job:int}/report", guarded(report)),
         Route("/api/jobs/{job:int}/{action}", guarded(act), methods=["POST"]),
         Route("/api/jobs", guarded(submit), methods=["POST"]),
     ]
     allowed = [*LOOPBACK_HOSTS, *hosts]
     return Starlette(routes=routes, middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=allowed)])
+
+
+_PORTS_TTL = 5.0
+_ports_seen: list = [0.0, []]
+
+
+def serial_ports() -> list[dict[str, str]]:
+    """The serial ports this computer has (device and description, as pyserial finds them), looked up at most
+    every few seconds: the page shows them so the operator can tell which one a machine is on."""
+    import time
+
+    from serial.tools import list_ports
+
+    now = time.monotonic()
+    if now - _ports_seen[0] > _PORTS_TTL:
+        _ports_seen[:] = [now, [{"device": p.device, "description": p.description or ""}
+                                for p in sorted(list_ports.comports(), key=lambda p: p.device)]]
+    return _ports_seen[1]
 
 
 async def _from_line(request: Request) -> int | None:
