@@ -53,15 +53,11 @@ def _holder(fd: int) -> str:
     return f"process {text}" if text.isdigit() else "another process"
 
 
-def folder_lock_path(folder: str | os.PathLike) -> Path:
-    """The lock file of an output folder (a job's): `<folder>/.fabline.lock`."""
-    return Path(folder) / ".fabline.lock"
-
-
-def port_lock_path(url: str) -> Path:
-    """The machine-wide lock file of a serial port or port URL: one per device, whatever path names it
-    (a symlink such as /dev/serial/by-id/... and /dev/ttyUSB0 share one lock)."""
-    name = os.path.realpath(url) if "://" not in url else url
+def lock_path(resource: str | os.PathLike) -> Path:
+    """The machine-wide lock file of a resource: a job's output folder, a serial port or a port URL. One lock per
+    resource whatever path names it (a symlink such as /dev/serial/by-id/... and /dev/ttyUSB0 share one), kept
+    in the temp folder so that taking it writes nothing into the user's folders."""
+    name = str(resource) if "://" in str(resource) else os.path.realpath(resource)
     slug = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("_")[-60:]
     digest = hashlib.sha256(name.encode("utf-8")).hexdigest()[:12]
     return Path(tempfile.gettempdir()) / "fabline-locks" / f"{slug}-{digest}.lock"

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from fabline.link import SimulatorServer, load_program
 from fabline.link.journal import Journal
-from fabline.locks import exclusive_lock, folder_lock_path
+from fabline.locks import exclusive_lock, lock_path
 from runner_support import executed_program_lines
 
 JOB = """
@@ -62,12 +62,12 @@ def test_a_real_machine_with_standard_input_closed_is_refused_before_anything_is
 def test_a_second_run_of_one_job_is_refused_naming_the_first(tmp_path, cli):
     job = write_job(tmp_path, "sim://safety-lock?time_scale=1000")
     folder = tmp_path / "out"
-    with exclusive_lock(folder_lock_path(folder), "test"):
+    with exclusive_lock(lock_path(folder), "test"):
         code, out, err = cli("run", job)
     assert code == 2 and out == ""
     assert err.strip() == (f"fabline run: error: job output folder {folder} is in use by process {os.getpid()} "
-                           f"(lock {folder / '.fabline.lock'}); wait for it to finish or stop it")
-    assert [p.name for p in folder.iterdir()] == [".fabline.lock"], "nothing written"
+                           f"(lock {lock_path(folder)}); wait for it to finish or stop it")
+    assert not folder.exists(), "nothing written"
 
 
 def test_a_new_run_over_an_interrupted_one_needs_restart_or_resume(tmp_path, cli):
@@ -80,8 +80,7 @@ def test_a_new_run_over_an_interrupted_one_needs_restart_or_resume(tmp_path, cli
     assert code == 2 and err.strip() == (
         "fabline run: error: safety.toml: an earlier run stopped before finishing safety_S001.gcode; "
         "continue it with --resume, or cut every sheet afresh with --restart")
-    assert sorted(p.name for p in (tmp_path / "out").rglob("*") if p.is_file()) == [".fabline.lock",
-                                                                                  "safety_S001.gcode.journal"]
+    assert [p.name for p in (tmp_path / "out").rglob("*") if p.is_file()] == ["safety_S001.gcode.journal"]
     code, out, err = cli("run", job, "--restart")
     assert code == 0, err
     programs = sorted((tmp_path / "out" / "gcode").glob("*.gcode"))

@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from fabline.errors import FablineError
-from fabline.locks import exclusive_lock, port_lock_path
+from fabline.locks import exclusive_lock, lock_path
 
 HOLD = ("import sys, time\nfrom fabline.locks import exclusive_lock\n"
         "with exclusive_lock(sys.argv[1], 'the folder'):\n    print('held', flush=True)\n    time.sleep(60)\n")
@@ -35,5 +35,5 @@ def test_one_port_has_one_lock_whatever_path_names_it(tmp_path):
     device.touch()
     alias = tmp_path / "by-id"
     alias.symlink_to(device)
-    assert port_lock_path(str(alias)) == port_lock_path(str(device))
-    assert port_lock_path("socket://127.0.0.1:5000") != port_lock_path("socket://127.0.0.1:5001")
+    assert lock_path(str(alias)) == lock_path(str(device))
+    assert lock_path("socket://127.0.0.1:5000") != lock_path("socket://127.0.0.1:5001")

@@ -85,7 +85,7 @@ def run_job_command(args: argparse.Namespace) -> int:
     safely (exit 130, resumable with --resume)."""
     from fabline.jobs.jobfile import load_job_file
     from fabline.jobs.pipeline import run_job
-    from fabline.locks import exclusive_lock, folder_lock_path
+    from fabline.locks import exclusive_lock, lock_path
 
     said = threading.Lock()  # the machines report from their own threads: one whole line at a time
 
@@ -107,7 +107,7 @@ def run_job_command(args: argparse.Namespace) -> int:
                            "is closed; run it from a terminal, or pass --yes if the sheets are loaded")
     stop_signals = _stop_on_signals()
     try:
-        with exclusive_lock(folder_lock_path(spec.output_folder), f"job output folder {spec.output_folder}"):
+        with exclusive_lock(lock_path(spec.output_folder), f"job output folder {spec.output_folder}"):
             result = run_job(spec, say, confirm if real_machine and not args.yes else None, resume=args.resume,
                              restart=args.restart)
     except KeyboardInterrupt:

@@ -20,7 +20,7 @@ from pathlib import Path
 from fabline.errors import FablineError
 from fabline.jobs.queue import JobQueue, JobRow, SheetRow
 from fabline.jobs.streaming import SheetStream, checkpoint
-from fabline.locks import exclusive_lock, folder_lock_path
+from fabline.locks import exclusive_lock, lock_path
 
 
 @dataclass(frozen=True)
@@ -132,7 +132,7 @@ class Runner:
                 continue
             try:
                 spec = replace(load_job_file(job.job_file), output_folder=self.runs / f"job-{job.id}")
-                with exclusive_lock(folder_lock_path(spec.output_folder), f"job folder {spec.output_folder}"):
+                with exclusive_lock(lock_path(spec.output_folder), f"job folder {spec.output_folder}"):
                     prepared = prepare_job(spec)
                 queue.prepared(job.id, prepared.sheet_programs(), str(prepared.report_path), str(spec.output_folder))
             except FablineError as exc:
@@ -195,7 +195,7 @@ class Runner:
         stream = SheetStream(machine.port, sheet.program, on_progress, journal=sheet.journal,
                              resume=bool(sheet.resume), from_line=sheet.from_line)
         watcher = threading.Thread(target=self._watch_requests, args=(job.id, stream, machine), daemon=True)
-        folder = (exclusive_lock(folder_lock_path(job.output), f"job folder {job.output}") if job.output
+        folder = (exclusive_lock(lock_path(job.output), f"job folder {job.output}") if job.output
                   else contextlib.nullcontext())
         watcher.start()
         try:
