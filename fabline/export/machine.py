@@ -81,6 +81,11 @@ class MachineProfile:
                 121: self.acceleration, 130: self.bed_width, 131: self.bed_height, 30: self.s_max, 31: self.s_min,
                 32: 1 if self.laser_mode else 0}
 
+    @property
+    def grbl(self) -> bool:
+        """The controller is a Grbl (its G-code parser and error codes apply)."""
+        return self.controller.lower().startswith("grbl")
+
     def number(self, value: float) -> str:
         """A number in the profile's fixed precision, without a negative zero."""
         return f"{round(value, self.decimals) + 0.0:.{self.decimals}f}"

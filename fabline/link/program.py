@@ -18,6 +18,7 @@ from pathlib import Path
 from fabline.errors import FablineError
 from fabline.fileio import read_bytes
 from fabline.link.codes import explain_error
+from fabline.link.build import STOCK_BUILD, BuildInfo
 from fabline.link.gcode import Block, GcodeError, ModalState, Vector, execute, split_words
 
 LINE_BUFFER_SIZE = 80
@@ -58,18 +59,21 @@ class Program:
     lines: tuple[ProgramLine, ...]
     sha256: str
 
-    def plan(self, modal: ModalState, position: Vector) -> list[Block]:
-        """The block each line becomes when the program starts in `modal` state at work `position`."""
-        blocks = []
+    def plan(self, modal: ModalState, position: Vector, build: BuildInfo = STOCK_BUILD) -> list[Block]:
+        """The block each line becomes when the program starts in `modal` state at work `position` on a controller
+        of `build`; every line the firmware would refuse is listed (a refused line changes nothing, as in Grbl)."""
+        blocks, refused = [], []
         for line in self.lines:
             try:
-                block = execute(line.command, modal, position)
+                block = execute(line.command, modal, position, build=build)
             except GcodeError as exc:
-                raise FablineError(f"{self.name}:{line.file_line}: {explain_error(exc.code)}: {line.source.strip()}") from None
+                refused.append(f"{self.name}:{line.file_line}: {explain_error(exc.code)}: {line.source.strip()}")
+                continue
             blocks.append(block)
-            modal = block.modal
-            if block.segment is not None:
-                position = block.segment.end
+            modal, position = block.modal, block.position
+        if refused:
+            raise FablineError(refused[0] if len(refused) == 1 else
+                               f"{len(refused)} lines the controller would refuse:\n" + "\n".join(refused))
         return blocks
 
 
