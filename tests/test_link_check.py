@@ -9,7 +9,8 @@ import pytest
 import serial
 
 from fabline.errors import FablineError
-from fabline.link import Streamer
+from fabline.link.build import BuildInfo
+from fabline.link.gcode import ModalState
 from fabline.link.program import load_program
 from fabline.link.protocol_sim import close_simulator, get_simulator
 from fabline.nest.layout import save_nesting
@@ -115,3 +116,12 @@ def test_a_resume_after_a_work_offset_change_is_refused(cli, url, tmp_path):
     assert err == (f"fabline stream: error: {path}:4: cannot resume after this line: G92 depends on offsets or "
                    "positions stored in the controller, which a resume cannot re-establish; start the sheet over "
                    "with --restart\n")
+
+
+def test_a_program_with_mist_coolant_loads_for_a_build_with_option_m(tmp_path):
+    path = tmp_path / "mist.gcode"
+    path.write_text("G21\nM7\nG1 X5 F100\nM9\n")
+    with pytest.raises(FablineError, match=r"mist.gcode:2: error:20"):
+        load_program(path)
+    assert [block.modal.coolant for block in load_program(path, BuildInfo(options="VM")).plan(
+        ModalState(), (0.0, 0.0, 0.0), BuildInfo(options="VM"))] == ["M9", "M7", "M7", "M9"]

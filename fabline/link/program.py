@@ -100,8 +100,8 @@ def strip_line(text: str, where: str) -> str:
     return _LEADING_N.sub("", "".join(out))
 
 
-def parse_program(data: bytes, name: str) -> Program:
-    """Build a Program from a file's bytes; `name` is used in error messages."""
+def parse_program(data: bytes, name: str, build: BuildInfo = STOCK_BUILD) -> Program:
+    """Build a Program from a file's bytes, checked for a controller of `build`; `name` is used in error messages."""
     lines = []
     for number, raw in enumerate(data.split(b"\n"), 1):
         where = f"{name}:{number}"
@@ -127,10 +127,11 @@ def parse_program(data: bytes, name: str) -> Program:
     if not lines:
         raise FablineError(f"{name}: no G-code commands in the file")
     program = Program(name, tuple(lines), hashlib.sha256(data).hexdigest())
-    program.plan(ModalState(), (0.0, 0.0, 0.0))
+    program.plan(ModalState(), (0.0, 0.0, 0.0), build)
     return program
 
 
-def load_program(path: str | os.PathLike) -> Program:
-    """Read and check a G-code file; any problem is a FablineError naming file, line and column."""
-    return parse_program(read_bytes(path), str(Path(path)))
+def load_program(path: str | os.PathLike, build: BuildInfo = STOCK_BUILD) -> Program:
+    """Read and check a G-code file (for a controller of `build`); any problem is a FablineError naming file,
+    line and column."""
+    return parse_program(read_bytes(path), str(Path(path)), build)
