@@ -290,3 +290,15 @@ def test_gcode_check_applies_the_grbl_build_and_lists_every_refused_line(cli, tm
     assert "line 8" not in out                      # N10000000 is accepted by the firmware
     code, out, _ = cli("gcode-check", path, "--machine", "grbl-laser", "--build-options", "VM")
     assert "line 3:" not in out.replace("line 3: M7 is not supported", "") and "line 5: error:20" in out
+
+
+def test_comments_never_carry_realtime_characters(cli, job):
+    """Grbl acts on `? ! ~` wherever they are, even in a comment: a profile or part name with them is cleaned."""
+    folder, _, _ = job
+    text = (BUILTIN_DIR / "grbl-laser.toml").read_text().replace('name = "grbl-laser"', 'name = "shop laser?! ~"')
+    (folder / "shop.toml").write_text(text)
+    assert cli("export", folder / "nesting.json", "--gcode", folder / "out", "--machine", folder / "shop.toml")[0] == 0
+    program = (folder / "out" / "nesting_S1.gcode").read_text()
+    assert "shop laser__ _" in program and not set("?!~") & set(program)
+    code, out, _ = cli("gcode-check", folder / "out" / "nesting_S1.gcode", "--machine", folder / "shop.toml")
+    assert code == 0, out
