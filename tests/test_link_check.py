@@ -9,6 +9,7 @@ import pytest
 import serial
 
 from fabline.errors import FablineError
+from fabline.link import Streamer
 from fabline.link.build import BuildInfo
 from fabline.link.gcode import ModalState
 from fabline.link.program import load_program
@@ -125,3 +126,11 @@ def test_a_program_with_mist_coolant_loads_for_a_build_with_option_m(tmp_path):
         load_program(path)
     assert [block.modal.coolant for block in load_program(path, BuildInfo(options="VM")).plan(
         ModalState(), (0.0, 0.0, 0.0), BuildInfo(options="VM"))] == ["M9", "M7", "M7", "M9"]
+
+
+def test_check_mode_gives_up_on_a_silent_controller_with_a_message(url, tmp_path):
+    path = tmp_path / "job.gcode"
+    path.write_text("G21\nG90\n" + "".join(f"G1 X{i} Y{i % 3} F2000\n" for i in range(1, 60)))
+    streamer = Streamer(url[0] + "&stall_at=400&stall_seconds=5", silence_timeout=0.5)
+    with pytest.raises(FablineError, match=r"check mode: no answer for 0.5 s after \d+ of 61 lines"):
+        streamer.run(path, check=True)

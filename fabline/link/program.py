@@ -17,8 +17,8 @@ from pathlib import Path
 
 from fabline.errors import FablineError
 from fabline.fileio import read_bytes
-from fabline.link.codes import explain_error
 from fabline.link.build import STOCK_BUILD, BuildInfo
+from fabline.link.codes import explain_error, listing
 from fabline.link.gcode import Block, GcodeError, ModalState, Vector, execute, split_words
 
 LINE_BUFFER_SIZE = 80
@@ -72,8 +72,7 @@ class Program:
             blocks.append(block)
             modal, position = block.modal, block.position
         if refused:
-            raise FablineError(refused[0] if len(refused) == 1 else
-                               f"{len(refused)} lines the controller would refuse:\n" + "\n".join(refused))
+            raise FablineError(listing(refused, f"{len(refused)} lines the controller would refuse"))
         return blocks
 
 

@@ -30,7 +30,7 @@ import serial
 
 from fabline.errors import FablineError
 from fabline.fileio import open_append
-from fabline.link.codes import explain_alarm, explain_error
+from fabline.link.codes import explain_alarm, explain_error, listing
 from fabline.link.gcode import ModalState
 from fabline.link.journal import Journal, JournalState, default_journal_path, read_journal
 from fabline.link.program import TAG_CYCLE, Program, line_tag, load_program
@@ -597,7 +597,7 @@ class Streamer:
         """Run the whole program through GRBL check mode ($C) and list every line the controller refuses."""
         self._command(b"$C\n")
         counter = CharacterCounter(self.rx_buffer)
-        lines, position, failures = self.program.lines, 0, []
+        lines, position, answered, failures = self.program.lines, 0, 0, []
         self._last_heard = time.monotonic()
         while counter.in_flight or position < len(lines):
             batch = []
@@ -610,17 +610,17 @@ class Streamer:
             for response in self._read(0.01):
                 if response.kind in ("ok", "error"):
                     index = counter.answered()
+                    answered += 1
                     if response.kind == "error":
                         failures.append((index, response.code))
             if time.monotonic() - self._last_heard > self.silence_timeout:
-                raise FablineError(f"{self.url}: check mode: no answer for {self.silence_timeout:g} s after file line "
-                                   f"{lines[max(position - counter.in_flight - 1, 0)].file_line}")
+                raise FablineError(f"{self.url}: check mode: no answer for {self.silence_timeout:g} s after "
+                                   f"{answered} of {len(lines)} lines")
         self._command(b"$C\n", until_banner=True)
         problems = [f"{self.program.name}:{lines[index].file_line}: check mode: {explain_error(code)}: "
                     f"{lines[index].source.strip()}" for index, code in failures]
         if problems:
-            raise FablineError(problems[0] if len(problems) == 1 else
-                               f"check mode: the controller refuses {len(problems)} lines:\n" + "\n".join(problems))
+            raise FablineError(listing(problems, f"check mode: the controller refuses {len(problems)} lines"))
 
     # ----- low-level exchange ----------------------------------------------------------------------------
     def _write(self, data: bytes) -> None:
