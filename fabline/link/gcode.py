@@ -25,7 +25,7 @@ from fabline.link.build import STOCK_BUILD, BuildInfo
 Vector = tuple[float, float, float]
 
 MAX_LINE_NUMBER = 10_000_000
-"""gcode.c: the largest N a float holds exactly enough (N10000000 is accepted, N10000001 is error:27)."""
+"""gcode.c's limit, the largest line number a 32-bit float holds safely: N10000000 is accepted, N10000001 is error:27."""
 MAX_TOOL_NUMBER = 255
 LINE_BUFFER_SIZE = 80
 """Grbl's line buffer: at most 79 characters once whitespace and comments are removed, else error:11."""
@@ -43,7 +43,7 @@ _VALUE_LETTERS = frozenset("FIJKLNPRSTXYZ")
 _NON_NEGATIVE = frozenset("FNPST")
 _SINGLE_MEANING = frozenset("NFST")
 _AXES = "XYZ"
-_RESUME_UNSAFE = frozenset({"G10", "G28", "G30", "G38.2", "G38.3", "G38.4", "G38.5", "G43.1", "G53", "G92"})
+_STORED_REFERENCES = frozenset({"G10", "G28", "G30", "G38.2", "G38.3", "G38.4", "G38.5", "G43.1", "G53", "G92"})
 """Commands whose positions depend on offsets or positions stored in the controller (see Block.stored_reference)."""
 
 
@@ -391,8 +391,8 @@ def execute(line: str, modal: ModalState, position: Vector, *, build: BuildInfo 
     elif non_modal == "G92":
         if not xyz:
             raise GcodeError(26)
-        g92 = tuple(position[i] - origin[i] - xyz[letter] - (modal.tool_offset if i == 2 else 0.0)
-                    if (letter := _AXES[i]) in xyz else g92[i] for i in range(3))
+        g92 = tuple(position[i] - origin[i] - xyz[_AXES[i]] - (modal.tool_offset if i == 2 else 0.0)
+                    if _AXES[i] in xyz else g92[i] for i in range(3))
     else:
         if axis_command != "tool_length" and xyz:
             target = tuple(_target(i, xyz, position, non_modal, commands.get("distance", modal.distance), origin,
@@ -434,7 +434,6 @@ def execute(line: str, modal: ModalState, position: Vector, *, build: BuildInfo 
     if home is not None:
         approach = Segment(position, target, rapid=True) if xyz else None
         segment = Segment(target if xyz else position, home, rapid=True)
-        target = home
     elif non_modal in ("G28.1", "G30.1"):
         homes = (position, homes[1]) if non_modal == "G28.1" else (homes[0], position)
     elif non_modal == "G92.1":
@@ -449,7 +448,7 @@ def execute(line: str, modal: ModalState, position: Vector, *, build: BuildInfo 
     if program_end:
         changes.update(motion="G1", coord="G54", plane="G17", distance="G90", feed_mode="G94", spindle="M5", coolant="M9")
     new = modal if all(getattr(modal, k) == v for k, v in changes.items()) else replace(modal, **changes)
-    reference = non_modal if non_modal in _RESUME_UNSAFE else motion if motion.startswith("G38") and segment else None
+    reference = non_modal if non_modal in _STORED_REFERENCES else motion if motion.startswith("G38") and segment else None
     if reference is None and (new.g92 != modal.g92 or new.tool_offset != modal.tool_offset):
         reference = non_modal or tool_length   # G92.1 or G49 that cleared an offset
     line_number = int(values["N"]) if "N" in values else None
