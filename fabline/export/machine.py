@@ -266,12 +266,12 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
     return profile
 
 
-def _controller_accepts(profile: MachineProfile, line: str) -> bool:
-    """Whether a G/M word, or a whole command line, is G-code the profile's controller takes."""
+def _controller_accepts(profile: MachineProfile, word: str) -> bool:
+    """Whether a G or M word (canonical, as in `words`) is a code the profile's controller takes."""
     if not profile.grbl:
-        return all(canonical_word(word) in RS274NGC_CODES for word in re.findall(r"[GM]\d+(?:\.\d+)?", line.upper()))
+        return word in RS274NGC_CODES
     try:
-        parse_block(compact_line(line), ANY_GRBL_BUILD)
+        parse_block(word, ANY_GRBL_BUILD)
     except GcodeError:
         return False
     return True
