@@ -134,3 +134,12 @@ def test_check_mode_gives_up_on_a_silent_controller_with_a_message(url, tmp_path
     streamer = Streamer(url[0] + "&stall_at=400&stall_seconds=5", silence_timeout=0.5)
     with pytest.raises(FablineError, match=r"check mode: no answer for 0.5 s after \d+ of 61 lines"):
         streamer.run(path, check=True)
+
+
+def test_a_resume_before_the_offset_change_goes_on(cli, url, tmp_path):
+    path = tmp_path / "late.gcode"
+    path.write_text("G21\nG90\n" + "".join(f"G1 X{i} Y{i % 3} F2000\n" for i in range(1, 30)) + "G92 X0 Y0\nG0 X1 Y1\n")
+    code, _, err = cli("stream", path, "--port", url[0] + "&error_line=12&error_code=33")
+    assert code == 2 and f"{path}:12: controller answered error:33" in err
+    code, out, err = cli("stream", path, "--port", url[0], "--resume")
+    assert code == 0, err
