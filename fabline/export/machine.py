@@ -277,7 +277,7 @@ def _controller_accepts(profile: MachineProfile, word: str) -> bool:
     return True
 
 
-def emitted_line_problem(line: str) -> str | None:
+def _emitted_line_problem(line: str) -> str | None:
     """Why a line fabline writes into programs would act on the controller instead of being G-code, or None:
     more than one line, a `$` system command, a real-time character, a byte outside printable ASCII."""
     for char in line:
@@ -295,7 +295,8 @@ def emitted_line_problem(line: str) -> str | None:
 
 
 def _check_templates(profile: MachineProfile, field_name: str) -> None:
-    """Every command template must fill in and use only words the profile declares."""
+    """Every command template must fill in, be one plain G-code line (for a Grbl, one its parser reads) and use
+    only words the profile declares."""
     templates = getattr(profile, field_name)
     keys = set(profile.variables) | {"power", "depth"}
     for template in templates:
@@ -304,7 +305,7 @@ def _check_templates(profile: MachineProfile, field_name: str) -> None:
                 raise FablineError(f"{profile.source}: {field_name}: unknown placeholder {{{name}}} "
                                    f"(use power, depth or a [vars] entry)")
         line = profile.render((template,), power=0, depth=0)[0]
-        problem = emitted_line_problem(line)
+        problem = _emitted_line_problem(line)
         if problem is None and profile.grbl:
             try:
                 parse_block(compact_line(line), ANY_GRBL_BUILD)
