@@ -196,14 +196,13 @@ def test_gcode_check_of_a_missing_file_is_a_one_line_error(cli, tmp_path):
     assert code == 2 and err == f"fabline gcode-check: error: {tmp_path / 'none.gcode'}: file not found\n"
 
 
-@pytest.mark.parametrize("line, word", [("G1 X10 Y10 F-500", "F-500"), ("G4 P-1", "P-1"), ("G1 X20 Y20 S-5", "S-5"),
-                                        ("M4 S-5", "S-5"), ("F-2", "F-2")])
-def test_gcode_check_reports_negative_feed_power_and_dwell_per_line(cli, tmp_path, line, word):
+@pytest.mark.parametrize("line", ["G1 X10 Y10 F-500", "G4 P-1", "G1 X20 Y20 S-5", "M4 S-5", "F-2"])
+def test_gcode_check_reports_negative_feed_power_and_dwell_per_line(cli, tmp_path, line):
     path = tmp_path / "neg.gcode"
     path.write_text(f"G21\nG90\nG1 X5 Y5 F600\n{line}\nG1 X30 Y30\n")
     code, out, err = cli("gcode-check", path, "--machine", "grbl-laser")
     assert code == 1 and err == ""
-    assert f"{path}: line 4: {word} is negative (GRBL refuses it: error:4)" in out
+    assert f"{path}: line 4: error:4 (negative value received for an expected positive value): {line}" in out
     assert re.search(r"estimated 0:00:\d\d \(\d+\.\d s\)", out) and f"{path}: 1 problem(s)" in out, out
 
 
@@ -215,9 +214,91 @@ def test_gcode_check_names_the_line_of_a_non_ascii_byte(cli, tmp_path):
     assert err == f"fabline gcode-check: error: {path}:3: byte 0xc3 is not ASCII (G-code must be ASCII)\n"
 
 
-def test_gcode_check_lists_twenty_problems_then_counts_the_rest(cli, tmp_path):
+def test_gcode_check_lists_every_problem_with_its_line(cli, tmp_path):
     path = tmp_path / "drawing.gcode"
     path.write_text("G21\n" + "E1 nonsense\n" * 500)
     code, out, _ = cli("gcode-check", path, "--machine", "grbl-laser")
+    assert code == 1 and f"{path}: 500 problem(s)" in out
+    listed = re.findall(r"line (\d+): error:2 \(numeric value format is not valid", out)
+    assert [int(n) for n in listed] == list(range(2, 502))
+
+
+@pytest.mark.parametrize("field, value, reason", [
+    ("program_start", '["$RST=*"]', "'$' starts a Grbl system command"),
+    ("program_start", '["G21", "$H"]', "'$' starts a Grbl system command"),
+    ("program_end", '["$130=99999"]', "'$' starts a Grbl system command"),
+    ("tool_on", '["M4 S{power} ~"]', "'~' is the Grbl real-time command cycle start / resume"),
+    ("tool_off", '["M5!"]', "'!' is the Grbl real-time command feed hold"),
+    ("program_start", '["G21 (ready?)"]', "'?' is the Grbl real-time command status report query"),
+    ("program_start", '["G21\\u0018"]', "soft reset (ctrl-x)"),
+    ("program_start", '["G21\\u0000"]', "holds a NUL byte"),
+    ("program_end", '["M2\\nM30"]', "holds a line break"),
+    ("program_start", '["G21 \\u00e9"]', "byte 0xe9 is not printable ASCII"),
+    ("program_start", '["G21 G1.5"]', "Grbl refuses it: error:23"),
+    ("program_start", '["G21 X"]', "Grbl refuses it: error:2"),
+])
+def test_a_profile_cannot_inject_controller_commands(cli, job, field, value, reason):
+    """Issue 16: `program_start = ["$RST=*"]` loaded and went into every program; now the profile is refused."""
+    folder, _, _ = job
+    text = re.sub(rf"^{field} = .*$", lambda _: f"{field} = {value}", (BUILTIN_DIR / "grbl-laser.toml").read_text(), flags=re.M)
+    (folder / "bad.toml").write_text(text)
+    err = _bad(cli, folder, "--machine", folder / "bad.toml")
+    assert err.startswith(f"fabline export: error: {folder / 'bad.toml'}: {field}: ") and reason in err
+
+
+@pytest.mark.parametrize("profile, words, code", [
+    ("grbl-laser", '["G0", "G1", "G2", "G3", "G4", "G17", "G21", "G43", "G90", "G94", "M2", "M4", "M5"]', "'G43'"),
+    ("grbl-laser", '["G0", "G1", "G2", "G3", "G4", "G17", "G21", "G90", "G94", "M2", "M4", "M5", "M6"]', "'M6'"),
+    ("rs274-mill", '["G0", "G1", "G2", "G3", "G4", "G17", "G21", "G40", "G49", "G54", "G80", "G90", "G94", "G95", '
+                   '"M2", "M3", "M5"]', "'G95'"),
+])
+def test_profile_words_must_be_codes_its_controller_accepts(cli, job, profile, words, code):
+    folder, _, _ = job
+    text = re.sub(r"^words = \[[^]]*\]", lambda _: f"words = {words}", (BUILTIN_DIR / f"{profile}.toml").read_text(), flags=re.M)
+    (folder / "bad.toml").write_text(text)
+    err = _bad(cli, folder, "--machine", folder / "bad.toml")
+    assert f"bad.toml: words: {code} is not a code the" in err
+
+
+def test_gcode_check_names_system_commands_realtime_characters_nul_bytes_and_zero_feeds(cli, tmp_path):
+    path = tmp_path / "hostile.gcode"
+    path.write_bytes(b"G21\nG90\n$H\n$RST=*\nG1 X1 Y1 F0\nG0 X2 Y2 F0\nG1 X3 Y3 F600 ; hold!\n~\nG1 X4\x00 Y4\n"
+                     b"M4 S10 ?\nG1 X5 Y5\x18\nM2\n")
+    code, out, err = cli("gcode-check", path, "--machine", "grbl-laser")
+    assert code == 1 and err == ""
+    lines = [line[len(f"{path}: "):] for line in out.splitlines()]
+    assert "line 3: '$H' is a Grbl system command ($), not G-code: a program must not contain it" in lines
+    assert "line 4: '$RST=*' is a Grbl system command ($), not G-code: a program must not contain it" in lines
+    assert any(line.startswith("line 5: F0 feed on a motion line") for line in lines)
+    assert any(line.startswith("line 5: error:22 (feed rate has not yet been set") for line in lines)
+    assert any(line.startswith("line 6: F0 feed on a motion line") for line in lines)
+    assert any(line.startswith("line 7: '!' is the Grbl real-time command feed hold") for line in lines)
+    assert any(line.startswith("line 8: '~' is the Grbl real-time command cycle start") for line in lines)
+    assert "line 9: NUL byte (0x00) in the line: the file is damaged or not G-code" in lines
+    assert any(line.startswith("line 10: '?' is the Grbl real-time command status report query") for line in lines)
+    assert any(line.startswith("line 11: '\\x18' is the Grbl real-time command soft reset") for line in lines)
+    assert lines[-1] == "10 problem(s)"
+
+
+def test_gcode_check_applies_the_grbl_build_and_lists_every_refused_line(cli, tmp_path):
+    path = tmp_path / "coolant.gcode"
+    path.write_text("G21\nG90\nM7\nG1 X10 Y10 F600\nG43 Z1\nG1 X20 Y20\nM9\nN10000000 G0 X0 Y0\n")
+    code, out, _ = cli("gcode-check", path, "--machine", "grbl-laser")
     assert code == 1
-    assert out.count("cannot parse") == 20 and f"{path}: ... and 480 more" in out and f"{path}: 500 problem(s)" in out
+    assert f"{path}: line 3: error:20 (unsupported or invalid g-code command found in block): M7" in out
+    assert f"{path}: line 5: error:20 (unsupported or invalid g-code command found in block): G43 Z1" in out
+    assert "line 8" not in out                      # N10000000 is accepted by the firmware
+    code, out, _ = cli("gcode-check", path, "--machine", "grbl-laser", "--build-options", "VM")
+    assert "line 3:" not in out.replace("line 3: M7 is not supported", "") and "line 5: error:20" in out
+
+
+def test_comments_never_carry_realtime_characters(cli, job):
+    """Grbl acts on `? ! ~` wherever they are, even in a comment: a profile or part name with them is cleaned."""
+    folder, _, _ = job
+    text = (BUILTIN_DIR / "grbl-laser.toml").read_text().replace('name = "grbl-laser"', 'name = "shop laser?! ~"')
+    (folder / "shop.toml").write_text(text)
+    assert cli("export", folder / "nesting.json", "--gcode", folder / "out", "--machine", folder / "shop.toml")[0] == 0
+    program = (folder / "out" / "nesting_S1.gcode").read_text()
+    assert "shop laser__ _" in program and not set("?!~") & set(program)
+    code, out, _ = cli("gcode-check", folder / "out" / "nesting_S1.gcode", "--machine", folder / "shop.toml")
+    assert code == 0, out

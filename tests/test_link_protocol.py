@@ -63,7 +63,7 @@ def test_codes_are_explained_in_words():
 
 def test_gcode_checks_follow_the_firmware_error_codes():
     for line, code in [("G1X10Q5", 20), ("G99", 20), ("FOO", 2), ("G1X10Y10Z", 2), ("X1X2", 25),
-                       ("G1X10", 22), ("G0G1X1", 21), ("G4", 28), ("T300", 38)]:
+                       ("G1X10", 22), ("G80G0X1", 21), ("G4", 28), ("T300", 38)]:
         with pytest.raises(GcodeError) as error:
             execute(line, ModalState(), (0.0, 0.0, 0.0))
         assert error.value.code == code, line

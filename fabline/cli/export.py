@@ -8,8 +8,7 @@ import math
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
 from fabline.export import ToolpathOptions, check_gcode, export_nesting, load_machine
-
-LISTED_PROBLEMS = 20  # gcode-check lists this many problems, then counts the rest
+from fabline.link.build import STOCK_BUILD, BuildInfo
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -30,10 +29,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     export.set_defaults(func=run_export)
 
     check = subparsers.add_parser("gcode-check", help="read a G-code program back and check it against a machine",
-                                  description="Report unsupported words, long lines, out-of-bed moves and travel with "
-                                              "the tool on; recompute cut length, travel and run time.")
+                                  description="Report every line the controller would refuse (for a Grbl profile: "
+                                              "its error code in words), $ commands, real-time characters, NUL bytes, "
+                                              "F0 feeds, unsupported words, long lines, out-of-bed moves and travel "
+                                              "with the tool on; recompute cut length, travel and run time.")
     check.add_argument("file", help="G-code program")
     check.add_argument("--machine", default="grbl-laser", help="machine profile name or .toml path")
+    check.add_argument("--build-options", default=STOCK_BUILD.options, metavar="LETTERS",
+                       help="the option letters of the Grbl build's $I answer [OPT:LETTERS,...]: M accepts M7, R M56 "
+                            f"(default {STOCK_BUILD.options}: a stock Grbl 1.1h)")
     check.set_defaults(func=run_check)
 
 
@@ -63,11 +67,10 @@ def run_export(args: argparse.Namespace) -> int:
 
 def run_check(args: argparse.Namespace) -> int:
     """Check one program; exit 1 when problems were found."""
-    report = check_gcode(args.file, load_machine(args.machine))
-    for problem in report.problems[:LISTED_PROBLEMS]:
+    build = BuildInfo(options=args.build_options)
+    report = check_gcode(args.file, load_machine(args.machine), build)
+    for problem in report.problems:
         print(f"{args.file}: {problem}")
-    if len(report.problems) > LISTED_PROBLEMS:
-        print(f"{args.file}: ... and {len(report.problems) - LISTED_PROBLEMS} more")
     s = report.summary
     print(f"{args.file}: {report.lines} lines, {s.moves} moves, cut {s.cut_length:.3f} mm, mark {s.mark_length:.3f} mm, "
           f"travel {s.travel:.3f} mm, estimated {_duration(s.time)} ({s.time:.1f} s)")

@@ -4,6 +4,13 @@ Reports unsupported words, lines over the controller's limit, moves outside the 
 the tool on (laser firing or pen down during G0), and recomputes cut, mark and travel lengths and the run
 time with the profile's acceleration.
 
+For a Grbl profile every line also goes through the firmware's own parser (`fabline.link.gcode`, for the
+controller's build: stock Grbl 1.1h unless told otherwise), and each line Grbl would refuse is reported with
+its error code in words; a refused line changes nothing, as on the controller. Whatever the profile, lines
+that would act on the controller rather than be cut are problems: `$` system commands, the real-time
+characters `? ! ~` and ctrl-x (Grbl acts on them as they arrive, even inside a comment), NUL bytes, and an
+F0 feed on a motion line.
+
 In a laser-mode profile (Grbl $32=1) the controller switches the laser off on G0, so a G0 with M4 active
 is fine; instead every path (opened by its `; <operation>` comment) must reach its start with a G0, and a
 feed move with the laser on (M3/M4 and S > 0) before that G0 is travel with the laser on.
@@ -21,6 +28,9 @@ from fabline.errors import FablineError
 from fabline.fileio import read_bytes
 from fabline.export.machine import MOTION_PARAMETERS, MachineProfile, canonical_word
 from fabline.export.motion import MotionSummary, MoveLog, summarise
+from fabline.link.build import STOCK_BUILD, BuildInfo
+from fabline.link.codes import explain_error
+from fabline.link.gcode import REALTIME_COMMANDS, GcodeError, ModalState, compact_line, execute, split_words
 
 OPERATION_COMMENT = re.compile(r"^\s*;\s*((?:engrave|cut)-[a-z]+)\b")
 MOTION_WORDS = {0: "rapid", 1: "line", 2: "cw", 3: "ccw"}
@@ -37,23 +47,26 @@ class CheckReport:
     lines: int = 0
 
 
-def check_gcode(path: str | os.PathLike, profile: MachineProfile) -> CheckReport:
-    """Parse a G-code file and check it against `profile`; an unreadable file is a FablineError."""
+def check_gcode(path: str | os.PathLike, profile: MachineProfile, build: BuildInfo = STOCK_BUILD) -> CheckReport:
+    """Parse a G-code file and check it against `profile` (a Grbl one for `build`); an unreadable file is a
+    FablineError."""
     data = read_bytes(path)
     try:
         text = data.decode("ascii")
     except UnicodeDecodeError as exc:
         line = data.count(b"\n", 0, exc.start) + 1
         raise FablineError(f"{path}:{line}: byte 0x{data[exc.start]:02x} is not ASCII (G-code must be ASCII)") from None
-    return check_program(text, profile, str(path))
+    return check_program(text, profile, str(path), build)
 
 
-def check_program(text: str, profile: MachineProfile, source: str = "program") -> CheckReport:
-    """Check program text against `profile` (see the module docstring)."""
+def check_program(text: str, profile: MachineProfile, source: str = "program",
+                  build: BuildInfo = STOCK_BUILD) -> CheckReport:
+    """Check program text against `profile`, listing every problem (see the module docstring)."""
     import pygcode   # imported here: it is slow to import and only this check needs it
 
     report = CheckReport(source)
     state = _State(profile)
+    firmware = _Firmware(build if profile.grbl else None)
     raw_lines = text.splitlines()
     report.lines = len(raw_lines)
     for number, raw in enumerate(raw_lines, start=1):
@@ -64,15 +77,56 @@ def check_program(text: str, profile: MachineProfile, source: str = "program") -
         if marker:
             state.operation = marker.group(1)
             state.positioned = False
+        if not firmware.accepts(raw, where, report.problems):
+            continue
         try:
             block = pygcode.Line(raw).block
         except Exception as exc:   # pygcode raises several exception types for malformed words
-            report.problems.append(f"{where}: cannot parse: {exc}")
+            if not profile.grbl:   # (a Grbl profile's lines were parsed by the firmware's rules above)
+                report.problems.append(f"{where}: cannot parse: {exc}")
             continue
         state.apply(block, where, report.problems)
     state.finish()
     report.summary = summarise(state.moves, profile.acceleration, profile.junction_deviation)
     return report
+
+
+class _Firmware:
+    """What the controller does with each raw line: real-time characters, `$` commands, NUL bytes and F0 feeds
+    are problems for any controller; a Grbl build's parser (None: not a Grbl profile) also checks the G-code."""
+
+    def __init__(self, build: BuildInfo | None):
+        self.build = build
+        self.modal, self.position = ModalState(), (0.0, 0.0, 0.0)
+
+    def accepts(self, raw: str, where: str, problems: list[str]) -> bool:
+        """Report what is wrong with `raw`; False when the line must not be read further (the controller would
+        refuse it, or it is not G-code)."""
+        for char in sorted({c for c in raw if c in REALTIME_COMMANDS}):
+            problems.append(f"{where}: {char!r} is the Grbl real-time command {REALTIME_COMMANDS[char]}, which the "
+                            "controller acts on the moment it arrives (even inside a comment): remove it")
+        if "\0" in raw:
+            problems.append(f"{where}: NUL byte (0x00) in the line: the file is damaged or not G-code")
+        try:
+            line = compact_line(raw)
+            if line.startswith("$"):
+                problems.append(f"{where}: {line!r} is a Grbl system command ($), not G-code: a program must not "
+                                "contain it")
+                return False
+            words = split_words(line)
+            if ("F", 0.0) in words and any(letter in "XYZ" or (letter == "G" and value in (0, 1, 2, 3))
+                                           for letter, value in words):
+                problems.append(f"{where}: F0 feed on a motion line: no feed move can run at F0 (error:22): "
+                                f"{raw.strip()}")
+            if self.build is not None:
+                block = execute(line, self.modal, self.position, build=self.build)
+                self.modal, self.position = block.modal, block.position
+        except GcodeError as exc:
+            if self.build is None:
+                return True   # another controller: the profile's words and line length are checked below
+            problems.append(f"{where}: {explain_error(exc.code)}: {raw.strip()}")
+            return False
+        return True
 
 
 def _non_negative(word, previous: float, where: str, problems: list[str]) -> float:

@@ -25,7 +25,7 @@ ARC_RADIUS_TOLERANCE = 0.002    # mm, largest start/end radius mismatch accepted
 MIN_SAGITTA = 0.001             # mm, arcs flatter than this are written as a straight move
 DWELL = re.compile(r"^\s*G0*4\s+P\s*([-+]?\d*\.?\d+)", re.IGNORECASE)
 MOTION = re.compile(r"^\s*G0*([01])(?![\d.])", re.IGNORECASE)
-UNPRINTABLE = re.compile(r"[^\x20-\x7e]")   # not allowed in a comment line
+UNPRINTABLE = re.compile(r"[^\x20-\x7e]|[?!~]")   # not allowed in a comment line (Grbl acts on ? ! ~ at once)
 BRACKETS = str.maketrans("()", "[]")          # parentheses would open an RS-274 comment inside the `;` one
 AXIS = re.compile(r"([XY])\s*([-+]?\d*\.?\d+)", re.IGNORECASE)
 

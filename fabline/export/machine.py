@@ -16,6 +16,9 @@ from pathlib import Path
 from typing import Any
 
 from fabline.errors import FablineError
+from fabline.link.build import BuildInfo
+from fabline.link.codes import explain_error
+from fabline.link.gcode import REALTIME_COMMANDS, GcodeError, compact_line, parse_block
 
 try:
     import tomllib
@@ -27,6 +30,16 @@ OPERATIONS = ("engrave-mark", "engrave-text", "cut-inner", "cut-outer")
 MODES = ("laser", "plotter", "mill")
 WORD_PATTERN = re.compile(r"([A-Z])\s*([-+]?\d*\.?\d+)")
 MOTION_PARAMETERS = frozenset("XYZIJKFSPR")
+TEMPLATE_FIELDS = ("program_start", "program_end", "tool_on", "tool_off")
+RS274NGC_CODES = frozenset(
+    [f"G{n}" for n in (0, 1, 2, 3, 4, 10, 17, 18, 19, 20, 21, 28, 30, 40, 41, 42, 43, 49, 53, 54, 55, 56, 57, 58, 59,
+                       61, 64, 80, 81, 82, 83, 84, 85, 86, 87, 88, 89, 90, 91, 93, 94, 98, 99)]
+    + ["G38.2", "G59.1", "G59.2", "G59.3", "G61.1", "G92", "G92.1", "G92.2", "G92.3"]
+    + [f"M{n}" for n in (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30, 48, 49, 60)])
+"""The G and M codes of the NIST RS274/NGC interpreter (version 3, table 4: modal groups), for profiles whose
+controller is not a Grbl (a Grbl profile is checked by Grbl 1.1h's own parser rules, fabline.link.gcode)."""
+ANY_GRBL_BUILD = BuildInfo(options="VMR")
+"""A Grbl 1.1h with every option that adds a G-code (M7, M56): a profile may need them, a connected build is checked."""
 
 
 @dataclass(frozen=True)
@@ -80,6 +93,11 @@ class MachineProfile:
         return {11: self.junction_deviation, 110: self.rapid_rate, 111: self.rapid_rate, 120: self.acceleration,
                 121: self.acceleration, 130: self.bed_width, 131: self.bed_height, 30: self.s_max, 31: self.s_min,
                 32: 1 if self.laser_mode else 0}
+
+    @property
+    def grbl(self) -> bool:
+        """The controller is a Grbl (its G-code parser and error codes apply)."""
+        return self.controller.lower().startswith("grbl")
 
     def number(self, value: float) -> str:
         """A number in the profile's fixed precision, without a negative zero."""
@@ -239,13 +257,46 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
     if missing:
         raise FablineError(f"{source}: words: must include {missing[0]}, which every program needs"
                            + (" (or set arcs = false)" if missing[0] in ("G2", "G3") else ""))
-    for field_name in ("program_start", "program_end", "tool_on", "tool_off"):
+    for word in sorted(profile.words):
+        if not _controller_accepts(profile, word):
+            raise FablineError(f"{source}: words: {word!r} is not a code the {profile.controller or 'controller'} "
+                               "accepts")
+    for field_name in TEMPLATE_FIELDS:
         _check_templates(profile, field_name)
     return profile
 
 
+def _controller_accepts(profile: MachineProfile, word: str) -> bool:
+    """Whether a G or M word (canonical, as in `words`) is a code the profile's controller takes."""
+    if not profile.grbl:
+        return word in RS274NGC_CODES
+    try:
+        parse_block(word, ANY_GRBL_BUILD)
+    except GcodeError:
+        return False
+    return True
+
+
+def _emitted_line_problem(line: str) -> str | None:
+    """Why a line fabline writes into programs would act on the controller instead of being G-code, or None:
+    more than one line, a `$` system command, a real-time character, a byte outside printable ASCII."""
+    for char in line:
+        if char in "\r\n":
+            return "holds a line break (one G-code line per entry)"
+        if char in REALTIME_COMMANDS:
+            return f"{char!r} is the Grbl real-time command {REALTIME_COMMANDS[char]}, which acts the moment it arrives"
+        if char == "\0":
+            return "holds a NUL byte"
+        if not " " <= char <= "~" and char != "\t":
+            return f"byte 0x{ord(char):02x} is not printable ASCII (Grbl takes 0x80-0xff as real-time commands)"
+    if "$" in line:
+        return "'$' starts a Grbl system command (settings, homing, reset), which a program must not send"
+    return None
+
+
 def _check_templates(profile: MachineProfile, field_name: str) -> None:
-    """Every command template must fill in and use only words the profile declares."""
+    """Every command template must fill in, be one plain G-code line (for a Grbl, one its parser reads) and use
+    only words the profile declares."""
     templates = getattr(profile, field_name)
     keys = set(profile.variables) | {"power", "depth"}
     for template in templates:
@@ -253,7 +304,16 @@ def _check_templates(profile: MachineProfile, field_name: str) -> None:
             if name is not None and name not in keys:
                 raise FablineError(f"{profile.source}: {field_name}: unknown placeholder {{{name}}} "
                                    f"(use power, depth or a [vars] entry)")
-        for word in unsupported_words(profile.render((template,), power=0, depth=0)[0], profile.words):
+        line = profile.render((template,), power=0, depth=0)[0]
+        problem = _emitted_line_problem(line)
+        if problem is None and profile.grbl:
+            try:
+                parse_block(compact_line(line), ANY_GRBL_BUILD)
+            except GcodeError as exc:
+                problem = f"Grbl refuses it: {explain_error(exc.code)}"
+        if problem is not None:
+            raise FablineError(f"{profile.source}: {field_name}: {template!r}: {problem}")
+        for word in unsupported_words(line, profile.words):
             raise FablineError(f"{profile.source}: {field_name}: {word} is not in the profile's words")
 
 

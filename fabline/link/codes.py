@@ -62,3 +62,8 @@ def explain_error(code: int) -> str:
 def explain_alarm(code: int) -> str:
     """`ALARM:N` in words."""
     return f"ALARM:{code} ({ALARM_CODES.get(code, 'unknown alarm code')})"
+
+
+def listing(problems: list[str], heading: str) -> str:
+    """One message for one or many problems: the problem itself, or `heading` and one problem per line."""
+    return problems[0] if len(problems) == 1 else f"{heading}:\n" + "\n".join(problems)

@@ -17,7 +17,8 @@ from pathlib import Path
 
 from fabline.errors import FablineError
 from fabline.fileio import read_bytes
-from fabline.link.codes import explain_error
+from fabline.link.build import STOCK_BUILD, BuildInfo
+from fabline.link.codes import explain_error, listing
 from fabline.link.gcode import Block, GcodeError, ModalState, Vector, execute, split_words
 
 LINE_BUFFER_SIZE = 80
@@ -58,18 +59,20 @@ class Program:
     lines: tuple[ProgramLine, ...]
     sha256: str
 
-    def plan(self, modal: ModalState, position: Vector) -> list[Block]:
-        """The block each line becomes when the program starts in `modal` state at work `position`."""
-        blocks = []
+    def plan(self, modal: ModalState, position: Vector, build: BuildInfo = STOCK_BUILD) -> list[Block]:
+        """The block each line becomes when the program starts in `modal` state at work `position` on a controller
+        of `build`; every line the firmware would refuse is listed (a refused line changes nothing, as in Grbl)."""
+        blocks, refused = [], []
         for line in self.lines:
             try:
-                block = execute(line.command, modal, position)
+                block = execute(line.command, modal, position, build=build)
             except GcodeError as exc:
-                raise FablineError(f"{self.name}:{line.file_line}: {explain_error(exc.code)}: {line.source.strip()}") from None
+                refused.append(f"{self.name}:{line.file_line}: {explain_error(exc.code)}: {line.source.strip()}")
+                continue
             blocks.append(block)
-            modal = block.modal
-            if block.segment is not None:
-                position = block.segment.end
+            modal, position = block.modal, block.position
+        if refused:
+            raise FablineError(listing(refused, f"{len(refused)} lines the controller would refuse"))
         return blocks
 
 
@@ -96,8 +99,8 @@ def strip_line(text: str, where: str) -> str:
     return _LEADING_N.sub("", "".join(out))
 
 
-def parse_program(data: bytes, name: str) -> Program:
-    """Build a Program from a file's bytes; `name` is used in error messages."""
+def parse_program(data: bytes, name: str, build: BuildInfo = STOCK_BUILD) -> Program:
+    """Build a Program from a file's bytes, checked for a controller of `build`; `name` is used in error messages."""
     lines = []
     for number, raw in enumerate(data.split(b"\n"), 1):
         where = f"{name}:{number}"
@@ -123,10 +126,11 @@ def parse_program(data: bytes, name: str) -> Program:
     if not lines:
         raise FablineError(f"{name}: no G-code commands in the file")
     program = Program(name, tuple(lines), hashlib.sha256(data).hexdigest())
-    program.plan(ModalState(), (0.0, 0.0, 0.0))
+    program.plan(ModalState(), (0.0, 0.0, 0.0), build)
     return program
 
 
-def load_program(path: str | os.PathLike) -> Program:
-    """Read and check a G-code file; any problem is a FablineError naming file, line and column."""
-    return parse_program(read_bytes(path), str(Path(path)))
+def load_program(path: str | os.PathLike, build: BuildInfo = STOCK_BUILD) -> Program:
+    """Read and check a G-code file (for a controller of `build`); any problem is a FablineError naming file,
+    line and column."""
+    return parse_program(read_bytes(path), str(Path(path)), build)

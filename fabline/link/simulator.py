@@ -16,6 +16,7 @@ from collections import deque
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from fabline.link.build import STOCK_BUILD, BuildInfo
 from fabline.link.gcode import Block, GcodeError, ModalState, Segment, execute
 from fabline.link.protocol import RX_BUFFER_SIZE
 
@@ -94,6 +95,8 @@ class GrblSimulator:
     `line_time` is the firmware's time (real seconds, not scaled) to parse and plan one line before it
     answers and reads the next: an 8-bit Grbl needs a few milliseconds, 0 makes the controller instant.
     """
+
+    build: BuildInfo = STOCK_BUILD  # the compile-time options its G-code parser follows (M7 needs option M)
 
     def __init__(self, *, time_scale: float = 1.0, executed_log: str | Path | None = None,
                  faults: Faults | None = None, tick: float = 0.001, settings: dict[int, float] | None = None,
@@ -419,7 +422,7 @@ class GrblSimulator:
         if self.state in ("Alarm", "Jog"):
             return 9
         try:
-            block = execute(line, self.modal, self._parse_position)
+            block = execute(line, self.modal, self._parse_position, build=self.build)
         except GcodeError as exc:
             return exc.code
         if self.faults.error_line is not None and block.line_number == self.faults.error_line:
@@ -428,10 +431,9 @@ class GrblSimulator:
         accessory_change = block.modal.spindle != self.modal.spindle or block.modal.coolant != self.modal.coolant
         sync = accessory_change or block.dwell > 0 or block.program_end
         self.modal = block.modal
+        self._parse_position = block.position  # check mode too: Grbl's parser keeps tracking its position
         if self.state == "Check":
             return 0
-        if block.segment is not None:
-            self._parse_position = block.segment.end
         self._pending = _Pending(line, block, sync, accessory_change=accessory_change)
         return None
 

@@ -30,7 +30,7 @@ import serial
 
 from fabline.errors import FablineError
 from fabline.fileio import open_append
-from fabline.link.codes import explain_alarm, explain_error
+from fabline.link.codes import explain_alarm, explain_error, listing
 from fabline.link.gcode import ModalState
 from fabline.link.journal import Journal, JournalState, default_journal_path, read_journal
 from fabline.link.program import TAG_CYCLE, Program, line_tag, load_program
@@ -446,6 +446,7 @@ class Streamer:
         """Commands that restore the modal state after `executed` lines and move safely to the restart point."""
         if executed >= len(self.program.lines):
             return []
+        self._refuse_stored_references(executed)
         modal = self.blocks[executed - 1].modal if executed else ModalState()
         target = self._position_after(executed)
         lines = ["G21G90G17G94M5", f"{modal.coord}"]
@@ -464,6 +465,16 @@ class Streamer:
             self._refuse_modal_arc(executed, modal.motion)
         lines.append(f"T{line_tag(executed - 1)}")
         return [f"{line}\n".encode("ascii") for line in lines]
+
+    def _refuse_stored_references(self, executed: int) -> None:
+        """Positions after a work offset change (G10, G92, G43.1) or a move to a stored or machine position (G28,
+        G30, G53, G38.x) depend on what the controller stores: refuse a restart after such a line."""
+        for index, block in enumerate(self.blocks[:executed]):
+            if block.stored_reference:
+                raise FablineError(
+                    f"{self.program.name}:{self.program.lines[index].file_line}: cannot resume after this line: "
+                    f"{block.stored_reference} depends on offsets or positions stored in the controller, which a "
+                    "resume cannot re-establish; start the sheet over with --restart")
 
     def _refuse_modal_arc(self, executed: int, motion: str) -> None:
         """An arc mode cannot be restored without a target: refuse if the next move relies on it."""
@@ -583,13 +594,14 @@ class Streamer:
         self._soft_reset(unlock=unlock)
 
     def _check_mode(self) -> None:
-        """Run the whole program through GRBL check mode ($C); stop at the first error."""
+        """Run the whole program through GRBL check mode ($C) and list every line the controller refuses."""
         self._command(b"$C\n")
         counter = CharacterCounter(self.rx_buffer)
-        lines, position, failure = self.program.lines, 0, None
-        while counter.in_flight or (position < len(lines) and failure is None):
+        lines, position, answered, failures = self.program.lines, 0, 0, []
+        self._last_heard = time.monotonic()
+        while counter.in_flight or position < len(lines):
             batch = []
-            while failure is None and position < len(lines) and counter.fits(len(lines[position].wire)):
+            while position < len(lines) and counter.fits(len(lines[position].wire)):
                 counter.sent(position, len(lines[position].wire))
                 batch.append(lines[position].wire)
                 position += 1
@@ -598,13 +610,17 @@ class Streamer:
             for response in self._read(0.01):
                 if response.kind in ("ok", "error"):
                     index = counter.answered()
-                    if response.kind == "error" and failure is None:
-                        failure = (index, response.code)
+                    answered += 1
+                    if response.kind == "error":
+                        failures.append((index, response.code))
+            if time.monotonic() - self._last_heard > self.silence_timeout:
+                raise FablineError(f"{self.url}: check mode: no answer for {self.silence_timeout:g} s after "
+                                   f"{answered} of {len(lines)} lines")
         self._command(b"$C\n", until_banner=True)
-        if failure is not None:
-            line = lines[failure[0]]
-            raise FablineError(f"{self.program.name}:{line.file_line}: check mode: {explain_error(failure[1])}: "
-                               f"{line.source.strip()}")
+        problems = [f"{self.program.name}:{lines[index].file_line}: check mode: {explain_error(code)}: "
+                    f"{lines[index].source.strip()}" for index, code in failures]
+        if problems:
+            raise FablineError(listing(problems, f"check mode: the controller refuses {len(problems)} lines"))
 
     # ----- low-level exchange ----------------------------------------------------------------------------
     def _write(self, data: bytes) -> None:
