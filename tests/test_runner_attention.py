@@ -5,6 +5,7 @@ restart the sheet, skip it, cancel) is carried out exactly; in the queue, and in
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import threading
 import time
@@ -223,3 +224,30 @@ def test_page_in_headless_chromium_shows_where_the_sheet_stopped_and_resumes_aft
         browser.close()
     expected = [line for sheet in attention_page["sheets"] for line in wire_lines(sheet)]
     assert executed_program_lines(log) == expected
+
+
+def test_framing_traces_the_sheet_outline_with_the_laser_off_before_the_operator_confirms(tmp_path):
+    from fabline.jobs.streaming import frame_program
+
+    program = square_program(tmp_path / "sheet.gcode", 12, 34, squares=3)
+    db = tmp_path / "q.sqlite"
+    queue = JobQueue(db)
+    job_id = queue.submit("framed", programs=[("S1", str(program), "")])
+    with pytest.raises(FablineError, match="a sheet is framed while it waits on its machine"):
+        queue.request(job_id, "frame")  # not on a machine yet
+    log = tmp_path / "m1.log"
+    runner = start(db, f"sim://frame?time_scale=50&log={log}")
+    try:
+        wait(lambda: queue.job(job_id).machine == "m1")
+        queue.request(job_id, "frame")
+        wait(lambda: any("framed on m1" in e["message"] for e in queue.events()))
+        assert queue.job(job_id).state == "ready" and queue.job(job_id).confirmed == -1, "framing confirms nothing"
+    finally:
+        runner.stop()
+    frame = tmp_path / "frame.gcode"
+    frame.write_text(frame_program(program), encoding="ascii")
+    executed = executed_program_lines(log)
+    assert executed == wire_lines(frame)
+    corners = [re.sub(r"^N\d+|T\d+$", "", line) for line in executed[1:6]]
+    assert corners == ["G0X12.000Y34.000", "G0X31.000Y34.000", "G0X31.000Y39.000", "G0X12.000Y39.000", "G0X12.000Y34.000"]
+    assert not any(word in line for line in executed for word in ("M3", "M4", "S")), "the laser stays off"

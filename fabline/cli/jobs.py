@@ -14,12 +14,13 @@ from pathlib import Path
 from fabline.cli import positive
 from fabline.errors import FablineError
 
-RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm", "restart", "skip", "requeue")
+RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm", "restart", "skip", "requeue", "frame")
 _ACTION_HELP = {"pause": "pause a job (feed hold while cutting)", "resume": "resume a paused job, or a job that "
                 "needs attention where its sheet stopped", "cancel": "cancel a job", "confirm": "confirm the job's "
                 "next sheet is loaded", "restart": "restart the sheet of a job that needs attention from its first line",
                 "skip": "skip the sheet of a job that needs attention",
-                "requeue": "queue a failed or cancelled job again, as a new job"}
+                "requeue": "queue a failed or cancelled job again, as a new job",
+                "frame": "trace the outline of the job's next sheet on its machine, laser off, before confirming it"}
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -40,7 +40,7 @@ TRANSITIONS: dict[str, frozenset[str]] = {
     "attention": frozenset({"cutting", "ready", "done", "cancelled"}),
     "failed": frozenset(), "cancelled": frozenset(), "done": frozenset(),
 }
-REQUESTS = ("pause", "resume", "cancel")
+REQUESTS = ("pause", "resume", "cancel", "frame")
 CHOICES = ("resume", "restart", "skip", "cancel")
 """What the operator may do with a job that needs attention: resume the sheet where it stopped (optionally
 from a given file line), restart the sheet from its first line, skip the sheet, or cancel the job."""
@@ -406,8 +406,10 @@ class JobQueue:
         return self.job(job_id)
 
     def request(self, job_id: int, action: str) -> JobRow:
-        """Pause, resume or cancel a job. A job not being cut changes at once; a cutting job gets the request
-        and its machine's worker carries it out (feed hold, cycle start, abort) and records the outcome."""
+        """Pause, resume or cancel a job, or frame its next sheet. A job not being cut changes at once; a cutting
+        job gets the request and its machine's worker carries it out (feed hold, cycle start, abort) and records
+        the outcome. Framing (the head traces the sheet's outline, laser off) is for a job whose sheet waits for
+        the operator's confirmation on its machine; the machine's worker carries it out."""
         if action not in REQUESTS:
             raise FablineError(f"unknown action {action!r} (use one of {', '.join(REQUESTS)})")
         if action in ("resume", "cancel") and self.job(job_id).state == "attention":
@@ -419,7 +421,12 @@ class JobQueue:
             if job.state == "attention":
                 raise FablineError(f"job {job_id}: {job.describe()}; choose one of: {', '.join(CHOICES)}")
             cutting = job.state == "cutting" or (job.state == "paused" and job.paused_from == "cutting")
-            if action == "pause" and job.state != "paused":
+            if action == "frame":
+                if job.state != "ready" or job.machine is None or job.confirmed >= job.sheet:
+                    raise FablineError(f"job {job_id}: a sheet is framed while it waits on its machine for the "
+                                       f"operator's confirmation ({job.describe()})")
+                db.execute("UPDATE jobs SET request = 'frame' WHERE id = ?", (job_id,))
+            elif action == "pause" and job.state != "paused":
                 if cutting:
                     db.execute("UPDATE jobs SET request = 'pause' WHERE id = ?", (job_id,))
                 else:
@@ -500,8 +507,7 @@ class JobQueue:
             raise FablineError(f"job {job_id}: only a failed or cancelled job can be queued again ({job.describe()})")
         programs = None if job.job_file else [(s.name, s.program, s.svg) for s in self.sheets(job_id)]
         new = self.submit(job.name, job_file=job.job_file, programs=programs)
-        with self.transaction() as db:
-            self._event(db, job_id, None, f"job {job_id} queued again as job {new}")
+        self.log(job_id, None, f"job {job_id} queued again as job {new}")
         return new
 
     def need_attention(self, job_id: int, checkpoint: dict[str, Any]) -> None:
@@ -530,6 +536,11 @@ class JobQueue:
             if count:
                 self._event(db, None, None, f"runner restarted: {count} job(s) back to queued for preparation")
         return count
+
+    def log(self, job_id: int | None, machine: str | None, message: str) -> None:
+        """Add a line to the event log."""
+        with self.transaction() as db:
+            self._event(db, job_id, machine, message)
 
     def _event(self, db: sqlite3.Connection, job_id: int | None, machine: str | None, message: str) -> None:
         db.execute("INSERT INTO events (time, job_id, machine, message) VALUES (?, ?, ?, ?)",

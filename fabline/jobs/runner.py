@@ -19,7 +19,7 @@ from pathlib import Path
 
 from fabline.errors import FablineError
 from fabline.jobs.queue import JobQueue, JobRow, SheetRow
-from fabline.jobs.streaming import SheetStream, checkpoint
+from fabline.jobs.streaming import SheetStream, checkpoint, frame_sheet
 from fabline.locks import exclusive_lock, lock_path
 
 
@@ -173,11 +173,23 @@ class Runner:
             queue.set_machine(machine.name, state="paused")
             return None
         if job.state == "ready" and job.confirmed < job.sheet:
+            if job.request == "frame" and queue.take_request(job.id) == "frame":
+                self._frame(queue, job, machine)
             if not self.auto_confirm:
                 queue.set_machine(machine.name, state=f"waiting: load sheet {job.sheet + 1} of {job.sheets}")
                 return None
             queue.confirm_sheet(job.id, job.sheet)
         return queue.start_sheet(job.id, machine.name)
+
+    def _frame(self, queue: JobQueue, job: JobRow, machine: MachineConfig) -> None:
+        """Trace the outline of the job's next sheet with the laser off, as the operator asked."""
+        sheet = queue.sheets(job.id)[job.sheet]
+        queue.set_machine(machine.name, state=f"framing sheet {job.sheet + 1} of {job.sheets} (laser off)")
+        try:
+            frame_sheet(machine.port, sheet.program, queue.journals)
+            queue.log(job.id, machine.name, f"job {job.id}: sheet {job.sheet + 1} framed on {machine.name}")
+        except FablineError as exc:
+            queue.log(job.id, machine.name, f"job {job.id}: framing sheet {job.sheet + 1} failed: {exc}")
 
     def _cut(self, queue: JobQueue, job: JobRow, sheet: SheetRow, machine: MachineConfig) -> None:
         """Stream one sheet to the end (resuming from its journal), carrying out operator requests meanwhile."""

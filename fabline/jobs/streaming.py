@@ -115,6 +115,31 @@ def journal_summary(port: str, program: str | os.PathLike) -> dict:
             "journal": str(journal), "resumed_from": state.resumed_at if state else None}
 
 
+def frame_program(program: str | os.PathLike) -> str:
+    """G-code that traces the bounding box of a sheet program's cuts with the laser off (M5, G0 only) and returns
+    to work zero, so the operator sees where the sheet is cut before confirming it is loaded right."""
+    from fabline.link.gcode import ModalState
+
+    loaded, name = load_program(program), Path(program).name
+    points = [segment.point_at(t) for block in loaded.plan(ModalState(), (0.0, 0.0, 0.0))
+              if (segment := block.segment) is not None and not segment.rapid for t in (0.0, 0.25, 0.5, 0.75, 1.0)]
+    if not points:
+        raise FablineError(f"{name}: no cutting moves to frame")
+    xs, ys = [p[0] for p in points], [p[1] for p in points]
+    corners = [(min(xs), min(ys)), (max(xs), min(ys)), (max(xs), max(ys)), (min(xs), max(ys)), (min(xs), min(ys))]
+    moves = [f"G0 X{x:.3f} Y{y:.3f}" for x, y in corners]
+    return "\n".join([f"(frame of {name}: laser off)", "G21 G90 G17 M5", *moves, "G0 X0 Y0", "M2"]) + "\n"
+
+
+def frame_sheet(port: str, program: str | os.PathLike, folder: str | os.PathLike) -> None:
+    """Trace a sheet's outline on the machine at `port` (see frame_program); the frame program and its journal
+    are written to `folder`."""
+    path = Path(folder) / f"frame-{Path(program).stem}.gcode"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(frame_program(program), encoding="ascii")
+    Streamer(port).run(path, restart=True)
+
+
 def checkpoint(program: str | os.PathLike, journal: str | os.PathLike | None, reason: str) -> dict:
     """Where a stopped sheet stands, for the operator: `reason`, lines known executed (`done`) of `lines`, and
     the `file_line` of the last one, from the run's journal (none written yet: nothing was sent)."""

@@ -29,7 +29,7 @@ from fabline.jobs.pictures import progress_svg
 from fabline.jobs.queue import JobQueue
 
 TOKEN_HEADER = "X-Fabline-Token"
-ACTIONS = ("confirm", "pause", "resume", "cancel", "restart", "skip", "requeue")
+ACTIONS = ("confirm", "pause", "resume", "cancel", "restart", "skip", "requeue", "frame")
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
 _LARGEST_ID = 2 ** 62  # ids beyond SQLite's integers are no job
 
