@@ -30,7 +30,7 @@ def gcode(tmp_path):
 def simulator(tmp_path):
     name = f"cli{uuid.uuid4().hex[:8]}"
     log = tmp_path / "executed.log"
-    yield (lambda extra="": f"sim://{name}?time_scale=500&log={log}{extra}"), log
+    yield (lambda extra="": f"sim://{name}?time_scale=500&settings=32:1&log={log}{extra}"), log  # a laser controller
     close_simulator(name)
 
 

@@ -56,6 +56,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--baud", type=int, help="pace bytes like a serial line at this rate")
     sim.add_argument("--adapter-latency", type=float, default=0.0,
                      help="batch answers like a USB-serial bridge flushing every this many seconds (Uno: 0.004)")
+    sim.add_argument("--build-options", default="V",
+                     help="the build's $I option letters (default V, a stock build; VN adds Ln: line numbers)")
+    sim.add_argument("--planner-blocks", type=positive(int), default=15, help="planner size in blocks (default 15)")
+    sim.add_argument("--rx-buffer", type=positive(int), default=128, help="serial receive buffer bytes (default 128)")
+    sim.add_argument("--setting", action="append", default=[], metavar="N=VALUE",
+                     help="a Grbl $N setting other than its default, e.g. --setting 32=1 for laser mode")
     sim.add_argument("--fault", action="append", default=[], metavar="KEY=VALUE",
                      help="inject a fault: drop_at=BYTES, corrupt_at=BYTES, error_line=N, alarm_line=N, stall_at=BYTES ...")
     sim.set_defaults(func=_grbl_sim)
@@ -145,7 +151,10 @@ def _abort_on_interrupt(streamer: Streamer):
 def _grbl_sim(args: argparse.Namespace) -> int:
     from fabline.link.server import serve
 
-    options = {"time_scale": args.time_scale, "line_time": args.line_time}
+    options = {"time_scale": args.time_scale, "line_time": args.line_time, "build_options": args.build_options,
+               "planner_blocks": args.planner_blocks, "rx_buffer": args.rx_buffer}
+    if args.setting:
+        options["settings"] = ",".join(setting.replace("=", ":", 1) for setting in args.setting)
     if args.log:
         options["log"] = args.log
     for fault in args.fault:
