@@ -21,6 +21,10 @@ from fabline.link import Progress, Streamer, default_journal_path
 from fabline.link.streamer import MODES
 
 KEYS_HELP = "keys: p = pause/resume (feed hold), q = abort safely"
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""Ctrl-C, `kill` (a service stop) and a closed terminal all stop the machine safely (feed hold, reset, journal)."""
+STOPPED = 1
+"""Exit code of a run stopped by the operator or a signal: the journal allows --resume. Errors and refusals exit 2."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -35,7 +39,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     stream.add_argument("--restart", action="store_true",
                         help="start over from the first line although an earlier run of this program was interrupted")
     stream.add_argument("--unlock", action="store_true", help="clear an alarm ($X) left by an interrupted job")
-    stream.add_argument("--from-line", type=int, metavar="N", help="with --resume: restart at file line N")
+    stream.add_argument("--from-line", type=int, metavar="N",
+                        help="with --resume: restart at file line N (the operator's choice, used whatever the journal says)")
+    stream.add_argument("--machine", metavar="NAME",
+                        help="machine profile (name or .toml) to check the controller against, instead of the one the "
+                             "program's header names")
+    stream.add_argument("--force", action="store_true",
+                        help="stream although the controller's settings conflict with the program (logged)")
     stream.add_argument("--journal", help="journal file (default: <gcode>.journal)")
     stream.add_argument("--log", help="exchange log (default: <gcode>.link.log)")
     stream.add_argument("--mode", choices=MODES, default="counting",
@@ -80,7 +90,14 @@ def _stream(args: argparse.Namespace) -> int:
     if interactive:
         print(KEYS_HELP, file=sys.stderr)
 
+    shown = [None]
+
     def show(progress: Progress) -> None:
+        if progress.message != shown[0]:
+            shown[0] = progress.message
+            if progress.message:
+                how = "press p" if interactive else f"send SIGUSR1 to process {os.getpid()}"
+                bar.write(f"{args.gcode}: {progress.message} ({how})", file=sys.stderr)
         bar.total = progress.total
         bar.n = progress.acked
         position = ",".join(f"{v:.2f}" for v in progress.position) if progress.position else "?"
@@ -91,13 +108,14 @@ def _stream(args: argparse.Namespace) -> int:
     with _keyboard(streamer, interactive), _abort_on_interrupt(streamer):
         try:
             result = streamer.run(args.gcode, on_progress=show, journal=journal, resume=args.resume, check=args.check,
-                                  unlock=args.unlock, start_line=args.from_line, restart=args.restart)
+                                  unlock=args.unlock, start_line=args.from_line, restart=args.restart,
+                                  machine=args.machine, force=args.force)
         finally:
             bar.close()
     if not result.completed:
         print(f"stopped ({result.reason}) with {result.executed} of {result.total} lines executed; "
               f"continue with: fabline stream {args.gcode} --port {args.port} --resume", file=sys.stderr)
-        return 1
+        return STOPPED
     rate = result.total / result.elapsed if result.elapsed > 0 else float("inf")
     print(f"{args.gcode}: {result.total} lines streamed to {args.port} in {result.elapsed:.1f} s ({rate:.0f} lines/s)")
     return 0
@@ -137,15 +155,18 @@ def _keyboard(streamer: Streamer, interactive: bool):
 
 @contextlib.contextmanager
 def _abort_on_interrupt(streamer: Streamer):
-    """Ctrl-C stops the machine safely (feed hold, reset) instead of abandoning it mid-move."""
+    """Ctrl-C, SIGTERM and SIGHUP stop the machine safely (feed hold, reset, "stopped" in the journal) instead of
+    abandoning it mid-move; SIGUSR1 is cycle start after a program pause (M0) when no keyboard is attached."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, lambda *_: streamer.abort())
+    previous = {number: signal.signal(number, lambda *_: streamer.abort()) for number in STOP_SIGNALS}
+    previous[signal.SIGUSR1] = signal.signal(signal.SIGUSR1, lambda *_: streamer.resume())
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for number, handler in previous.items():
+            signal.signal(number, handler)
 
 
 def _grbl_sim(args: argparse.Namespace) -> int:

@@ -185,7 +185,7 @@ def read_journal(path: str | os.PathLike) -> JournalState:
     except FileNotFoundError:
         raise FablineError(f"{path}: no journal to resume from (was the job ever started with this journal?)") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise FablineError(f"{path}: cannot read journal: {exc}") from None
+        raise FablineError(f"{path}: cannot read the journal ({exc}); start the sheet over with --restart") from None
     state = JournalState()
     rows = text.split("\n")
     for number, row in enumerate(rows, 1):
@@ -225,5 +225,6 @@ def read_journal(path: str | os.PathLike) -> JournalState:
         elif event == "finished":
             state.finished = True
     if state.sha256 is None:
-        raise FablineError(f"{path}: journal has no start record")
+        raise FablineError(f"{path}: journal has no start record (damaged, or its run never began); start the sheet "
+                           "over with --restart")
     return state

@@ -171,7 +171,7 @@ class Streamer:
         self._splitter = LineSplitter()
         self._realtime: list[bytes] = []
         self._abort = threading.Event()
-        self._control = threading.Lock()
+        self._control = threading.RLock()  # taken by signal handlers too (SIGUSR1 resume), in the thread they interrupt
         self._paused = False
         self._pauses: list[int] = []  # acknowledged M0 lines whose pause has not been reported yet
         self.message: str | None = None
@@ -498,6 +498,10 @@ class Streamer:
 
     def _halt(self, rejected: int | None) -> int:
         """Feed hold until the machine stands still, reset to flush its buffers, unlock; return lines executed."""
+        status = self._query_status()
+        if status.state == "Idle" and not (self._counter and self._counter.in_flight):
+            self._soft_reset()  # nothing left that could start: every acknowledged line is done
+            return self._executed_from_position(status, True, rejected)
         deadline = time.monotonic() + self.stop_timeout
         while True:
             self._write(FEED_HOLD)  # again each time: a hold asked for while a line was parsing may not have taken
@@ -546,7 +550,7 @@ class Streamer:
                              f"none of file lines {self._file_line(self._window()[0])}.."
                              f"{self._file_line(self.sent - 1)} passes there); check the part and resume with "
                              "--from-line")
-        lines = [str(self._file_line(count)) for count in sorted(counts)]
+        lines = [str(self._file_line(count)) if count < len(self.program.lines) else "the end" for count in sorted(counts)]
         raise _Undecided(f"{self.program.name}: the machine stopped at {where}, where the path passes more than once "
                          f"(file lines {', '.join(lines)} can have been cutting); look at the part and resume with "
                          f"--resume --from-line N, N the first line not yet cut (one of {', '.join(lines)})")
@@ -627,6 +631,7 @@ class Streamer:
         line parsed, looked up within the lines after the last journaled `ok`."""
         self._flush_partial_line()
         modes = self._command(b"$G\n")
+        self._settle()  # lines still in its receive buffer when it looked idle were parsed before `#`: let them run
         tag = next((int(match.group(1)) for text in modes if (match := _TAG.search(text))), None)
         for index in range(previous.acked - 1, min(previous.acked - 1 + TAG_CYCLE, len(self.program.lines))):
             if line_tag(index) == tag:
