@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -127,21 +128,25 @@ def test_receive_buffer_holds_128_bytes_and_overflow_is_counted():
         simulator.close()
 
 
-def test_executed_log_records_lines_in_order(tmp_path):
+@contextmanager
+def logged(tmp_path, time_scale: float, lines: bytes):
+    """A simulator with an executed-line log, sent `lines` and every one acknowledged; yields (host, log)."""
     log = tmp_path / "executed.log"
-    simulator = GrblSimulator(time_scale=100.0, executed_log=log)
+    simulator = GrblSimulator(time_scale=time_scale, executed_log=log)
     try:
         simulator.attach()
         host = Host(simulator)
-        simulator.receive(b"N1G21\nN2G1X5F600\nN3G1Y5\nN4M5\n")
-        assert host.read(4, timeout=10) == ["ok"] * 4
-        deadline = time.monotonic() + 10
-        while "Idle" not in host.status() and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert log.read_text().splitlines() == ["N1G21", "N2G1X5F600", "N3G1Y5", "N4M5"]
-        assert re.match(r"<Idle\|MPos:5\.000,5\.000,0\.000", host.status())
+        simulator.receive(lines)
+        assert host.read(lines.count(b"\n"), timeout=10) == ["ok"] * lines.count(b"\n")
+        yield host, log
     finally:
         simulator.close()
+
+
+def test_executed_log_records_lines_in_order(tmp_path):
+    with logged(tmp_path, 100.0, b"N1G21\nN2G1X5F600\nN3G1Y5\nN4M5\n") as (host, log):
+        assert re.match(r"<Idle\|MPos:5\.000,5\.000,0\.000", wait_for(host, "<Idle"))
+        assert log.read_text().splitlines() == ["N1G21", "N2G1X5F600", "N3G1Y5", "N4M5"]
 
 
 def test_jog_cancel_stops_a_jog_and_keeps_the_position(host):
@@ -295,19 +300,10 @@ def test_a_hold_that_outlasts_the_last_planned_block_completes():
 def test_m0_pauses_after_the_planner_empties_and_m1_is_ignored(tmp_path):
     """Grbl 1.1: M0 waits for the planner to empty, then holds (Hold:0) until cycle start; M1 (optional stop) is
     ignored, there being no optional-stop switch."""
-    log = tmp_path / "executed.log"
-    simulator = GrblSimulator(time_scale=20.0, executed_log=log)
-    try:
-        simulator.attach()
-        host = Host(simulator)
-        simulator.receive(b"N1G1X5F600\nN2M1\nN3G1X6\nN4M0\nN5G1X7\n")
-        assert host.read(5, timeout=10) == ["ok"] * 5
-        report = wait_for(host, "<Hold:0")
-        assert report.startswith("<Hold:0|MPos:6.000,0.000,0.000")
+    with logged(tmp_path, 20.0, b"N1G1X5F600\nN2M1\nN3G1X6\nN4M0\nN5G1X7\n") as (host, log):
+        assert wait_for(host, "<Hold:0").startswith("<Hold:0|MPos:6.000,0.000,0.000")
         time.sleep(0.2)
         assert log.read_text().splitlines() == ["N1G1X5F600", "N2M1", "N3G1X6", "N4M0"]
-        simulator.receive(b"~")
+        host.simulator.receive(b"~")
         assert wait_for(host, "<Idle").startswith("<Idle|MPos:7.000")
         assert log.read_text().splitlines()[-1] == "N5G1X7"
-    finally:
-        simulator.close()
