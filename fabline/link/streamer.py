@@ -223,7 +223,10 @@ class Streamer:
         identity = _checked_identity(identity)
         self.program, self.journal_path, self.force = program, Path(journal), force
         self.profile = program_machine(program, machine)
-        port_lock = port_lock_path(self.url.split("?", 1)[0])  # one lock per device, whatever options the URL has
+        device = self.url.split("?", 1)[0]  # one lock per device, whatever options the URL has
+        if device.startswith("sim://"):
+            device += f"#{os.getpid()}"  # sim:// controllers live in their process: another process has its own
+        port_lock = port_lock_path(device)
         with exclusive_lock(port_lock, f"port {self.url}"), \
                 exclusive_lock(port_lock_path(str(self.journal_path)), f"journal {self.journal_path}"):
             previous = self._previous_job(resume, restart, identity)
