@@ -76,11 +76,11 @@ def test_a_halt_on_a_retraced_pass_resumes_there_not_on_the_first_pass(tmp_path,
     out = [f"G1 X{x}" for x in range(1, 41)]
     back = [f"G1 X{x}" for x in range(39, -1, -1)]
     program = write(tmp_path / "retrace.gcode", ["G0 X0 Y10"] + out + back)
-    url = sim(time_scale=5)
+    url = sim(time_scale=2)  # 50 ms a line: the halt lands long before the end even on a loaded machine
     streamer = Streamer(url, status_interval=0.02)
-    turn = len(HEAD) + 1 + 40 + 25  # acknowledged well into the return: the machine is ~15 lines behind
+    turn = len(HEAD) + 1 + 40 + 25  # acknowledged well into the return: the planner holds at most 15 lines of it
     result = streamer.run(program, on_progress=abort_when(streamer, lambda p: p.acked >= turn))
-    assert result.reason == "aborted" and len(HEAD) + 41 < result.executed < len(HEAD) + 81
+    assert result.reason == "aborted" and result.executed > len(HEAD) + 41
     simulator_of(url).time_scale = 200
     assert Streamer(url, status_interval=0.02).run(program, resume=True).completed
     assert exactly_once(program, url)
@@ -110,7 +110,7 @@ def test_a_position_several_window_lines_pass_is_refused_naming_them_then_from_l
 def test_a_job_starting_away_from_work_zero_resumes_and_from_line_always_works(tmp_path, sim):
     """Machine at (500, 300): motion is planned from there, so a halt in the first move is placed; and the operator's
     --from-line works even where nothing could be inferred."""
-    program = write(tmp_path / "away.gcode", [f"G1 X{500 + 5 * i} Y300" for i in range(1, 30)])
+    program = write(tmp_path / "away.gcode", [f"G1 X{530 + 5 * i} Y300" for i in range(29)])  # first move: 3 s
     url = sim(time_scale=1)
     port = serial.serial_for_url(url, timeout=0.05)
     simulator_of(url).time_scale = 1000
@@ -126,7 +126,7 @@ def test_a_job_starting_away_from_work_zero_resumes_and_from_line_always_works(t
     assert result.reason == "aborted" and result.executed == len(HEAD)  # stopped in the first move, file line 7
     assert read_journal(f"{program}.journal").origin == (500.0, 300.0, 0.0)
     executed = executed_file_lines(log_of(url))
-    simulator_of(url).time_scale = 100
+    simulator_of(url).time_scale = 20
     streamer = Streamer(url, status_interval=0.02)
     result = streamer.run(program, resume=True, start_line=7,
                           on_progress=abort_when(streamer, lambda p: p.acked > 20))
