@@ -288,6 +288,7 @@ class Streamer:
             if self.origin is None:
                 self.origin = self._work_position()
         self.blocks = program.plan(ModalState(), self.origin)
+        problems = self._check_controller() if self.settings else None  # known unless found busy or in alarm
         if previous is None:
             executed = 0
         elif start_line is not None:  # the operator's choice overrides anything the journal would infer
@@ -299,15 +300,17 @@ class Streamer:
                 executed = self._recover(previous, unlock)
             except _Undecided as exc:
                 raise StreamInterrupted(str(exc), "undecided", previous.done) from None
-        problems = self._check_controller()
+        if problems is None:  # read now that the controller stands still (a held one was first let finish)
+            problems = self._check_controller()
         self.journal = Journal(self.journal_path, sync_interval=COMMIT_INTERVAL).open(fresh=previous is None)
         try:
-            return self._journaled_job(previous, executed, identity, problems, unlock)
+            return self._journaled_job(previous, executed, identity, problems)
         finally:
             self.journal.close()
 
     def _journaled_job(self, previous: JournalState | None, executed: int, identity: dict[str, str] | None,
-                       forced: list[str], unlock: bool) -> StreamResult:
+                       forced: list[str]) -> StreamResult:
+        """Stream with the journal open, from `executed` lines on; recover in place from a lost connection."""
         program = self.program
         self.journal.record("start", program=program.name, sha256=program.sha256, lines=len(program.lines),
                             mode=self.mode, origin=list(self.origin), identity=identity)
