@@ -43,7 +43,7 @@ def measure(program: Path, mode: str, link: str, workdir: Path) -> dict:
     latency, line_time = LINKS[link]
     log = workdir / f"executed-{mode}-{latency}-{line_time}.log"
     with SimulatorServer(log=log, time_scale=1e4, transport="pty", baud=BAUD, adapter_latency=latency,
-                         line_time=line_time) as server:
+                         line_time=line_time, faults={"settings": "32:1,130:1000,131:1000"}) as server:  # stock build, laser
         result = Streamer(server.url, mode=mode, status_interval=0.2).run(
             program, journal=workdir / f"{mode}-{latency}-{line_time}.journal")
     executed = executed_file_lines(log)

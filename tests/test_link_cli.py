@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import os
 import pty
+import subprocess
 import sys
 import termios
 import time
 import uuid
+from pathlib import Path
 
 import pytest
 import serial
@@ -30,7 +32,7 @@ def gcode(tmp_path):
 def simulator(tmp_path):
     name = f"cli{uuid.uuid4().hex[:8]}"
     log = tmp_path / "executed.log"
-    yield (lambda extra="": f"sim://{name}?time_scale=500&log={log}{extra}"), log
+    yield (lambda extra="": f"sim://{name}?time_scale=500&settings=32:1&log={log}{extra}"), log  # a laser controller
     close_simulator(name)
 
 
@@ -177,3 +179,25 @@ def test_controller_left_in_check_mode_is_taken_out_of_it(cli, gcode, simulator)
     code, _, err = cli("stream", gcode, "--port", url())
     assert code == 0, err
     assert executed_file_lines(log) == list(range(1, 65))
+
+
+def test_grbl_sim_options_make_another_build_and_settings():
+    """`fabline grbl-sim` is a stock build unless its options say otherwise: --build-options, --rx-buffer,
+    --planner-blocks and --setting reach the controller (the other path than a sim:// URL's query)."""
+    command = [sys.executable, "-c", "import sys; from fabline.cli import main; sys.exit(main())", "grbl-sim",
+               "--build-options", "VN", "--rx-buffer", "256", "--planner-blocks", "31", "--setting", "32=1"]
+    server = subprocess.Popen(command, stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])})
+    try:
+        url = server.stdout.readline().strip()
+        port = serial.serial_for_url(url, timeout=0.2)
+        port.write(b"$I\n$$\n")
+        answer, deadline = b"", time.monotonic() + 10
+        while answer.count(b"ok") < 2 and time.monotonic() < deadline:
+            answer += port.read(4096)
+        port.close()
+    finally:
+        server.terminate()
+        server.wait()
+    lines = answer.decode().split("\r\n")
+    assert "[OPT:VN,31,256]" in lines and "$32=1" in lines and "$10=1" in lines

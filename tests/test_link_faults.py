@@ -51,7 +51,8 @@ def sim_url(job):
     name = f"t{uuid.uuid4().hex[:8]}"
 
     def url(**options):
-        query = "&".join(f"{key}={value}" for key, value in {"time_scale": 200, "log": job[1], **options}.items())
+        defaults = {"time_scale": 200, "log": job[1], "settings": "32:1"}  # a stock build set up for a laser
+        query = "&".join(f"{key}={value}" for key, value in {**defaults, **options}.items())
         return f"sim://{name}?{query}"
 
     yield url
@@ -183,7 +184,7 @@ def test_host_killed_mid_job_then_resume_in_new_process(tmp_path):
             "Streamer(sys.argv[1], status_interval=0.05).run(sys.argv[2], resume=sys.argv[3] == 'resume')")
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     rng = random.Random(3)
-    with SimulatorServer(log=log, time_scale=30) as server:
+    with SimulatorServer(log=log, time_scale=30, faults={"settings": "32:1"}) as server:
         for kill in range(3):
             process = subprocess.Popen([sys.executable, "-c", host, server.url, str(program),
                                         "resume" if kill else "new"], env=env, stderr=subprocess.PIPE)

@@ -13,7 +13,7 @@ def test_pty_link_is_paced_like_115200_baud_and_runs_the_program_exactly(tmp_pat
     program.write_text("G21\nG90\nM4 S500\n" + "".join(f"G1 X{i % 9}.125 Y{i % 4}.5 F6000\n" for i in range(300))
                        + "M5\n", encoding="ascii")
     log = tmp_path / "executed.log"
-    with SimulatorServer(log=log, time_scale=1e4, transport="pty", baud=115200) as server:
+    with SimulatorServer(log=log, time_scale=1e4, transport="pty", baud=115200, faults={"settings": "32:1"}) as server:
         assert server.url.startswith("/dev/")
         result = Streamer(server.url).run(program)
     assert result.completed
@@ -41,7 +41,7 @@ def test_dropped_tcp_connection_is_reconnected_and_the_job_finishes(tmp_path):
     program.write_text("G21\nG90\nM4 S500\n" + "".join(f"G1 X{i % 9}.25 Y{i % 4}.5 F3000\n" for i in range(200))
                        + "M5\n", encoding="ascii")
     log = tmp_path / "executed.log"
-    with SimulatorServer(log=log, time_scale=200, faults={"drop_at": "1500,4000"}) as server:
+    with SimulatorServer(log=log, time_scale=200, faults={"drop_at": "1500,4000", "settings": "32:1"}) as server:
         result = Streamer(server.url, status_interval=0.05, reconnect_timeout=10).run(program)
     assert result.completed
     assert executed_file_lines(log) == [line.file_line for line in load_program(program).lines]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -127,21 +128,25 @@ def test_receive_buffer_holds_128_bytes_and_overflow_is_counted():
         simulator.close()
 
 
-def test_executed_log_records_lines_in_order(tmp_path):
+@contextmanager
+def logged(tmp_path, time_scale: float, lines: bytes):
+    """A simulator with an executed-line log, sent `lines` and every one acknowledged; yields (host, log)."""
     log = tmp_path / "executed.log"
-    simulator = GrblSimulator(time_scale=100.0, executed_log=log)
+    simulator = GrblSimulator(time_scale=time_scale, executed_log=log)
     try:
         simulator.attach()
         host = Host(simulator)
-        simulator.receive(b"N1G21\nN2G1X5F600\nN3G1Y5\nN4M5\n")
-        assert host.read(4, timeout=10) == ["ok"] * 4
-        deadline = time.monotonic() + 10
-        while "Idle" not in host.status() and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert log.read_text().splitlines() == ["N1G21", "N2G1X5F600", "N3G1Y5", "N4M5"]
-        assert re.match(r"<Idle\|MPos:5\.000,5\.000,0\.000", host.status())
+        simulator.receive(lines)
+        assert host.read(lines.count(b"\n"), timeout=10) == ["ok"] * lines.count(b"\n")
+        yield host, log
     finally:
         simulator.close()
+
+
+def test_executed_log_records_lines_in_order(tmp_path):
+    with logged(tmp_path, 100.0, b"N1G21\nN2G1X5F600\nN3G1Y5\nN4M5\n") as (host, log):
+        assert re.match(r"<Idle\|MPos:5\.000,5\.000,0\.000", wait_for(host, "<Idle"))
+        assert log.read_text().splitlines() == ["N1G21", "N2G1X5F600", "N3G1Y5", "N4M5"]
 
 
 def test_jog_cancel_stops_a_jog_and_keeps_the_position(host):
@@ -218,3 +223,87 @@ def test_a_non_motion_line_is_executed_when_it_is_acknowledged(tmp_path):
         assert log.read_text().splitlines() == ["N1G21"]
     finally:
         simulator.close()
+
+
+def wait_for(host: Host, prefix: str, timeout: float = 10.0) -> str:
+    """Poll status reports until one starts with `prefix`; return it."""
+    deadline = time.monotonic() + timeout
+    while True:
+        report = host.status()
+        if report.startswith(prefix) or time.monotonic() > deadline:
+            return report
+        time.sleep(0.01)
+
+
+def test_a_stock_build_reports_no_line_numbers_and_its_options(host):
+    """Grbl 1.1h as compiled from gnea/grbl: `$I` says [OPT:V,15,128] and status reports carry no `Ln:` (line
+    numbers are the USE_LINE_NUMBERS compile option), as in the captured transcript, even for N-numbered lines."""
+    host.simulator.receive(b"$I\n")
+    assert host.read(3) == ["[VER:1.1h.20190830:]", "[OPT:V,15,128]", "ok"]
+    host.simulator.receive(b"N10G1X20F600\n")
+    assert host.read(1) == ["ok"]
+    report = wait_for(host, "<Run")
+    assert report.startswith("<Run") and "Ln:" not in report and "|Bf:" not in report
+
+
+def test_a_build_with_line_numbers_and_bigger_buffers_through_the_sim_url():
+    from serial import serial_for_url
+
+    import fabline.link  # noqa: F401  (registers sim://)
+    from fabline.link.protocol_sim import close_simulator, get_simulator
+
+    port = serial_for_url("sim://build-vn?build_options=VN&planner_blocks=31&rx_buffer=256&settings=10:3", timeout=0.05)
+    try:
+        host = Host(get_simulator("build-vn"))
+        host.simulator.receive(b"$I\n")
+        assert host.read(3) == ["[VER:1.1h.20190830:]", "[OPT:VN,31,256]", "ok"]
+        host.simulator.receive(b"N10G1X20F600\n")
+        assert host.read(1) == ["ok"]
+        report = wait_for(host, "<Run")
+        assert "|Ln:10|" in report and "|Bf:30,256|" in report
+    finally:
+        port.close()
+        close_simulator("build-vn")
+
+
+def test_feed_hold_while_idle_is_a_completed_hold(host):
+    """gnea/grbl protocol.c: "If IDLE, Grbl is not in motion. Simply indicate suspend state and hold is complete."
+    Lines sent during the hold are planned but do not move until cycle start."""
+    host.simulator.receive(b"!")
+    assert host.status().startswith("<Hold:0|")
+    host.simulator.receive(b"G1X5F600\n")
+    assert host.read(1) == ["ok"]
+    time.sleep(0.1)
+    assert host.status().startswith("<Hold:0|MPos:0.000,0.000,0.000")
+    host.simulator.receive(b"~")
+    assert wait_for(host, "<Run").startswith("<Run")
+
+
+def test_a_hold_that_outlasts_the_last_planned_block_completes():
+    """Decelerating into a hold, the machine may reach the end of the last block it holds: it stands still then,
+    and Grbl reports Hold:0 (a Hold:1 forever kept a halting host waiting for an hour)."""
+    simulator = GrblSimulator(time_scale=1.0, settings={120: 0.5})  # 0.5 mm/s^2: stopping takes seconds
+    try:
+        simulator.attach()
+        host = Host(simulator)
+        simulator.receive(b"G1X2F600\n")  # 10 mm/s; 2 mm end long before a 0.5 mm/s^2 stop
+        assert host.read(1) == ["ok"]
+        assert wait_for(host, "<Run").startswith("<Run")
+        simulator.receive(b"!")
+        assert wait_for(host, "<Hold:0", timeout=5).startswith("<Hold:0|MPos:2.000,0.000")
+        simulator.receive(b"~")
+        assert wait_for(host, "<Idle").startswith("<Idle")
+    finally:
+        simulator.close()
+
+
+def test_m0_pauses_after_the_planner_empties_and_m1_is_ignored(tmp_path):
+    """Grbl 1.1: M0 waits for the planner to empty, then holds (Hold:0) until cycle start; M1 (optional stop) is
+    ignored, there being no optional-stop switch."""
+    with logged(tmp_path, 20.0, b"N1G1X5F600\nN2M1\nN3G1X6\nN4M0\nN5G1X7\n") as (host, log):
+        assert wait_for(host, "<Hold:0").startswith("<Hold:0|MPos:6.000,0.000,0.000")
+        time.sleep(0.2)
+        assert log.read_text().splitlines() == ["N1G1X5F600", "N2M1", "N3G1X6", "N4M0"]
+        host.simulator.receive(b"~")
+        assert wait_for(host, "<Idle").startswith("<Idle|MPos:7.000")
+        assert log.read_text().splitlines()[-1] == "N5G1X7"

@@ -37,7 +37,7 @@ def test_job_folder_to_cut_sheets(tmp_path, cli):
     (jobs / "broken.toml").write_text(GOOD.replace('name = "tiny"', 'name = "broken"\ncolour = "red"'), encoding="utf-8")
     db = tmp_path / "runner.sqlite"
     log = tmp_path / "executed.log"
-    runner = Runner(db, [MachineConfig("m1", f"sim://prepare-m1?time_scale=2000&log={log}")], poll=0.05)
+    runner = Runner(db, [MachineConfig("m1", f"sim://prepare-m1?time_scale=2000&settings=32:1,110:12000,111:12000,130:4100,131:2100&log={log}")], poll=0.05)
     runner.watch_folder(jobs, every=0.2)
     runner.start()
     queue = JobQueue(db)

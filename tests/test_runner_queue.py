@@ -136,7 +136,7 @@ def test_hundred_jobs_on_four_simulated_machines_none_lost_or_run_twice(tmp_path
         job_id = queue.submit(f"job{k}", programs=[("S1", str(program), "")])
         expected[job_id] = wire_lines(program)
     logs = {f"m{k}": tmp_path / f"m{k}.log" for k in range(4)}
-    machines = [MachineConfig(name, f"sim://q100-{name}?time_scale=1000&log={log}") for name, log in logs.items()]
+    machines = [MachineConfig(name, f"sim://q100-{name}?time_scale=1000&settings=32:1,130:1000&log={log}") for name, log in logs.items()]
     runner = Runner(db, machines, auto_confirm=True, poll=0.02, prepare=False)
     runner.start()
     try:
@@ -161,7 +161,7 @@ def test_pause_resume_and_cancel_a_sheet_being_cut(tmp_path):
     second = square_program(tmp_path / "second.gcode", 10, 60, squares=8)
     job_a = queue.submit("a", programs=[("S1", str(first), "")])
     log = tmp_path / "m1.log"
-    runner = Runner(db, [MachineConfig("m1", f"sim://pause-m1?time_scale=4&log={log}")], auto_confirm=True, poll=0.05,
+    runner = Runner(db, [MachineConfig("m1", f"sim://pause-m1?time_scale=4&settings=32:1&log={log}")], auto_confirm=True, poll=0.05,
                     prepare=False)
     runner.start()
 

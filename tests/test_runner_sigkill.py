@@ -65,7 +65,7 @@ def test_twenty_sigkills_during_a_three_sheet_job(tmp_path):
     job_id = queue.submit("kill-test", programs=[(p.stem, str(p), "") for p in sheets])
     log = tmp_path / "executed.log"
     rng = random.Random(20171)
-    with SimulatorServer(log=log, time_scale=5.0) as simulator:
+    with SimulatorServer(log=log, time_scale=5.0, faults={"settings": "32:1"}) as simulator:
         for kill in range(KILLS):
             runner = restart_runner(tmp_path, db, simulator.url, queue, job_id)
             _, before = progress(queue, job_id)

@@ -37,7 +37,7 @@ def served(tmp_path):
     sheets = [square_program(tmp_path / f"sheet{k + 1}.gcode", 30, 30 + 40 * k, squares=10) for k in range(2)]
     job_id = queue.submit("web-job", programs=[(p.stem, str(p), "") for p in sheets])
     log = tmp_path / "executed.log"
-    runner = Runner(db, [MachineConfig("m1", f"sim://web-m1?time_scale=8&log={log}")], poll=0.05, prepare=False)
+    runner = Runner(db, [MachineConfig("m1", f"sim://web-m1?time_scale=8&settings=32:1&log={log}")], poll=0.05, prepare=False)
     runner.start()
     port = free_port()
     server = uvicorn.Server(uvicorn.Config(create_app(db, TOKEN, poll=0.1), host="127.0.0.1", port=port,

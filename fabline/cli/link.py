@@ -21,6 +21,10 @@ from fabline.link import Progress, Streamer, default_journal_path
 from fabline.link.streamer import MODES
 
 KEYS_HELP = "keys: p = pause/resume (feed hold), q = abort safely"
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""Ctrl-C, `kill` (a service stop) and a closed terminal all stop the machine safely (feed hold, reset, journal)."""
+STOPPED = 1
+"""Exit code of a run stopped by the operator or a signal: the journal allows --resume. Errors and refusals exit 2."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -35,7 +39,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     stream.add_argument("--restart", action="store_true",
                         help="start over from the first line although an earlier run of this program was interrupted")
     stream.add_argument("--unlock", action="store_true", help="clear an alarm ($X) left by an interrupted job")
-    stream.add_argument("--from-line", type=int, metavar="N", help="with --resume: restart at file line N")
+    stream.add_argument("--from-line", type=int, metavar="N",
+                        help="with --resume: restart at file line N (the operator's choice, used whatever the journal says)")
+    stream.add_argument("--machine", metavar="NAME",
+                        help="machine profile (name or .toml) to check the controller against, instead of the one the "
+                             "program's header names")
+    stream.add_argument("--force", action="store_true",
+                        help="stream although the controller's settings conflict with the program (logged)")
     stream.add_argument("--journal", help="journal file (default: <gcode>.journal)")
     stream.add_argument("--log", help="exchange log (default: <gcode>.link.log)")
     stream.add_argument("--mode", choices=MODES, default="counting",
@@ -56,6 +66,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--baud", type=int, help="pace bytes like a serial line at this rate")
     sim.add_argument("--adapter-latency", type=float, default=0.0,
                      help="batch answers like a USB-serial bridge flushing every this many seconds (Uno: 0.004)")
+    sim.add_argument("--build-options", default="V",
+                     help="the build's $I option letters (default V, a stock build; VN adds Ln: line numbers)")
+    sim.add_argument("--planner-blocks", type=positive(int), default=15, help="planner size in blocks (default 15)")
+    sim.add_argument("--rx-buffer", type=positive(int), default=128, help="serial receive buffer bytes (default 128)")
+    sim.add_argument("--setting", action="append", default=[], metavar="N=VALUE",
+                     help="a Grbl $N setting other than its default, e.g. --setting 32=1 for laser mode")
     sim.add_argument("--fault", action="append", default=[], metavar="KEY=VALUE",
                      help="inject a fault: drop_at=BYTES, corrupt_at=BYTES, error_line=N, alarm_line=N, stall_at=BYTES ...")
     sim.set_defaults(func=_grbl_sim)
@@ -74,7 +90,14 @@ def _stream(args: argparse.Namespace) -> int:
     if interactive:
         print(KEYS_HELP, file=sys.stderr)
 
+    shown = [None]
+
     def show(progress: Progress) -> None:
+        if progress.message != shown[0]:
+            shown[0] = progress.message
+            if progress.message:
+                how = "press p" if interactive else f"send SIGUSR1 to process {os.getpid()}"
+                bar.write(f"{args.gcode}: {progress.message} ({how})", file=sys.stderr)
         bar.total = progress.total
         bar.n = progress.acked
         position = ",".join(f"{v:.2f}" for v in progress.position) if progress.position else "?"
@@ -85,13 +108,14 @@ def _stream(args: argparse.Namespace) -> int:
     with _keyboard(streamer, interactive), _abort_on_interrupt(streamer):
         try:
             result = streamer.run(args.gcode, on_progress=show, journal=journal, resume=args.resume, check=args.check,
-                                  unlock=args.unlock, start_line=args.from_line, restart=args.restart)
+                                  unlock=args.unlock, start_line=args.from_line, restart=args.restart,
+                                  machine=args.machine, force=args.force)
         finally:
             bar.close()
     if not result.completed:
         print(f"stopped ({result.reason}) with {result.executed} of {result.total} lines executed; "
               f"continue with: fabline stream {args.gcode} --port {args.port} --resume", file=sys.stderr)
-        return 1
+        return STOPPED
     rate = result.total / result.elapsed if result.elapsed > 0 else float("inf")
     print(f"{args.gcode}: {result.total} lines streamed to {args.port} in {result.elapsed:.1f} s ({rate:.0f} lines/s)")
     return 0
@@ -131,21 +155,27 @@ def _keyboard(streamer: Streamer, interactive: bool):
 
 @contextlib.contextmanager
 def _abort_on_interrupt(streamer: Streamer):
-    """Ctrl-C stops the machine safely (feed hold, reset) instead of abandoning it mid-move."""
+    """Ctrl-C, SIGTERM and SIGHUP stop the machine safely (feed hold, reset, "stopped" in the journal) instead of
+    abandoning it mid-move; SIGUSR1 is cycle start after a program pause (M0) when no keyboard is attached."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, lambda *_: streamer.abort())
+    previous = {number: signal.signal(number, lambda *_: streamer.abort()) for number in STOP_SIGNALS}
+    previous[signal.SIGUSR1] = signal.signal(signal.SIGUSR1, lambda *_: streamer.resume())
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for number, handler in previous.items():
+            signal.signal(number, handler)
 
 
 def _grbl_sim(args: argparse.Namespace) -> int:
     from fabline.link.server import serve
 
-    options = {"time_scale": args.time_scale, "line_time": args.line_time}
+    options = {"time_scale": args.time_scale, "line_time": args.line_time, "build_options": args.build_options,
+               "planner_blocks": args.planner_blocks, "rx_buffer": args.rx_buffer}
+    if args.setting:
+        options["settings"] = ",".join(setting.replace("=", ":", 1) for setting in args.setting)
     if args.log:
         options["log"] = args.log
     for fault in args.fault:

@@ -7,10 +7,11 @@ may start from another with `extends = "<name>"` and override only what differs.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import string
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -82,6 +83,7 @@ class MachineProfile:
     s_max: float
     operations: dict[str, Operation]
     variables: dict[str, float]
+    required_settings: tuple["SettingRequirement", ...] = ()  # [requires]: what the controller's `$$` must say
 
     def render(self, templates: tuple[str, ...], **values: float) -> tuple[str, ...]:
         """Command templates with `{power}`, `{depth}` and the profile's [vars] filled in, numbers fixed-precision."""
@@ -102,6 +104,51 @@ class MachineProfile:
     def number(self, value: float) -> str:
         """A number in the profile's fixed precision, without a negative zero."""
         return f"{round(value, self.decimals) + 0.0:.{self.decimals}f}"
+
+
+@dataclass(frozen=True)
+class SettingRequirement:
+    """One controller setting a profile's programs need: `$number` equal to, at least or at most `value`."""
+
+    number: int
+    relation: str  # "=", ">=" or "<="
+    value: float
+
+    def met_by(self, actual: float) -> bool:
+        """Whether a controller whose `$number` is `actual` meets this."""
+        if self.relation == ">=":
+            return actual >= self.value - 1e-9
+        if self.relation == "<=":
+            return actual <= self.value + 1e-9
+        return abs(actual - self.value) <= 1e-9
+
+    def __str__(self) -> str:
+        return f"${self.number}{self.relation}{self.value:g}"
+
+
+def required_settings(table: dict, source: str, laser_mode: bool, mode: str) -> tuple[SettingRequirement, ...]:
+    """The `[requires]` table (`32 = 1`, `110 = { min = 6000 }`, `130 = { max = 5000 }`) as requirements, with
+    laser mode implied by the profile: `$32=1` for a laser-mode profile, `$32=0` for a mill or a plotter (laser
+    mode would stop a spindle, or drop a pen servo to S0, on every G0)."""
+    found: dict[int, SettingRequirement] = {}
+    for key, value in table.items():
+        where = f"{source}: requires.{key}"
+        if not (isinstance(key, str) and key.isdigit() and int(key) <= 255):
+            raise FablineError(f"{where}: must name a Grbl setting by its number, such as 32 or 110")
+        number = int(key)
+        if isinstance(value, dict) and len(value) == 1 and next(iter(value)) in ("min", "max"):
+            relation, value = (">=" if "min" in value else "<="), next(iter(value.values()))
+        else:
+            relation = "="
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise FablineError(f"{where}: must be a number or {{ min = N }} / {{ max = N }}, got {value!r}")
+        found[number] = SettingRequirement(number, relation, float(value))
+    implied = 1.0 if laser_mode else 0.0 if mode in ("mill", "plotter") else None
+    if implied is not None:
+        if 32 in found and found[32] != SettingRequirement(32, "=", implied):
+            raise FablineError(f"{source}: requires.32: {found[32]} contradicts laser_mode = {str(laser_mode).lower()}")
+        found[32] = SettingRequirement(32, "=", implied)
+    return tuple(found[number] for number in sorted(found))
 
 
 @lru_cache(maxsize=1024)
@@ -242,7 +289,7 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
         laser_mode=fields.flag("laser_mode", False),
         words=frozenset(canonical_word(w) for w in words), program_start=fields.lines("program_start"),
         program_end=fields.lines("program_end"), tool_on=fields.lines("tool_on"), tool_off=fields.lines("tool_off"),
-        requires=fields.text("requires", ""),
+        requires="",
         bed_width=fields.number("bed.width", 0, 1e5, low_inclusive=False),
         bed_height=fields.number("bed.height", 0, 1e5, low_inclusive=False),
         rapid_rate=fields.number("motion.rapid_rate", 0, 1e6, low_inclusive=False),
@@ -250,6 +297,14 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
         junction_deviation=fields.number("motion.junction_deviation", 0, 10),
         s_min=s_min, s_max=s_max, operations=operations, variables=variables,
     )
+    requires = table.get("requires", {})
+    if isinstance(requires, str):  # the free text of older profiles: shown in the program header, not checked
+        profile = replace(profile, requires=requires)
+    elif isinstance(requires, dict):
+        settings = required_settings(requires, source, profile.laser_mode, mode)
+        profile = replace(profile, required_settings=settings, requires=", ".join(map(str, settings)))
+    else:
+        raise FablineError(f"{source}: requires: must be a table of controller settings, such as {{ 32 = 1 }}")
     if profile.laser_mode and mode != "laser":
         raise FablineError(f"{source}: laser_mode: only a laser profile (mode = \"laser\") can use laser mode")
     needed = {"G0", "G1"} | ({"G2", "G3"} if profile.arcs else set())

@@ -1,7 +1,12 @@
 """The stream journal: an append-only, fsynced record of every line sent to and answered by the controller.
 
 Format (`fabline.link-journal/1`): one JSON object per line, each with an `event`:
-  start    {program, sha256, lines, mode}    a new job (or a resumed one) begins
+  start    {program, sha256, lines, mode, origin, identity}
+                                             a new job (or a resumed one) begins: origin = the controller's work
+                                             position [x, y, z] where the run started (a resume keeps the first
+                                             run's), identity = {name: text} given by the caller (job, run ids)
+  forced   {problems}                        the run went on despite these controller conflicts (--force)
+  paused   {line}                            the program paused (M0) at file line `line`, waiting for cycle start
   sent     {n, line}                         program line n (0-based; `line` = file line) was written to the port
   ok       {n, line}                         the controller accepted line n (parsed into its planner)
   error    {n, line, code}                   the controller rejected line n with error:code
@@ -10,15 +15,16 @@ Format (`fabline.link-journal/1`): one JSON object per line, each with an `event
   resume   {count}                           a resume restarts after the first `count` lines
   stopped  {reason}                          the stream stopped early (error, alarm, abort, lost connection)
   finished {}                                every line executed; the job is complete
-Acknowledgements are fsynced before the buffer space they free is used again, so after any crash
-the journal is at most one receive buffer (128 bytes of lines) behind the controller.
-A half-written last record (the host died while writing it) is ignored.
+Records are fsynced at least every 50 ms, and at once when the stream stops.
+A half-written last record (the host died while writing it) is ignored when reading and cut off before
+anything is appended; any other malformed record is a one-line error naming the journal line.
 Default location: beside the program, `<program>.journal`.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import threading
 from dataclasses import dataclass
@@ -46,9 +52,11 @@ class JournalState:
     done: int = 0
     resumed_at: int | None = None
     finished: bool = False
-    error: tuple[int, int] | None = None
+    error: tuple[int, int | None] | None = None
     alarm: int | None = None
     stopped: str | None = None
+    origin: tuple[float, float, float] | None = None
+    identity: dict[str, str] | None = None
 
 
 class Journal:
@@ -66,8 +74,13 @@ class Journal:
         self._closing = threading.Event()
         self._syncer: threading.Thread | None = None
 
-    def open(self) -> "Journal":
-        """Open for appending (creating the file and its folder if needed)."""
+    def open(self, fresh: bool = False) -> "Journal":
+        """Open for appending (creating the file and its folder if needed), after cutting off a torn last record;
+        `fresh` starts an empty journal instead (the caller holds the journal's lock)."""
+        if fresh:
+            self.path.unlink(missing_ok=True)
+        else:
+            _cut_torn_tail(self.path)
         self._handle = open_append(self.path, "journal", newline="\n")
         if self.sync_interval:
             self._closing.clear()
@@ -109,6 +122,61 @@ class Journal:
         self.close()
 
 
+def _cut_torn_tail(path: Path) -> None:
+    """Truncate a journal after its last complete record, so a record appended next does not glue onto a torn one."""
+    try:
+        data = path.read_bytes()
+        if data and not data.endswith(b"\n"):
+            with open(path, "rb+") as handle:
+                handle.truncate(data.rfind(b"\n") + 1)
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise FablineError(f"{path}: cannot repair the journal's torn last record: {exc.strerror}") from None
+
+
+_FIELDS = {
+    "start": {"sha256": str, "lines": int},
+    "sent": {"n": int}, "ok": {"n": int}, "error": {"n": int}, "alarm": {}, "done": {"count": int},
+    "resume": {"count": int}, "stopped": {"reason": str}, "finished": {}, "forced": {}, "paused": {},
+}
+
+
+def _checked(record, path: Path, number: int) -> dict:
+    """A record with the fields its event needs, of the right types; anything else is a one-line error."""
+    if not isinstance(record, dict) or not isinstance(record.get("event"), str):
+        raise FablineError(f"{path}:{number}: malformed journal record (no event)")
+    needed = _FIELDS.get(record["event"])
+    if needed is None:
+        raise FablineError(f"{path}:{number}: unknown journal event {record['event']!r}")
+    for name, kind in needed.items():
+        value = record.get(name)
+        if not isinstance(value, kind) or isinstance(value, bool) or (kind is int and value < 0):
+            raise FablineError(f"{path}:{number}: journal record {record['event']!r} has no valid {name!r} "
+                               f"(got {value!r}); the journal is damaged: start the sheet over with --restart, or "
+                               "resume with --from-line")
+    return record
+
+
+def _origin(record: dict, path: Path, number: int) -> tuple[float, float, float] | None:
+    value = record.get("origin")
+    if value is None:
+        return None
+    if (not isinstance(value, list) or len(value) != 3
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)):
+        raise FablineError(f"{path}:{number}: journal start record has a malformed origin {value!r}")
+    return tuple(float(v) for v in value)
+
+
+def _identity(record: dict, path: Path, number: int) -> dict[str, str] | None:
+    value = record.get("identity")
+    if value is None:
+        return None
+    if not isinstance(value, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in value.items()):
+        raise FablineError(f"{path}:{number}: journal start record has a malformed identity {value!r}")
+    return value
+
+
 def read_journal(path: str | os.PathLike) -> JournalState:
     """Replay a journal into a JournalState; a malformed record other than a torn last one is an error."""
     path = Path(path)
@@ -117,7 +185,7 @@ def read_journal(path: str | os.PathLike) -> JournalState:
     except FileNotFoundError:
         raise FablineError(f"{path}: no journal to resume from (was the job ever started with this journal?)") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise FablineError(f"{path}: cannot read journal: {exc}") from None
+        raise FablineError(f"{path}: cannot read the journal ({exc}); start the sheet over with --restart") from None
     state = JournalState()
     rows = text.split("\n")
     for number, row in enumerate(rows, 1):
@@ -125,15 +193,17 @@ def read_journal(path: str | os.PathLike) -> JournalState:
             continue
         try:
             record = json.loads(row)
-            event = record["event"]
-        except (json.JSONDecodeError, KeyError, TypeError):
+        except (json.JSONDecodeError, RecursionError):
             if number == len(rows):
-                break
-            raise FablineError(f"{path}:{number}: malformed journal record") from None
+                break  # torn by a crash while it was written
+            raise FablineError(f"{path}:{number}: malformed journal record; the journal is damaged: start the sheet "
+                               "over with --restart, or resume with --from-line") from None
+        event = _checked(record, path, number)["event"]
         if event == "start":
             if state.sha256 not in (None, record["sha256"]):
                 raise FablineError(f"{path}:{number}: journal mixes two different programs")
             state.sha256, state.total = record["sha256"], record["lines"]
+            state.origin, state.identity = _origin(record, path, number), _identity(record, path, number)
             state.finished, state.stopped, state.error, state.alarm = False, None, None, None
             state.sent = state.acked = state.done = 0  # a run starts from nothing; a resume record says otherwise
             state.resumed_at = None
@@ -142,9 +212,9 @@ def read_journal(path: str | os.PathLike) -> JournalState:
         elif event == "ok":
             state.acked = max(state.acked, record["n"] + 1)
         elif event == "error":
-            state.error = (record["n"], record["code"])
+            state.error = (record["n"], record.get("code") if isinstance(record.get("code"), int) else None)
         elif event == "alarm":
-            state.alarm = record["code"]
+            state.alarm = record.get("code") if isinstance(record.get("code"), int) else None
         elif event == "done":
             state.done = max(state.done, record["count"])
         elif event == "resume":
@@ -155,5 +225,6 @@ def read_journal(path: str | os.PathLike) -> JournalState:
         elif event == "finished":
             state.finished = True
     if state.sha256 is None:
-        raise FablineError(f"{path}: journal has no start record")
+        raise FablineError(f"{path}: journal has no start record (damaged, or its run never began); start the sheet "
+                           "over with --restart")
     return state

@@ -25,10 +25,14 @@ LINE_BUFFER_SIZE = 80
 """GRBL's line buffer: at most 79 characters after whitespace and comments are removed."""
 
 _LEADING_N = re.compile(r"^N\d+(\.\d*)?")
+_MACHINE_COMMENT = re.compile(r"^\s*[;(]\s*machine\s+([^\s()\[\]]+)")
+"""The header line `fabline export` writes: `; machine grbl-laser (Grbl 1.1), mode laser, ...`."""
 
 
 TAG_CYCLE = 255
 """Tags run 1..255 (GRBL's largest tool number); T0 means no program line was parsed since a reset."""
+
+
 
 
 def line_tag(index: int) -> int:
@@ -58,6 +62,8 @@ class Program:
     name: str
     lines: tuple[ProgramLine, ...]
     sha256: str
+    machine: str | None = None
+    """The machine profile named in the header comments before the first command (`; machine NAME (...)`)."""
 
     def plan(self, modal: ModalState, position: Vector, build: BuildInfo = STOCK_BUILD) -> list[Block]:
         """The block each line becomes when the program starts in `modal` state at work `position` on a controller
@@ -101,7 +107,7 @@ def strip_line(text: str, where: str) -> str:
 
 def parse_program(data: bytes, name: str, build: BuildInfo = STOCK_BUILD) -> Program:
     """Build a Program from a file's bytes, checked for a controller of `build`; `name` is used in error messages."""
-    lines = []
+    lines, machine = [], None
     for number, raw in enumerate(data.split(b"\n"), 1):
         where = f"{name}:{number}"
         try:
@@ -110,6 +116,8 @@ def parse_program(data: bytes, name: str, build: BuildInfo = STOCK_BUILD) -> Pro
             raise FablineError(f"{where}:{exc.start + 1}: non-ASCII byte 0x{raw[exc.start]:02x}; GRBL takes ASCII only") from None
         command = strip_line(text.rstrip("\r"), where)
         if not command:
+            header = _MACHINE_COMMENT.match(text) if not lines and machine is None else None
+            machine = header.group(1) if header else machine
             continue
         line = ProgramLine(len(lines), number, text.rstrip("\r"), command)
         if len(line.wire) - 1 >= LINE_BUFFER_SIZE:
@@ -125,7 +133,7 @@ def parse_program(data: bytes, name: str, build: BuildInfo = STOCK_BUILD) -> Pro
         lines.append(line)
     if not lines:
         raise FablineError(f"{name}: no G-code commands in the file")
-    program = Program(name, tuple(lines), hashlib.sha256(data).hexdigest())
+    program = Program(name, tuple(lines), hashlib.sha256(data).hexdigest(), machine)
     program.plan(ModalState(), (0.0, 0.0, 0.0), build)
     return program
 

@@ -3,16 +3,19 @@
 Simulators live in a per-process registry by NAME, so a reconnect after a dropped connection reaches
 the same controller, as a real one outlives its USB cable. Options (used when NAME is first opened):
 time_scale, line_time (firmware seconds per line), log (executed-line log path), settings (`$N` values as `110:12000,120:800`), drop_at, corrupt_at (comma-separated byte offsets),
-error_line, error_code, alarm_line, alarm_code, stall_at, stall_seconds.
+error_line, error_code, alarm_line, alarm_code, stall_at, stall_seconds; and the build, a stock Grbl 1.1h unless
+build_options (the `$I` option letters, e.g. `VN` for `Ln:` in status reports), planner_blocks or rx_buffer say otherwise.
 """
 
 from __future__ import annotations
 
+import re
 import threading
 import urllib.parse
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout
 
+from fabline.link.build import STOCK_BUILD, BuildInfo
 from fabline.link.simulator import ConnectionDropped, Faults, GrblSimulator
 
 _SIMULATORS: dict[str, GrblSimulator] = {}
@@ -52,6 +55,12 @@ def simulator_from_options(query: str) -> GrblSimulator:
     if line_time < 0:
         raise ValueError(f"line_time must be 0 or more seconds, not {line_time}")
     log = options.pop("log", None)
+    build = BuildInfo(options=options.pop("build_options", STOCK_BUILD.options),
+                      planner_blocks=number("planner_blocks", int, STOCK_BUILD.planner_blocks),
+                      rx_buffer=number("rx_buffer", int, STOCK_BUILD.rx_buffer))
+    if not re.fullmatch(r"[A-Z0-9*+]*", build.options) or not 1 <= build.planner_blocks <= 255 or not 16 <= build.rx_buffer <= 65535:
+        raise ValueError(f"build_options must be option letters such as VN, planner_blocks 1..255 and rx_buffer 16..65535, "
+                         f"not {build.options!r}, {build.planner_blocks}, {build.rx_buffer}")
     settings = {}
     for pair in options.pop("settings", "").split(","):
         if pair:
@@ -59,7 +68,8 @@ def simulator_from_options(query: str) -> GrblSimulator:
             settings[int(key)] = float(value)
     if options:
         raise ValueError(f"unknown simulator option(s) {sorted(options)}")
-    return GrblSimulator(time_scale=time_scale, executed_log=log, faults=faults, settings=settings, line_time=line_time)
+    return GrblSimulator(time_scale=time_scale, executed_log=log, faults=faults, settings=settings, line_time=line_time,
+                         build=build)
 
 
 def _simulator_from_url(url: str) -> GrblSimulator:

@@ -2,7 +2,11 @@
 
 It answers like the firmware captured in `grbl-1.1h-transcript.txt` (banner, `$$`, `$I`, `$G`, `$#`,
 `ok`/`error:N`, `ALARM:N`, status reports per `$10`, check mode, feed hold) and records every line it
-executes, in execution order, to an append-only executed-line log. Deviations from real firmware:
+executes, in execution order, to an append-only executed-line log. It is a stock build unless told
+otherwise (`build=BuildInfo(options="VN")` adds `Ln:` to status reports, bigger `planner_blocks` or
+`rx_buffer` model other boards): `$I` answers the build, and the buffers have the build's sizes.
+M0 pauses like the firmware (planner emptied, then a completed feed hold until cycle start); M1 is
+ignored (Grbl has no optional-stop switch). Deviations from real firmware:
 constant speed (no acceleration ramps except when decelerating into a feed hold), one planner block per
 arc, work offsets fixed at zero.
 """
@@ -18,14 +22,10 @@ from pathlib import Path
 
 from fabline.link.build import STOCK_BUILD, BuildInfo
 from fabline.link.gcode import Block, GcodeError, ModalState, Segment, execute
-from fabline.link.protocol import RX_BUFFER_SIZE
 
 VERSION = "1.1h"
-BUILD = "[VER:1.1h.20190830:]"
-OPTIONS = "[OPT:V,15,128]"
 BANNER = f"Grbl {VERSION} ['$' for help]"
 HELP = "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]"
-PLANNER_BLOCKS = 15
 LINE_BUFFER_SIZE = 80
 _REALTIME_BYTES = (b"?", b"!", b"~", b"\x18")
 _INT_SETTINGS = {0, 1, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 26, 30, 31, 32}
@@ -71,6 +71,7 @@ class _Pending:
     sync: bool
     queued: bool = False
     accessory_change: bool = False
+    pause: bool = False
 
 
 @dataclass
@@ -85,6 +86,7 @@ class _Planned:
     progress: float = 0.0
     line_number: int | None = None
     jog: bool = False
+    pause: bool = False
     spindle: str = "M5"
     speed: float = 0.0
 
@@ -96,11 +98,10 @@ class GrblSimulator:
     answers and reads the next: an 8-bit Grbl needs a few milliseconds, 0 makes the controller instant.
     """
 
-    build: BuildInfo = STOCK_BUILD  # the compile-time options its G-code parser follows (M7 needs option M)
-
     def __init__(self, *, time_scale: float = 1.0, executed_log: str | Path | None = None,
                  faults: Faults | None = None, tick: float = 0.001, settings: dict[int, float] | None = None,
-                 line_time: float = 0.0):
+                 line_time: float = 0.0, build: BuildInfo = STOCK_BUILD):
+        self.build = build
         self.time_scale = time_scale
         self.line_time = line_time
         self.faults = faults or Faults()
@@ -146,7 +147,7 @@ class GrblSimulator:
             faults = self.faults
             if (not faults.drop_at and not faults.corrupt_at and faults.stall_at is None and not self._critical
                     and data.isascii() and not any(byte in data for byte in _REALTIME_BYTES)):
-                room = RX_BUFFER_SIZE - len(self._rx)  # the common case, taken in one step: plain line bytes
+                room = self.build.rx_buffer - len(self._rx)  # the common case, taken in one step: plain line bytes
                 self.received += len(data)
                 self.overflowed += max(0, len(data) - room)
                 self._rx += data[:room]
@@ -172,7 +173,7 @@ class GrblSimulator:
                     self._realtime(byte)
                 elif self._critical:
                     continue
-                elif len(self._rx) < RX_BUFFER_SIZE:
+                elif len(self._rx) < self.build.rx_buffer:
                     self._rx.append(byte)
                     if byte == 0x0A:
                         self._input_arrived.set()
@@ -223,6 +224,7 @@ class GrblSimulator:
         self.modal = ModalState()
         self._parse_position = self.position
         self._hold = None
+        self._hold_stopped_motion = False  # a reset aborts a cycle (ALARM:3) only if the hold stopped a motion
         self._speed = 0.0
         self._wco_counter = 0
         self._ovr_counter = 0
@@ -245,8 +247,9 @@ class GrblSimulator:
             self._say(self._status_report())
         elif byte == 0x21:
             if self.state in ("Run", "Jog") and self._hold is None:
-                self._hold = "decelerating"
-                self.state = "Hold"
+                self._hold, self.state, self._hold_stopped_motion = "decelerating", "Hold", True
+            elif self.state == "Idle":  # Grbl: "If IDLE, Grbl is not in motion. ... hold is complete."
+                self._hold, self.state, self._hold_stopped_motion = "complete", "Hold", False
         elif byte == 0x7E:
             if self.state == "Hold" and self._hold == "complete":
                 self._hold = None
@@ -258,7 +261,7 @@ class GrblSimulator:
             self.state = "Idle"
 
     def _soft_reset(self) -> None:
-        lost = self.state in ("Run", "Jog", "Hold")
+        lost = self.state in ("Run", "Jog") or (self.state == "Hold" and self._hold_stopped_motion)
         was_alarm = self.state == "Alarm"
         self._critical = False
         self._reset_runtime()
@@ -292,8 +295,9 @@ class GrblSimulator:
         position = self.position
         parts = [state, ("MPos:" if mask & 1 else "WPos:") + ",".join(f"{v:.3f}" for v in position)]
         if mask & 2:
-            parts.append(f"Bf:{PLANNER_BLOCKS - self._motion_blocks()},{RX_BUFFER_SIZE - len(self._rx)}")
-        if self.planner and self.planner[0].line_number and self.state in ("Run", "Hold", "Jog"):
+            parts.append(f"Bf:{self.build.planner_blocks - self._motion_blocks()},{self.build.rx_buffer - len(self._rx)}")
+        if (self.build.line_numbers and self.planner and self.planner[0].line_number
+                and self.state in ("Run", "Hold", "Jog")):
             parts.append(f"Ln:{self.planner[0].line_number}")
         feed, speed = self._current_feed_speed()
         parts.append(f"FS:{feed:.0f},{speed:.0f}")
@@ -364,12 +368,12 @@ class GrblSimulator:
             if pending is not None:
                 if pending.sync and self.planner:
                     return
-                if not pending.sync and self._motion_blocks() >= PLANNER_BLOCKS:
+                if not pending.sync and self._motion_blocks() >= self.build.planner_blocks:
                     return
                 if not pending.queued:
                     if pending.accessory_change:
                         self._ovr_counter = 0  # the firmware reports a spindle or coolant change at once
-                    self._queue(pending.line, pending.block)
+                    self._queue(pending.line, pending.block, pause=pending.pause)
                     pending.queued = True
                     if pending.block.dwell > 0:
                         return
@@ -429,16 +433,17 @@ class GrblSimulator:
             self.faults.error_line = None
             return self.faults.error_code
         accessory_change = block.modal.spindle != self.modal.spindle or block.modal.coolant != self.modal.coolant
-        sync = accessory_change or block.dwell > 0 or block.program_end
+        pause = block.pause
+        sync = accessory_change or block.dwell > 0 or block.program_end or pause
         self.modal = block.modal
         self._parse_position = block.position  # check mode too: Grbl's parser keeps tracking its position
         if self.state == "Check":
             return 0
-        self._pending = _Pending(line, block, sync, accessory_change=accessory_change)
+        self._pending = _Pending(line, block, sync, accessory_change=accessory_change, pause=pause)
         return None
 
-    def _queue(self, line: str, block: Block | None, jog: bool = False) -> None:
-        planned = _Planned(text=line, line_number=block.line_number if block else None, jog=jog)
+    def _queue(self, line: str, block: Block | None, jog: bool = False, pause: bool = False) -> None:
+        planned = _Planned(text=line, line_number=block.line_number if block else None, jog=jog, pause=pause)
         if block is not None:
             planned.spindle, planned.speed = block.modal.spindle, block.modal.speed
             planned.dwell = block.dwell
@@ -511,6 +516,9 @@ class GrblSimulator:
         if not self.planner and self.state in ("Run", "Jog"):
             self.state = "Idle"
             self._speed = 0.0
+        elif not self.planner and self._hold == "decelerating":  # the last block ended while slowing: stopped
+            self._hold = "complete"
+            self._speed = 0.0
 
     def _complete(self) -> None:
         block = self.planner.popleft()
@@ -519,6 +527,8 @@ class GrblSimulator:
         if self._log and not block.jog:
             self._log.write(block.text + "\n")
             self._log.flush()
+        if block.pause:  # M0: the planner is empty (it synchronised); hold until cycle start
+            self._hold, self.state, self._hold_stopped_motion = "complete", "Hold", False
 
     # ----- system commands ($) -------------------------------------------------------------------------
     def _system_command(self, line: str) -> None:
@@ -547,8 +557,8 @@ class GrblSimulator:
             self._say("[PRB:0.000,0.000,0.000:0]")
             return 0
         if line == "$I":
-            self._say(BUILD)
-            self._say(OPTIONS)
+            for text in self.build.lines():
+                self._say(text)
             return 0
         if line == "$N":
             self._say("$N0=")

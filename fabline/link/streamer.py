@@ -10,8 +10,15 @@ line known to be executed after re-establishing the modal state. How it knows wh
     half-received line (`#` + newline always fails to parse) and reads `$G`: its T word is the tag of
     the last line parsed, looked up within the 255 lines after the last journaled `ok`, so lines whose
     `ok` never arrived (or never reached the disk) are settled by the controller itself.
-  * after an alarm or a halt (feed hold + reset) the planner is flushed; the interrupted line is the
-    one whose path holds the stopped position, and it is run again from its start.
+  * after an alarm or a halt (feed hold + reset) the planner is flushed; the interrupted line is found
+    from the stopped position within the window of lines that can still have been in the planner (the
+    acknowledged lines back to `planner_blocks` motion lines, or the `Ln:` of builds that report it), and
+    it is run again from its start. A position that fits several lines of the window (a retraced path) is
+    refused, naming the candidate file lines, for the operator to choose with --from-line.
+  * a host that died during a feed hold: cycle start lets the controller finish what it holds, then `$G`.
+Motion is planned from the controller's work position at the start of the run (kept in the journal).
+Before the first move the controller's build (`$I`) and settings (`$$`) are checked against the program and
+its machine profile (`fabline.link.compat`); the port and the journal are locked for the whole run.
 """
 
 from __future__ import annotations
@@ -30,14 +37,19 @@ import serial
 
 from fabline.errors import FablineError
 from fabline.fileio import open_append
+from fabline.link.build import STOCK_BUILD, BuildInfo
 from fabline.link.codes import explain_alarm, explain_error, listing
-from fabline.link.gcode import ModalState
+from fabline.link.compat import controller_problems, program_machine
+from fabline.link.gcode import ModalState, Vector
 from fabline.link.journal import Journal, JournalState, default_journal_path, read_journal
 from fabline.link.program import TAG_CYCLE, Program, line_tag, load_program
-from fabline.link.protocol import (CYCLE_START, FEED_HOLD, RX_BUFFER_SIZE, SOFT_RESET, STATUS_QUERY,
-                                   CharacterCounter, LineSplitter, Response, StatusReport, classify)
+from fabline.link.protocol import (CYCLE_START, FEED_HOLD, SOFT_RESET, STATUS_QUERY, CharacterCounter,
+                                   LineSplitter, Response, StatusReport, classify)
+from fabline.locks import exclusive_lock, lock_path
 
 MODES = ("counting", "send-response")
+SEGMENT_BUFFER = 6
+"""Grbl's stepper segment buffer (SEGMENT_BUFFER_SIZE): up to this many blocks may still run after leaving the planner."""
 POSITION_TOLERANCE = 0.01
 """mm: status reports carry three decimals; a stopped position is matched to a path within this."""
 _FLUSH_LINE = b"#\n"
@@ -46,7 +58,6 @@ COMMIT_INTERVAL = 0.05
 lags the controller by far fewer than the 255 lines a `$G` tag can tell apart."""
 _TAG = re.compile(r"\bT(\d+)\b")
 _MOTION_WORD = re.compile(r"G0*[0-3](?![0-9.])")
-_OPTIONS = re.compile(r"^OPT:[^,]*,(\d+),(\d+)")
 
 
 @dataclass(frozen=True)
@@ -61,6 +72,8 @@ class Progress:
     elapsed: float
     remaining: float | None
     file_line: int | None
+    message: str | None = None
+    """Set while the program waits for the operator: `program paused (M0) at file line N: resume to continue`."""
 
 
 @dataclass(frozen=True)
@@ -78,7 +91,8 @@ class StreamResult:
 class StreamInterrupted(FablineError):
     """The stream stopped on an error, an alarm or a lost connection; the journal allows a resume.
 
-    `reason` is one of: error, alarm, connection, reset; `executed` counts the program lines known done.
+    `reason` is one of: error, alarm, connection, reset, undecided (the stopped position fits several lines:
+    resume with --from-line); `executed` counts the program lines known done.
     """
 
     def __init__(self, message: str, reason: str, executed: int):
@@ -89,6 +103,10 @@ class StreamInterrupted(FablineError):
 
 class _Lost(Exception):
     """The port failed (device vanished, socket closed)."""
+
+
+class _Undecided(Exception):
+    """The stopped position does not tell which line was executing: the operator must say (--from-line)."""
 
 
 def check_port(url: str) -> None:
@@ -103,12 +121,26 @@ def check_port(url: str) -> None:
                            "socket://, rfc2217://, loop:// or sim://)")
 
 
+def _checked_identity(identity: dict[str, str] | None) -> dict[str, str] | None:
+    """A run identity as the journal keeps it: names and values are text; an empty one is none."""
+    if identity is None or identity == {}:
+        return None
+    if not isinstance(identity, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in identity.items()):
+        raise FablineError(f"a run identity maps names to text, such as {{'job': 'pavilion', 'run': '3'}}; got {identity!r}")
+    return dict(identity)
+
+
+def _describe(identity: dict[str, str] | None) -> str:
+    return "no named run" if identity is None else "run " + ", ".join(f"{k}={v}" for k, v in sorted(identity.items()))
+
+
 class Streamer:
     """A GRBL 1.1 host on one port (`/dev/ttyUSB0`, `socket://host:port`, `rfc2217://...`, `sim://grbl`, ...)."""
 
     def __init__(self, port: str, *, baud: int = 115200, mode: str = "counting", status_interval: float = 0.2,
-                 connect_timeout: float = 5.0, settle_timeout: float = 3600.0, reconnect_timeout: float = 0.0,
-                 silence_timeout: float = 10.0, exchange_log: str | os.PathLike | None = None):
+                 connect_timeout: float = 5.0, settle_timeout: float = 600.0, reconnect_timeout: float = 0.0,
+                 silence_timeout: float = 10.0, stop_timeout: float = 30.0,
+                 exchange_log: str | os.PathLike | None = None):
         if mode not in MODES:
             raise FablineError(f"unknown streaming mode {mode!r}; use one of {', '.join(MODES)}")
         self.url = port
@@ -117,11 +149,15 @@ class Streamer:
         self.status_interval = status_interval
         self.connect_timeout = connect_timeout
         self.settle_timeout = settle_timeout
+        """s to wait for a controller left running by an interrupted job to finish its buffered moves."""
+        self.stop_timeout = stop_timeout
+        """s to wait for the machine to stand still after a feed hold (deceleration takes well under one)."""
         self.reconnect_timeout = reconnect_timeout
         self.silence_timeout = silence_timeout
         self._last_heard = time.monotonic()
         self.exchange_log_path = exchange_log
-        self.rx_buffer = RX_BUFFER_SIZE
+        self.build = STOCK_BUILD
+        self.rx_buffer = STOCK_BUILD.rx_buffer
         self.settings: dict[int, float] = {}
         self.version: str | None = None
         self.status: StatusReport | None = None
@@ -135,8 +171,10 @@ class Streamer:
         self._splitter = LineSplitter()
         self._realtime: list[bytes] = []
         self._abort = threading.Event()
-        self._control = threading.Lock()
+        self._control = threading.RLock()  # taken by signal handlers too (SIGUSR1 resume), in the thread they interrupt
         self._paused = False
+        self._pauses: list[int] = []  # acknowledged M0 lines whose pause has not been reported yet
+        self.message: str | None = None
 
     # ----- control from any thread -----------------------------------------------------------------
     def pause(self) -> None:
@@ -150,6 +188,7 @@ class Streamer:
         with self._control:
             self._realtime.append(CYCLE_START)
             self._paused = False
+            self.message = None
 
     def abort(self) -> None:
         """Stop the job safely (feed hold, then reset); the journal allows a later resume."""
@@ -163,77 +202,126 @@ class Streamer:
     # ----- the job -----------------------------------------------------------------------------------
     def run(self, program: Program | str | os.PathLike, *, on_progress: Callable[[Progress], None] | None = None,
             journal: str | os.PathLike | None = None, resume: bool = False, check: bool = False,
-            unlock: bool = False, start_line: int | None = None, restart: bool = False) -> StreamResult:
+            unlock: bool = False, start_line: int | None = None, restart: bool = False,
+            identity: dict[str, str] | None = None, machine: str | None = None,
+            force: bool = False) -> StreamResult:
         """Stream `program`; `resume` continues an interrupted job from its journal; `check` runs GRBL check
         mode ($C) over the whole program first; `unlock` clears an alarm ($X) left by an interrupted job;
-        `start_line` (a file line) overrides where a resume restarts when the journal cannot tell. A new run
-        refuses to start over an interrupted one of the same program unless `restart` says so."""
+        `start_line` (a file line, with `resume`) is the operator's choice of where to restart, used instead of
+        what the journal and the controller tell. A new run refuses to start over an interrupted one of the
+        same program and identity unless `restart` says so. `identity` (e.g. job and run ids) is written to the
+        journal; a resume must give the same. `machine` (a profile name or path) overrides the profile the
+        program's header names; `force` streams despite controller conflicts (logged in journal and log)."""
         if not isinstance(program, Program):
             path = Path(program)
             program = load_program(path)
             journal = journal if journal is not None else default_journal_path(path)
         if journal is None:
             raise FablineError("a journal path is needed to stream a program that was not read from a file")
-        self.program, self.journal_path = program, Path(journal)
-        self.blocks = program.plan(ModalState(), (0.0, 0.0, 0.0))
-        previous = self._previous_job(resume, start_line, restart)
-        self.on_progress = on_progress
-        self._open()
-        try:
-            if check:
-                self._check_mode()
-            self.journal = Journal(self.journal_path, sync_interval=COMMIT_INTERVAL).open()
+        if start_line is not None and not resume:
+            raise FablineError("--from-line needs --resume")
+        identity = _checked_identity(identity)
+        self.program, self.journal_path, self.force = program, Path(journal), force
+        self.profile = program_machine(program, machine)
+        device = self.url.split("?", 1)[0]  # one lock per device, whatever options the URL has
+        if device.startswith("sim://"):
+            device += f"#{os.getpid()}"  # sim:// controllers live in their process: another process has its own
+        port_lock = lock_path(device)
+        with exclusive_lock(port_lock, f"port {self.url}"), \
+                exclusive_lock(lock_path(str(self.journal_path)), f"journal {self.journal_path}"):
+            previous = self._previous_job(resume, restart, identity)
+            self.on_progress = on_progress
+            self._open()
             try:
-                return self._job(previous, unlock, start_line)
+                if check:
+                    self._check_mode()
+                return self._job(previous, unlock, start_line, identity)
             finally:
-                self.journal.close()
-        finally:
-            self._close()
-            self._abort.clear()  # an abort asked for before or during this run stopped it; the next run starts afresh
+                self._close()
+                self._abort.clear()  # an abort asked for before or during this run stopped it; the next starts afresh
 
-    def _previous_job(self, resume: bool, start_line: int | None, restart: bool) -> JournalState | None:
-        """The journal of the job being resumed, checked against the program; None for a new job, whose
-        journal starts afresh (an interrupted run of this program is not overwritten by accident)."""
+    def _previous_job(self, resume: bool, restart: bool, identity: dict[str, str] | None) -> JournalState | None:
+        """The journal of the job being resumed, checked against the program and identity; None for a new job,
+        whose journal starts afresh (an interrupted run of this program and identity is not overwritten by
+        accident; --restart never reads the old journal, so a damaged one cannot block it)."""
+        path, program = self.journal_path, self.program
         if not resume:
-            if start_line is not None:
-                raise FablineError("--from-line needs --resume")
-            if self.journal_path.is_file():
-                state = read_journal(self.journal_path)
-                if state.sha256 == self.program.sha256 and not state.finished and not restart:
-                    raise FablineError(
-                        f"{self.journal_path}: an earlier run of {self.program.name} stopped after file line "
-                        f"{self._file_line(state.done - 1) if state.done else 'none'} without finishing; "
-                        "continue it with --resume, or start the sheet over with --restart")
-                self.journal_path.unlink()
+            if restart or not path.is_file() or path.stat().st_size == 0:
+                return None
+            state = read_journal(path)
+            if state.sha256 == program.sha256 and not state.finished and state.identity == identity:
+                raise FablineError(
+                    f"{path}: an earlier run of {program.name} stopped after file line "
+                    f"{self._file_line(state.done - 1) if state.done else 'none'} without finishing; "
+                    "continue it with --resume, or start the sheet over with --restart")
             return None
-        state = read_journal(self.journal_path)
-        if state.sha256 != self.program.sha256:
-            raise FablineError(f"{self.journal_path}: journal belongs to a different program (the G-code file changed)")
+        state = read_journal(path)
+        if state.sha256 != program.sha256:
+            raise FablineError(f"{path}: journal belongs to a different program (the G-code file changed)")
         if state.finished:
-            raise FablineError(f"{self.journal_path}: the job is already finished; nothing to resume")
-        if any(block.modal.distance == "G91" for block in self.blocks):
-            raise FablineError(f"{self.program.name}: programs that use relative distances (G91) cannot be resumed safely")
+            raise FablineError(f"{path}: the job is already finished; nothing to resume")
+        if state.identity != identity:
+            raise FablineError(f"{path}: the interrupted run belongs to {_describe(state.identity)}, not "
+                               f"{_describe(identity)}; resume it as that run, or start over with --restart")
+        if state.total != len(program.lines) or max(state.acked, state.done, state.sent) > len(program.lines):
+            raise FablineError(f"{path}: journal counts more lines than {program.name} has; the journal is damaged: "
+                               "start the sheet over with --restart, or resume with --from-line")
+        if any(block.modal.distance == "G91" for block in program.plan(ModalState(), (0.0, 0.0, 0.0))):
+            raise FablineError(f"{program.name}: programs that use relative distances (G91) cannot be resumed safely")
         return state
 
-    def _job(self, previous: JournalState | None, unlock: bool, start_line: int | None) -> StreamResult:
-        """Start or resume the job, then stream it, reconnecting and recovering after a lost connection."""
+    def _job(self, previous: JournalState | None, unlock: bool, start_line: int | None,
+             identity: dict[str, str] | None) -> StreamResult:
+        """Start or resume the job (checked against the controller first), then stream it, reconnecting and
+        recovering after a lost connection."""
         program = self.program
         self.bytes_sent = 0
+        self.acked = self.done = self.sent = 0
         if previous is None:
             self._fresh_start(unlock)
-            executed, preamble = 0, []
+            self.origin = self._work_position()
         else:
-            self.acked, self.done = previous.acked, previous.done
-            executed = self._recover(previous, unlock)
-            if start_line is not None:
-                executed = self._index_of_file_line(start_line)
-            preamble = self._preamble(executed)
+            self.origin = previous.origin
+            if self.origin is None and start_line is None:
+                raise FablineError(f"{self.journal_path}: the journal does not say where the run started (an older "
+                                   "fabline wrote it); resume with --from-line")
+            if self.origin is None:
+                self.origin = self._work_position()
+        self.blocks = program.plan(ModalState(), self.origin)
+        problems = self._check_controller() if self.settings else None  # known unless found busy or in alarm
+        if previous is None:
+            executed = 0
+        elif start_line is not None:  # the operator's choice overrides anything the journal would infer
+            executed = self._index_of_file_line(start_line)
+            self._stop_where_it_is(unlock)
+        else:
+            self.acked, self.done, self.sent = previous.acked, previous.done, previous.sent
+            try:
+                executed = self._recover(previous, unlock)
+            except _Undecided as exc:
+                raise StreamInterrupted(str(exc), "undecided", previous.done) from None
+        if problems is None:  # read now that the controller stands still (a held one was first let finish)
+            problems = self._check_controller()
+        self.journal = Journal(self.journal_path, sync_interval=COMMIT_INTERVAL).open(fresh=previous is None)
+        try:
+            return self._journaled_job(previous, executed, identity, problems)
+        finally:
+            self.journal.close()
+
+    def _journaled_job(self, previous: JournalState | None, executed: int, identity: dict[str, str] | None,
+                       forced: list[str]) -> StreamResult:
+        """Stream with the journal open, from `executed` lines on; recover in place from a lost connection."""
+        program = self.program
         self.journal.record("start", program=program.name, sha256=program.sha256, lines=len(program.lines),
-                            mode=self.mode)
+                            mode=self.mode, origin=list(self.origin), identity=identity)
+        if forced:
+            self.journal.record("forced", problems=forced)
+            self._exchange("#", "--force: streaming despite: " + "; ".join(forced))
         if previous is not None:
             self.journal.record("resume", count=executed)
         self.journal.commit()
-        self.acked = self.done = self.first_index = executed
+        preamble = self._preamble(executed) if previous is not None else []
+        self.acked = self.done = self.sent = self.first_index = executed
         self.started = time.monotonic()  # elapsed counts streaming, not the handshake
         while True:
             try:
@@ -246,18 +334,34 @@ class Streamer:
                     raise StreamInterrupted(
                         f"{self.url}: connection lost ({exc}) after file line {self._file_line(self.acked - 1)}; "
                         "run again with --resume", "connection", self.done) from None
-                executed = self._recover(JournalState(acked=self.acked, done=self.done), unlock=False)
+                state = JournalState(acked=self.acked, done=self.done, sent=self.sent, stopped="connection lost")
+                try:
+                    executed = self._recover(state, unlock=False)
+                except _Undecided as exc:
+                    self._stop_undecided(exc)
                 preamble = self._preamble(executed)
-                self.acked = self.done = executed
+                self.acked = self.done = self.sent = executed
                 self.journal.record("resume", count=executed)
                 self.journal.commit()
+
+    def _check_controller(self) -> list[str]:
+        """Refuse a controller whose build or settings conflict with the program or its profile (one line naming the
+        setting and the fix), unless `force`; return the problems forced past."""
+        if not self.settings:  # not read when the controller was found in alarm or busy
+            self._read_build_info()
+        problems = controller_problems(self.program, self.blocks, self.origin, self.settings, self.build,
+                                       self.profile, self._wco)
+        if problems and not self.force:
+            more = f" (and {len(problems) - 1} more conflict{'s' if len(problems) > 2 else ''})" if len(problems) > 1 else ""
+            raise FablineError(f"{problems[0]}{more}; nothing was sent (--force streams anyway)")
+        return problems
 
     def _stream(self, preamble: list[bytes]) -> StreamResult:
         """Send everything from `self.done` on; return when the machine has executed the last line."""
         lines = self.program.lines
         outgoing = [(None, wire) for wire in preamble] + [(line.index, line.wire) for line in lines[self.done:]]
         counter = CharacterCounter(self.rx_buffer, max_lines=1 if self.mode == "send-response" else None)
-        self._counter, self._errors = counter, []
+        self._counter, self._errors, self._pauses = counter, [], []
         self._status_after_last_ok = False
         position, next_poll, next_report = 0, 0.0, 0.0
         self._last_heard = time.monotonic()
@@ -271,6 +375,7 @@ class Streamer:
                 counter.sent(index, len(wire))
                 if index is not None:
                     self.journal.record("sent", n=index, line=lines[index].file_line)
+                    self.sent = index + 1
                 batch.append(wire)
                 position += 1
             if batch:
@@ -312,6 +417,8 @@ class Streamer:
             if index is not None:
                 self.journal.record("ok", n=index, line=self.program.lines[index].file_line)
                 self.acked = index + 1
+                if self.blocks[index].pause:
+                    self._pauses.append(index)
             return
         if index is not None:
             self.journal.record("error", n=index, line=self.program.lines[index].file_line, code=response.code)
@@ -337,6 +444,8 @@ class Streamer:
         self._status_after_last_ok = True
         if self._errors:
             return  # after a rejected line only the halt decides what ran
+        if self._pauses and status.state == "Hold" and status.substate == 0:
+            self._program_paused(self._pauses.pop(0))
         executed = self.done
         if status.line_number is not None and status.state in ("Run", "Hold"):
             index = self._index_of_file_line(status.line_number, strict=False)
@@ -348,13 +457,26 @@ class Streamer:
             self.done = executed
             self.journal.record("done", count=executed)
 
+    def _program_paused(self, index: int) -> None:
+        """An M0 stopped the machine: say so (progress, journal, log) and wait for the operator's cycle start."""
+        line = self.program.lines[index].file_line
+        with self._control:
+            self._paused = True
+            self.message = f"program paused (M0) at file line {line}: resume to continue"
+        self.journal.record("paused", line=line)
+        self._exchange("#", self.message)
+        self._report()
+
     # ----- stopping -------------------------------------------------------------------------------------
     def _stop_on_alarm(self, code: int | None) -> None:
         """An alarm flushed the controller: find the interrupted line from the stopped position, then stop."""
         self.journal.record("alarm", code=code)
         self.journal.commit()
         status = self._query_status()
-        executed = self._executed_from_position(status, planner_empty=False)
+        try:
+            executed = self._executed_from_position(status, planner_empty=False)
+        except _Undecided as exc:
+            self._stop_undecided(exc, f"ALARM:{code}: ")
         self.done = executed
         self.journal.record("done", count=executed)
         self.journal.record("stopped", reason=f"ALARM:{code}")
@@ -363,7 +485,10 @@ class Streamer:
                                 "check the machine, then run again with --resume --unlock", "alarm", executed)
 
     def _stop_on_abort(self, counter: CharacterCounter) -> StreamResult:
-        executed = self._halt(rejected=None)
+        try:
+            executed = self._halt(rejected=None)
+        except _Undecided as exc:
+            self._stop_undecided(exc, "aborted: ")
         self.journal.record("done", count=executed)
         self.journal.record("stopped", reason="aborted")
         self.journal.commit()
@@ -371,69 +496,148 @@ class Streamer:
         return StreamResult(False, executed, len(self.program.lines), "aborted", time.monotonic() - self.started,
                             self.bytes_sent)
 
+    def _stop_undecided(self, exc: _Undecided, cause: str = "") -> None:
+        """Journal that the stopped position did not tell the line (a resume must then be told, --from-line)."""
+        self.journal.record("stopped", reason=f"undecided: {exc}")
+        self.journal.commit()
+        raise StreamInterrupted(f"{cause}{exc}", "undecided", self.done) from None
+
     def _halt(self, rejected: int | None) -> int:
         """Feed hold until the machine stands still, reset to flush its buffers, unlock; return lines executed."""
-        deadline = time.monotonic() + self.settle_timeout
+        status = self._query_status()
+        if status.state == "Idle" and not (self._counter and self._counter.in_flight):
+            self._soft_reset()  # nothing left that could start: every acknowledged line is done
+            return self._executed_from_position(status, True, rejected)
+        deadline = time.monotonic() + self.stop_timeout
         while True:
-            self._write(FEED_HOLD)
+            self._write(FEED_HOLD)  # again each time: a hold asked for while a line was parsing may not have taken
             status = self._query_status()
             if status.state == "Hold" and status.substate == 0:
+                status = self._query_status()  # answers the controller sent before this report are read by now
                 break
             if status.state in ("Idle", "Alarm", "Check") and not (self._counter and self._counter.in_flight):
                 break
             if time.monotonic() > deadline:
-                raise StreamInterrupted(f"{self.url}: the machine did not stop after a feed hold", "error", self.done)
+                self._soft_reset()
+                raise StreamInterrupted(f"{self.url}: the machine did not stop within {self.stop_timeout:g} s of a feed "
+                                        f"hold (it reported {status.state}), so it was reset; check the part and "
+                                        "resume with --from-line", "error", self.done)
             time.sleep(0.02)
         self._soft_reset()  # first, so the machine is never left in a hold whatever the verdict
         return self._executed_from_position(status, status.state == "Idle", rejected)
 
     def _executed_from_position(self, status: StatusReport, planner_empty: bool, rejected: int | None = None) -> int:
-        """Lines executed when the machine stopped at `status`'s position with its planner flushed."""
+        """Lines executed when the machine stopped at `status` with its planner flushed: the executing line is one
+        of the window of lines that can still have been in the planner (`_window`), the one whose path holds
+        the stopped position; `Ln:` names it where the build reports it. Raises _Undecided when no line or
+        several lines of the window fit the position."""
         acked = self.acked
         if planner_empty:
             return rejected if rejected is not None else acked
+        if status.line_number is not None and status.state in ("Run", "Hold"):
+            index = self._index_of_file_line(status.line_number, strict=False)
+            if index is not None and self.done <= index <= self.sent:
+                return index if rejected is None else min(index, rejected)
         position = status.work_position(self._wco)
-        for index in range(self.done, min(acked + TAG_CYCLE, len(self.blocks))):
-            segment = self.blocks[index].segment
-            if segment is None or segment.length <= POSITION_TOLERANCE:
-                continue
-            if segment.contains(position, POSITION_TOLERANCE) and math.dist(position, segment.end) > POSITION_TOLERANCE:
-                if rejected is not None and index > rejected:
-                    raise StreamInterrupted(
-                        f"{self.url}: the controller ran file line {self.program.lines[index].file_line}, past the "
-                        f"rejected line {self.program.lines[rejected].file_line}; resume with --from-line", "error", self.done)
-                return index
+        counts = self._counts_at(position)
         if rejected is not None:
-            return rejected
-        end = self.blocks[acked - 1].segment.end if acked and self.blocks[acked - 1].segment else None
-        if acked == 0 or (end is not None and math.dist(position, end) <= POSITION_TOLERANCE):
-            return acked
-        raise StreamInterrupted(f"{self.url}: cannot tell which line the machine stopped in (position {position}); "
-                                "check the part and resume with --from-line", "alarm", self.done)
+            beyond = sorted(count for count in counts if count > rejected)
+            if beyond:
+                raise _Undecided(f"{self.url}: the controller ran file line {self._file_line(beyond[0])}, past the "
+                                 f"rejected line {self.program.lines[rejected].file_line}; check the part and resume "
+                                 "with --from-line")
+            if not counts:
+                return rejected
+        if len(counts) == 1:
+            return counts.pop()
+        where = ", ".join(f"{v:.3f}" for v in position)
+        if not counts:
+            raise _Undecided(f"{self.url}: cannot tell which line the machine stopped in (work position {where}, "
+                             f"none of file lines {self._file_line(self._window()[0])}.."
+                             f"{self._file_line(self.sent - 1)} passes there); check the part and resume with "
+                             "--from-line")
+        lines = [str(self._file_line(count)) if count < len(self.program.lines) else "the end" for count in sorted(counts)]
+        raise _Undecided(f"{self.program.name}: the machine stopped at {where}, where the path passes more than once "
+                         f"(file lines {', '.join(lines)} can have been cutting); look at the part and resume with "
+                         f"--resume --from-line N, N the first line not yet cut (one of {', '.join(lines)})")
+
+    def _window(self) -> tuple[int, int]:
+        """The lines that can have been executing: back from the last acknowledged line by at most the planner's
+        size plus the stepper's segment buffer in motion lines (a motion takes at least one planner block, and
+        leaves the planner once prepared into segments, before it has run), up to the last line sent."""
+        rejected = {index for index, _ in self._errors}
+        low, motions, room = self.acked, 0, self.build.planner_blocks + SEGMENT_BUFFER
+        while low > self.done:
+            if self.blocks[low - 1].segment is not None and low - 1 not in rejected:
+                if motions == room:
+                    break
+                motions += 1
+            low -= 1
+        return low, min(max(self.sent, self.acked), len(self.blocks))
+
+    def _counts_at(self, position: Vector) -> set[int]:
+        """Every count of executed lines the stopped `position` fits: strictly inside motion line m (m lines done), or
+        at rest between motion lines p and q (p + 1 done, and the lines between them that were acknowledged)."""
+        low, high = self._window()
+        motions = [index for index in range(low, high) if self._moves(index)]
+        before = next((index for index in range(low - 1, -1, -1) if self._moves(index)), None)
+        counts = set()
+        rest = self.origin if before is None else self.blocks[before].segment.end
+        following = motions + [len(self.blocks)]
+        if math.dist(position, rest) <= POSITION_TOLERANCE:
+            counts.add(min(max(self.acked, (before if before is not None else -1) + 1), following[0]))
+        for number, index in enumerate(motions):
+            segment = self.blocks[index].segment
+            if math.dist(position, segment.end) <= POSITION_TOLERANCE:
+                counts.add(min(max(self.acked, index + 1), following[number + 1]))
+            elif (math.dist(position, segment.start) > POSITION_TOLERANCE
+                  and segment.contains(position, POSITION_TOLERANCE)):
+                counts.add(index)
+        return {count for count in counts if count >= self.done}
+
+    def _moves(self, index: int) -> bool:
+        segment = self.blocks[index].segment
+        return segment is not None and segment.length > POSITION_TOLERANCE
 
     # ----- resuming -------------------------------------------------------------------------------------
     def _recover(self, previous: JournalState, unlock: bool) -> int:
         """Bring a controller left by an interrupted job to Idle and return how many lines it executed."""
         status = self._settle()
-        if status.state == "Alarm":
-            if not unlock:
-                raise FablineError(f"{self.url}: the controller is in alarm; check the machine, then resume with --unlock")
-            if previous.alarm is not None or previous.stopped and previous.stopped.startswith(("ALARM", "error", "aborted")):
-                executed = previous.done
-            else:
-                executed = self._executed_from_position(status, planner_empty=False)
-            self._soft_reset(unlock=True)
-            return executed
-        if status.state == "Hold":  # stopped in a feed hold (the host died pausing or halting): judge, reset
+        if status.state == "Alarm" and not unlock:
+            raise FablineError(f"{self.url}: the controller is in alarm; check the machine, then resume with --unlock")
+        stopped = previous.stopped or ""
+        if stopped.startswith("undecided"):
+            raise _Undecided(f"{self.journal_path}: the last run stopped where fabline could not tell the line "
+                             f"({stopped[len('undecided: '):]})")
+        if stopped.startswith(("error", "aborted", "ALARM")):  # the host that stopped it judged what ran
+            executed = previous.done
+        elif status.state == "Hold" and not stopped.startswith("controller reset"):
+            # held when its host went away: let it finish what it holds (the operator asked to resume), then ask $G
+            self._exchange("#", "cycle start: the controller was held by an interrupted run")
+            self._write(CYCLE_START)
+            deadline = time.monotonic() + max(self.connect_timeout, 2.0)
+            while self._query_status().state == "Hold" and time.monotonic() < deadline:
+                time.sleep(0.02)
+            status = self._settle()
+            if status.state == "Idle":
+                return self._parsed_count(previous)
             executed = self._executed_from_position(status, planner_empty=False)
-            self._soft_reset(unlock=True)
-            return executed
-        if status.state != "Idle":
+        elif status.state in ("Alarm", "Hold") or stopped.startswith("controller reset"):
+            executed = self._executed_from_position(status, planner_empty=False)
+        elif status.state == "Idle":
+            return self._parsed_count(previous)
+        else:
             raise FablineError(f"{self.url}: the controller is in state {status.state}; it must be Idle to resume")
-        if previous.stopped and previous.stopped.startswith(("error", "aborted", "ALARM")):
-            return previous.done
+        if status.state in ("Alarm", "Hold"):
+            self._soft_reset(unlock=True)
+        return executed
+
+    def _parsed_count(self, previous: JournalState) -> int:
+        """Lines executed by an Idle controller that finished everything it parsed: its `$G` tag names the last
+        line parsed, looked up within the lines after the last journaled `ok`."""
         self._flush_partial_line()
         modes = self._command(b"$G\n")
+        self._settle()  # lines still in its receive buffer when it looked idle were parsed before `#`: let them run
         tag = next((int(match.group(1)) for text in modes if (match := _TAG.search(text))), None)
         for index in range(previous.acked - 1, min(previous.acked - 1 + TAG_CYCLE, len(self.program.lines))):
             if line_tag(index) == tag:
@@ -441,6 +645,19 @@ class Streamer:
         raise FablineError(f"{self.url}: cannot tell how far the controller got after file line "
                            f"{self._file_line(previous.acked - 1)} (it was reset: parser tag T{tag}); check the part "
                            "and resume with --from-line")
+
+    def _stop_where_it_is(self, unlock: bool) -> None:
+        """For an operator's --from-line: wait for the controller to finish or stand still, then drop whatever it
+        holds (a hold or an alarm is reset), so only the chosen line and what follows run."""
+        status = self._settle()
+        if status.state == "Alarm" and not unlock:
+            raise FablineError(f"{self.url}: the controller is in alarm; check the machine, then resume with --unlock")
+        if status.state in ("Alarm", "Hold"):
+            self._soft_reset(unlock=True)
+        elif status.state == "Idle":
+            self._flush_partial_line()
+        else:
+            raise FablineError(f"{self.url}: the controller is in state {status.state}; it must be Idle to resume")
 
     def _preamble(self, executed: int) -> list[bytes]:
         """Commands that restore the modal state after `executed` lines and move safely to the restart point."""
@@ -485,11 +702,11 @@ class Streamer:
                 raise FablineError(f"{self.program.name}:{line.file_line}: cannot restart before this line: it relies on "
                                    f"modal {motion}; resume with --from-line at a line with its own G word")
 
-    def _position_after(self, executed: int) -> tuple[float, float, float]:
+    def _position_after(self, executed: int) -> Vector:
         for block in reversed(self.blocks[:executed]):
             if block.segment is not None:
                 return block.segment.end
-        return (0.0, 0.0, 0.0)
+        return self.origin
 
     # ----- connection -------------------------------------------------------------------------------------
     def _open(self) -> None:
@@ -542,12 +759,14 @@ class Streamer:
             self._read_build_info()
 
     def _read_build_info(self) -> None:
-        for text in self._command(b"$I\n"):
-            if text.startswith("VER:") and not text[4:].startswith("1.1"):
-                raise FablineError(f"port {self.url}: GRBL {text[4:]} found; fabline streams to GRBL 1.1")
-            options = _OPTIONS.match(text)
-            if options:
-                self.rx_buffer = int(options.group(2))
+        """The build from `$I` (buffer sizes, `Ln:` or not, M7 or not) and the settings from `$$`."""
+        feedback = self._command(b"$I\n")
+        self.build = BuildInfo.parse(feedback)
+        if not any(text.startswith("OPT:") for text in feedback):
+            self._exchange("#", "no [OPT:...] in $I: assuming a stock build")
+        if not self.build.version.startswith("1.1"):
+            raise FablineError(f"port {self.url}: GRBL {self.build.version} found; fabline streams to GRBL 1.1")
+        self.rx_buffer = self.build.rx_buffer
         for text in self._command(b"$$\n"):
             key, _, value = text.partition("=")
             try:
@@ -707,17 +926,29 @@ class Streamer:
         raise FablineError(f"{self.url}: the controller stopped answering status queries")
 
     def _settle(self) -> StatusReport:
-        """Wait until the controller has finished what it was given (Idle, Alarm or a stop)."""
+        """Wait until the controller has finished what it was given (Idle, Alarm or a stop), its work position known."""
         deadline = time.monotonic() + self.settle_timeout
         while True:
             status = self._query_status()
-            if status.state in ("Idle", "Alarm", "Check") or (status.state == "Hold" and status.substate == 0):
-                if self._wco is None and status.wpos is None:
-                    continue
+            settled = status.state in ("Idle", "Alarm", "Check") or (status.state == "Hold" and status.substate == 0)
+            if settled and (self._wco is not None or status.wpos is not None):
                 return status
             if time.monotonic() > deadline:
-                raise FablineError(f"{self.url}: the controller is still {status.state} after {self.settle_timeout:g} s")
-            time.sleep(self.status_interval)
+                raise FablineError(f"{self.url}: the controller is still {status.state} after {self.settle_timeout:g} s "
+                                   "of waiting for it to finish its buffered moves; stop it (reset), check the part "
+                                   "and resume with --from-line")
+            time.sleep(self.status_interval if not settled else 0.02)
+
+    def _work_position(self) -> Vector:
+        """The controller's work position now: where a new run's motion starts."""
+        deadline = time.monotonic() + max(self.connect_timeout, 2.0)
+        while time.monotonic() < deadline:
+            status = self._query_status()
+            position = status.work_position(self._wco) if (self._wco or status.wpos) else None
+            if position is not None and len(position) >= 3:
+                return tuple(float(v) for v in position[:3])
+            time.sleep(0.02)
+        raise FablineError(f"{self.url}: the controller reports no work position (no WCO in its status reports)")
 
     def _soft_reset(self, unlock: bool = True) -> None:
         """Ctrl-X: flush buffers and parser state; unlock the ALARM:3 a reset during a hold causes."""
@@ -755,7 +986,8 @@ class Streamer:
         self.on_progress(Progress(
             acked=self.acked, total=total, percent=100.0 * self.acked / total, state=status.state if status else "?",
             position=status.work_position(self._wco) if status else None, elapsed=elapsed,
-            remaining=remaining, file_line=self._file_line(self.acked - 1) if self.acked else None))
+            remaining=remaining, file_line=self._file_line(self.acked - 1) if self.acked else None,
+            message=self.message))
 
     def _exchange(self, direction: str, text: str) -> None:
         if self._log is not None:

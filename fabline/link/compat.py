@@ -1,0 +1,119 @@
+"""Controller compatibility, checked before the first move: do the controller's settings (`$$`) and build (`$I`)
+suit the program and the machine profile that made it?
+
+A laser program on a controller with `$32=0` fires the beam on every G0 travel; a program wider than the
+travel (`$130..$132`) or outside the soft limits stops with an alarm mid-sheet; M7 on a build without mist
+coolant is refused mid-job (error:20). Each problem is one line naming the setting and the fix.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import TYPE_CHECKING, Sequence
+
+from fabline.errors import FablineError
+from fabline.link.build import BuildInfo
+from fabline.link.gcode import Block, Vector
+from fabline.link.program import Program
+
+if TYPE_CHECKING:
+    from fabline.export.machine import MachineProfile
+
+_MIST = re.compile(r"M0*7(?![0-9.])")
+_AXES = "XYZ"
+_ARC_SAMPLES = 64
+_WHY = {32: "laser mode: the beam is off on G0 travel only when $32=1; a spindle or pen servo needs $32=0"}
+
+
+def program_machine(program: Program, machine: str | None) -> "MachineProfile | None":
+    """The profile a program is checked against: `machine` (an operator's --machine) or the one its header names."""
+    name = machine or program.machine
+    if name is None:
+        return None
+    from fabline.export.machine import load_machine  # the export stage is heavy to import: only when a profile is named
+    try:
+        return load_machine(name)
+    except FablineError as exc:
+        if machine:
+            raise
+        raise FablineError(f"{program.name}: made for machine {name}, which is not known here ({exc}); "
+                           "give --machine NAME or the path of its profile") from None
+
+
+def controller_problems(program: Program, blocks: Sequence[Block], origin: Vector, settings: dict[int, float],
+                        build: BuildInfo, profile: "MachineProfile | None",
+                        wco: Vector | None) -> list[str]:
+    """Every way the controller conflicts with the program (and its profile), each as a one-line message."""
+    problems = []
+    if profile is None:
+        problems += _laser_mode_problems(program, blocks, settings)
+    else:
+        for requirement in profile.required_settings:
+            actual = settings.get(requirement.number)
+            if actual is None:
+                problems.append(f"machine {profile.name} needs {requirement}, but the controller did not report "
+                                f"${requirement.number} in $$ (is it a Grbl 1.1?)")
+            elif not requirement.met_by(actual):
+                why = f" ({_WHY[requirement.number]})" if requirement.number in _WHY else ""
+                problems.append(f"machine {profile.name} needs {requirement}{why}, but the controller has "
+                                f"${requirement.number}={actual:g}; send ${requirement.number}={requirement.value:g} "
+                                f"to the controller, or give --machine with the profile of this machine")
+    if not build.mist_coolant:
+        mist = next((line for line in program.lines if _MIST.search(line.command)), None)
+        if mist is not None:
+            problems.append(f"{program.name}:{mist.file_line}: M7 (mist coolant) is not in this controller's build "
+                            f"([OPT:{build.options},...] has no M, Grbl answers error:20); use M8, or a build with M7")
+    problems += _travel_problems(blocks, origin, settings, wco)
+    return problems
+
+
+def _laser_mode_problems(program: Program, blocks: Sequence[Block], settings: dict[int, float]) -> list[str]:
+    """Without a profile, a program that switches a tool on with power (M3/M4 with S) is taken for a laser program."""
+    if settings.get(32, 0.0) == 1:
+        return []
+    for line, block in zip(program.lines, blocks):
+        if block.modal.spindle in ("M3", "M4") and block.modal.speed > 0:
+            return [f"{program.name}:{line.file_line}: {line.source.strip()!r} switches a laser on, but the controller "
+                    f"has $32={settings.get(32, 0.0):g} (laser mode off): every G0 travel would run with the beam on; "
+                    "send $32=1 to the controller, or give --machine with the (non-laser) profile that made the program"]
+    return []
+
+
+def program_extent(blocks: Sequence[Block], origin: Vector) -> tuple[list[float], list[float]]:
+    """The lowest and highest work coordinate per axis the program visits, starting at `origin` (arcs sampled)."""
+    low, high = list(origin), list(origin)
+    for block in blocks:
+        segment = block.segment
+        if segment is None:
+            continue
+        points = [segment.end] if segment.center is None else [segment.point_at(i / _ARC_SAMPLES)
+                                                               for i in range(1, _ARC_SAMPLES + 1)]
+        for point in points:
+            for axis in range(3):
+                low[axis] = min(low[axis], point[axis])
+                high[axis] = max(high[axis], point[axis])
+    return low, high
+
+
+def _travel_problems(blocks: Sequence[Block], origin: Vector, settings: dict[int, float],
+                     wco: Vector | None) -> list[str]:
+    """The program must fit the travel ($130..$132); with soft limits on ($20=1) it must also lie inside the machine
+    space Grbl checks, -travel..0 in machine coordinates (gnea/grbl system_check_travel_limits)."""
+    low, high = program_extent(blocks, origin)
+    problems = []
+    for axis in range(3):
+        travel = settings.get(130 + axis)
+        if travel is None:
+            continue
+        letter = _AXES[axis]
+        if high[axis] - low[axis] > travel + 1e-6:
+            problems.append(f"the program spans {high[axis] - low[axis]:.3f} mm in {letter} ({low[axis]:.3f} to "
+                            f"{high[axis]:.3f}) but the controller's {letter} travel ${130 + axis} is {travel:g} mm; "
+                            "use a machine that fits the sheet, or correct the travel setting")
+        elif settings.get(20) == 1 and wco is not None:
+            top, bottom = high[axis] + wco[axis], low[axis] + wco[axis]
+            if top > 1e-6 or bottom < -travel - 1e-6:
+                problems.append(f"soft limits are on ($20=1) and the program reaches machine {letter} "
+                                f"{bottom:.3f} to {top:.3f}, outside -{travel:g}..0 (${130 + axis}): Grbl would stop it "
+                                "with ALARM:2; move the work origin so the sheet lies inside the travel")
+    return problems
