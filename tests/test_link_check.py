@@ -60,8 +60,11 @@ def test_exported_sheets_pass_the_controllers_check_mode(cli, url, sheets, machi
     assert " G2 " in text or "\nG2 " in text or "\nG3 " in text or " G3 " in text   # the sheet has arcs
     program = load_program(sheets[machine])           # the rs274-mill header (G40 G49 G80) was error:20 here
     assert len(program.lines) > 100
-    code, out, err = cli("stream", sheets[machine], "--port", url[0].replace("time_scale=500", "time_scale=50000"),
-                         "--check")
+    from fabline.export import load_machine
+
+    settings = ",".join(f"{key}:{value:g}" for key, value in load_machine(machine).controller_settings().items())
+    port = url[0].replace("time_scale=500", f"time_scale=50000&settings={settings}")  # the machine the profile is for
+    code, out, err = cli("stream", sheets[machine], "--port", port, "--check")
     assert code == 0, err
 
 

@@ -45,13 +45,13 @@ def interrupt(runner: Runner, queue: JobQueue, job_id: int, k: int, port: str, a
 def test_a_program_finished_elsewhere_is_cut_again_in_full_by_a_new_job(tmp_path):
     program = square_program(tmp_path / "sheet.gcode", 10, 10, squares=3)
     before = tmp_path / "before.log"
-    Streamer(f"sim://elsewhere?time_scale=50&log={before}").run(program)  # `fabline stream`: journal beside it, finished
+    Streamer(f"sim://elsewhere?settings=32:1&time_scale=50&log={before}").run(program)  # `fabline stream`: journal beside it, finished
     assert (tmp_path / "sheet.gcode.journal").is_file()
     db = tmp_path / "q.sqlite"
     queue = JobQueue(db)
     job_id = queue.submit("again", programs=[("S1", str(program), "")])
     log = tmp_path / "runner.log"
-    runner = start(db, f"sim://again?time_scale=50&log={log}", auto_confirm=True)
+    runner = start(db, f"sim://again?settings=32:1&time_scale=50&log={log}", auto_confirm=True)
     try:
         runner.run_until_idle(60)
     finally:
@@ -65,7 +65,7 @@ def test_a_cancelled_job_resubmitted_starts_at_its_first_line(tmp_path):
     db = tmp_path / "q.sqlite"
     queue = JobQueue(db)
     log = tmp_path / "m1.log"
-    runner = start(db, f"sim://resubmit?time_scale=4&log={log}", auto_confirm=True)
+    runner = start(db, f"sim://resubmit?settings=32:1&time_scale=4&log={log}", auto_confirm=True)
     try:
         first = queue.submit("first", programs=[("S1", str(program), "")])
         wait(lambda: queue.sheets(first)[0].done_lines >= 6)
@@ -88,7 +88,7 @@ def test_a_restarted_runner_waits_for_the_operator_and_carries_out_each_choice(t
     queue = JobQueue(db)
     job_id = queue.submit("choices", programs=[(p.stem, str(p), "") for p in sheets])
     log = tmp_path / "m1.log"
-    port = f"sim://choices?time_scale=4&log={log}"
+    port = f"sim://choices?settings=32:1&time_scale=4&log={log}"
     runner = start(db, port, auto_confirm=True)
     try:
         # Sheet 1: cut off by a restart, waits, then "resume here": each line once.
@@ -177,7 +177,7 @@ def attention_page(tmp_path):
     queue = JobQueue(db)
     job_id = queue.submit("page-job", programs=[(p.stem, str(p), "") for p in sheets])
     log = tmp_path / "executed.log"
-    port = f"sim://attention-page?time_scale=4&log={log}"
+    port = f"sim://attention-page?settings=32:1&time_scale=4&log={log}"
     runner = interrupt(start(db, port, auto_confirm=True), queue, job_id, 0, port, auto_confirm=False)
     server = uvicorn.Server(uvicorn.Config(create_app(db, TOKEN, poll=0.1), host="127.0.0.1", port=free_port(),
                                            log_level="warning"))
@@ -236,7 +236,7 @@ def test_framing_traces_the_sheet_outline_with_the_laser_off_before_the_operator
     with pytest.raises(FablineError, match="a sheet is framed while it waits on its machine"):
         queue.request(job_id, "frame")  # not on a machine yet
     log = tmp_path / "m1.log"
-    runner = start(db, f"sim://frame?time_scale=50&log={log}")
+    runner = start(db, f"sim://frame?settings=32:1&time_scale=50&log={log}")
     try:
         wait(lambda: queue.job(job_id).machine == "m1")
         queue.request(job_id, "frame")
@@ -251,3 +251,28 @@ def test_framing_traces_the_sheet_outline_with_the_laser_off_before_the_operator
     corners = [re.sub(r"^N\d+|T\d+$", "", line) for line in executed[1:6]]
     assert corners == ["G0X12.000Y34.000", "G0X31.000Y34.000", "G0X31.000Y39.000", "G0X12.000Y39.000", "G0X12.000Y34.000"]
     assert not any(word in line for line in executed for word in ("M3", "M4", "S")), "the laser stays off"
+
+
+def test_a_program_pause_m0_waits_for_the_operator_with_a_message_and_resumes(tmp_path):
+    program = square_program(tmp_path / "sheet.gcode", 10, 10, squares=3)
+    lines = program.read_text(encoding="ascii").splitlines()
+    lines.insert(9, "M0")  # after the first square: the operator turns the sheet over, say
+    program.write_text("\n".join(lines) + "\n", encoding="ascii")
+    db = tmp_path / "q.sqlite"
+    queue = JobQueue(db)
+    job_id = queue.submit("m0", programs=[("S1", str(program), "")])
+    log = tmp_path / "m1.log"
+    runner = start(db, f"sim://m0?settings=32:1&time_scale=20&log={log}", auto_confirm=True)
+    try:
+        wait(lambda: queue.job(job_id).state == "paused")
+        machine = queue.machines()[0]
+        assert machine["state"] == "program paused (M0) at file line 10: resume to continue"
+        held = len(executed_program_lines(log))
+        time.sleep(0.5)
+        assert len(executed_program_lines(log)) == held and queue.job(job_id).state == "paused"
+        assert any("program paused (M0) at file line 10" in e["message"] for e in queue.events())
+        queue.request(job_id, "resume")
+        wait(lambda: queue.job(job_id).state == "done")
+    finally:
+        runner.stop()
+    assert executed_program_lines(log) == wire_lines(program)

@@ -153,7 +153,10 @@ def _ask(question: str) -> str | None:
 def _stop_on_signals():
     """SIGTERM and SIGHUP (a `kill`, a service stop, a closed terminal) stop the job like Ctrl-C does; returns
     the function that puts the previous handlers back."""
-    previous = {number: signal.signal(number, signal.default_int_handler) for number in (signal.SIGTERM, signal.SIGHUP)}
+    from fabline.link import STOP_SIGNALS
+
+    previous = {number: signal.signal(number, signal.default_int_handler) for number in STOP_SIGNALS
+                if number != signal.SIGINT}
     return lambda: [signal.signal(number, handler) for number, handler in previous.items()]
 
 

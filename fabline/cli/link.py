@@ -17,12 +17,10 @@ from tqdm import tqdm
 
 from fabline.cli import positive
 from fabline.errors import FablineError
-from fabline.link import Progress, Streamer, default_journal_path
+from fabline.link import STOP_SIGNALS, Progress, Streamer, default_journal_path
 from fabline.link.streamer import MODES
 
 KEYS_HELP = "keys: p = pause/resume (feed hold), q = abort safely"
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-"""Ctrl-C, `kill` (a service stop) and a closed terminal all stop the machine safely (feed hold, reset, journal)."""
 STOPPED = 1
 """Exit code of a run stopped by the operator or a signal: the journal allows --resume. Errors and refusals exit 2."""
 

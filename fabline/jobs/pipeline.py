@@ -263,7 +263,8 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
                     return
             started = time.perf_counter()
             receiver, sender = context.Pipe(duplex=False)
-            link = context.Process(target=stream_in_process, args=(port, sheet["gcode"], resume, sender), daemon=True)
+            link = context.Process(target=stream_in_process, daemon=True,
+                                   args=(port, sheet["gcode"], resume, {"job": result.spec.name}, sender))
             with lock:
                 signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS))  # inherited: a signal waits for the handlers
                 link.start()

@@ -196,16 +196,24 @@ class Runner:
         queue.set_machine(machine.name, state=f"cutting job {job.id} sheet {sheet.k + 1} of {job.sheets}")
         last_write = [0.0]
 
-        def on_progress(done_lines: int, position: tuple[float, ...] | None) -> None:
+        waiting: list[str | None] = [None]
+
+        def on_progress(done_lines: int, position: tuple[float, ...] | None, message: str | None) -> None:
             now = time.monotonic()
             if now - last_write[0] >= self.poll or done_lines >= sheet.lines:
                 last_write[0] = now
                 queue.sheet_progress(job.id, sheet.k, done_lines)
                 if position is not None:
                     queue.set_machine(machine.name, position=list(position))
+            if message and message != waiting[0]:  # the program paused itself (M0): the operator resumes it
+                queue.set_cutting_state(job.id, "paused")
+                queue.set_machine(machine.name, state=message)
+                queue.log(job.id, machine.name, f"job {job.id} sheet {sheet.k + 1}: {message}")
+            waiting[0] = message
 
+        identity = {"job": str(job.id), "run": sheet.run_id} if sheet.run_id else None
         stream = SheetStream(machine.port, sheet.program, on_progress, journal=sheet.journal,
-                             resume=bool(sheet.resume), from_line=sheet.from_line)
+                             resume=bool(sheet.resume), from_line=sheet.from_line, identity=identity)
         watcher = threading.Thread(target=self._watch_requests, args=(job.id, stream, machine), daemon=True)
         folder = (exclusive_lock(lock_path(job.output), f"job folder {job.output}") if job.output
                   else contextlib.nullcontext())

@@ -12,24 +12,27 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 from pathlib import Path
 from typing import Callable
 
 from fabline.errors import FablineError
-from fabline.link import Progress, Streamer, default_journal_path, load_program, read_journal
+from fabline.link import STOP_SIGNALS, Progress, Streamer, default_journal_path, load_program, read_journal
 
-OnProgress = Callable[[int, "tuple[float, ...] | None"], None]
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-"""Ctrl-C, `kill` and a closed terminal or service stop: each stops a stream safely (feed hold, reset, journal)."""
+OnProgress = Callable[[int, "tuple[float, ...] | None", "str | None"], None]
 
 
 class SheetStream:
-    """Stream `program` to `port`; `on_progress(lines done, work position)` is called as lines complete."""
+    """Stream `program` to `port`; `on_progress(lines done, work position, message)` is called as lines complete
+    (`message` is set while the program waits for the operator, e.g. after an M0). `identity` names the run
+    in its journal (the link stage refuses to resume a journal of another run)."""
 
     def __init__(self, port: str, program: str | os.PathLike, on_progress: OnProgress,
-                 journal: str | os.PathLike | None = None, resume: bool = False, from_line: int | None = None):
+                 journal: str | os.PathLike | None = None, resume: bool = False, from_line: int | None = None,
+                 identity: dict[str, str] | None = None):
         self.port = port
+        self.identity = identity
         self.program_path = Path(program)
         self.journal_path = Path(journal) if journal else default_journal_path(self.program_path)
         self.resume_journal = resume
@@ -52,7 +55,7 @@ class SheetStream:
         previous = read_journal(self.journal_path) if self.resume_journal and self.journal_path.is_file() else None
         if previous is not None and previous.sha256 == program.sha256 and previous.finished:
             self.executed = self.total
-            self.on_progress(self.total, None)
+            self.on_progress(self.total, None, None)
             return "finished"
         resume = previous is not None
         if self.from_line is not None and not resume:
@@ -62,12 +65,12 @@ class SheetStream:
 
         def progress(report: Progress) -> None:
             self.executed = report.acked
-            self.on_progress(report.acked, report.position)
+            self.on_progress(report.acked, report.position, report.message)
 
         result = self.streamer.run(program, on_progress=progress, journal=self.journal_path, resume=resume,
-                                   start_line=self.from_line, restart=not resume)
+                                   start_line=self.from_line, restart=not resume, identity=self.identity)
         self.executed = result.executed
-        self.on_progress(result.executed, None)
+        self.on_progress(result.executed, None, None)
         return "finished" if result.completed else "aborted"
 
     def pause(self) -> None:
@@ -93,12 +96,21 @@ class SheetStream:
                 "resumed_from": self.resumed_from}
 
 
-def stream_in_process(port: str, program: str, resume: bool, connection) -> None:
+def stream_in_process(port: str, program: str, resume: bool, identity: dict[str, str], connection) -> None:
     """Process target: stream one sheet (continuing its journal with `resume`), stop it safely on any of
-    STOP_SIGNALS (feed hold, reset, journal kept) and send (outcome in words, summary) through `connection`."""
-    stream = SheetStream(port, program, lambda done, position: None, resume=resume)
+    STOP_SIGNALS (feed hold, reset, journal kept) and send (outcome in words, summary) through `connection`.
+    A program pause (M0) is said on standard error; SIGUSR1 continues it (cycle start)."""
+    shown: list[str | None] = [None]
+
+    def progress(done: int, position, message: str | None) -> None:
+        if message and message != shown[0]:
+            print(f"{Path(program).name}: {message} (send SIGUSR1 to process {os.getpid()})", file=sys.stderr, flush=True)
+        shown[0] = message
+
+    stream = SheetStream(port, program, progress, resume=resume, identity=identity)
     for number in STOP_SIGNALS:
         signal.signal(number, lambda signum, frame: stream.stop())
+    signal.signal(signal.SIGUSR1, lambda signum, frame: stream.resume())
     signal.pthread_sigmask(signal.SIG_UNBLOCK, set(STOP_SIGNALS))  # blocked by the parent until the handlers are in place
     try:
         outcome = stream.run()

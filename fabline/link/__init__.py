@@ -13,7 +13,7 @@ from fabline.link.journal import default_journal_path, read_journal
 from fabline.link.program import Program, load_program, parse_program
 from fabline.link.server import SimulatorServer, executed_file_lines
 from fabline.link.simulator import Faults, GrblSimulator
-from fabline.link.streamer import Progress, Streamer, StreamInterrupted, StreamResult, check_port
+from fabline.link.streamer import STOP_SIGNALS, Progress, Streamer, StreamInterrupted, StreamResult, check_port
 
 if "fabline.link" not in serial.protocol_handler_packages:
     serial.protocol_handler_packages.append("fabline.link")
@@ -21,5 +21,5 @@ if "fabline.link" not in serial.protocol_handler_packages:
 __all__ = [
     "ALARM_CODES", "ERROR_CODES", "explain_alarm", "explain_error", "default_journal_path", "read_journal",
     "Program", "load_program", "parse_program", "Faults", "GrblSimulator", "SimulatorServer", "executed_file_lines", "Progress", "Streamer",
-    "StreamInterrupted", "StreamResult", "check_port",
+    "StreamInterrupted", "StreamResult", "check_port", "STOP_SIGNALS",
 ]

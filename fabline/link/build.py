@@ -53,3 +53,8 @@ class BuildInfo:
 
 STOCK_BUILD = BuildInfo()
 """A stock Grbl 1.1h build as compiled from gnea/grbl's defaults: no line numbers, no M7, 15 blocks, 128 bytes."""
+
+ANY_BUILD = BuildInfo(options="VNMR")
+"""A build with every option that changes what the G-code parser accepts (M7, M56): a program is read with it
+before the controller has said which build it is; what the real build lacks is then a compatibility problem."""
+

@@ -27,6 +27,7 @@ import importlib.util
 import math
 import os
 import re
+import signal
 import threading
 import time
 from dataclasses import dataclass
@@ -37,7 +38,7 @@ import serial
 
 from fabline.errors import FablineError
 from fabline.fileio import open_append
-from fabline.link.build import STOCK_BUILD, BuildInfo
+from fabline.link.build import ANY_BUILD, STOCK_BUILD, BuildInfo
 from fabline.link.codes import explain_alarm, explain_error, listing
 from fabline.link.compat import controller_problems, program_machine
 from fabline.link.gcode import ModalState, Vector
@@ -48,6 +49,8 @@ from fabline.link.protocol import (CYCLE_START, FEED_HOLD, SOFT_RESET, STATUS_QU
 from fabline.locks import exclusive_lock, lock_path
 
 MODES = ("counting", "send-response")
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""Ctrl-C, `kill` (a service stop) and a closed terminal: each stops a stream safely (feed hold, reset, journal)."""
 SEGMENT_BUFFER = 6
 """Grbl's stepper segment buffer (SEGMENT_BUFFER_SIZE): up to this many blocks may still run after leaving the planner."""
 POSITION_TOLERANCE = 0.01
@@ -214,7 +217,7 @@ class Streamer:
         program's header names; `force` streams despite controller conflicts (logged in journal and log)."""
         if not isinstance(program, Program):
             path = Path(program)
-            program = load_program(path)
+            program = load_program(path, build=ANY_BUILD)  # the controller's own build is checked once it answers
             journal = journal if journal is not None else default_journal_path(path)
         if journal is None:
             raise FablineError("a journal path is needed to stream a program that was not read from a file")
@@ -287,7 +290,7 @@ class Streamer:
                                    "fabline wrote it); resume with --from-line")
             if self.origin is None:
                 self.origin = self._work_position()
-        self.blocks = program.plan(ModalState(), self.origin)
+        self.blocks = program.plan(ModalState(), self.origin, ANY_BUILD)
         problems = self._check_controller() if self.settings else None  # known unless found busy or in alarm
         if previous is None:
             executed = 0
