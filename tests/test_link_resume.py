@@ -172,6 +172,10 @@ def test_the_profile_named_in_the_header_sets_what_the_controller_must_have(cli,
     assert code == 2 and "machine grbl-plotter needs $32=0" in err and "send $32=0" in err
     code, _, err = cli("stream", program, "--port", sim(settings="32:1,110:12000,111:12000"))
     assert code == 0, err
+    program.write_text(program.read_text().replace("grbl-laser", "shop-laser"), encoding="ascii")
+    code, _, err = cli("stream", program, "--port", sim())
+    assert code == 2 and err.count("\n") == 1
+    assert f"{program}: made for machine shop-laser, which is not known here" in err and "give --machine" in err
 
 
 @pytest.mark.parametrize("body, options, message", [
