@@ -54,6 +54,11 @@ def write(path: Path, body: list[str], tail: tuple[str, ...] = ("M5", "M2")) -> 
     return path
 
 
+def sawtooth(count: int) -> list[str]:
+    """Cuts that never pass a point twice (x always grows), so a halt anywhere is placed without ambiguity."""
+    return [f"G1 X{i} Y{i % 2 * 3}" for i in range(1, count + 1)]
+
+
 def expected(program: Path) -> list[int]:
     return [line.file_line for line in load_program(program).lines]
 
@@ -167,6 +172,10 @@ def test_the_profile_named_in_the_header_sets_what_the_controller_must_have(cli,
     assert code == 2 and "machine grbl-plotter needs $32=0" in err and "send $32=0" in err
     code, _, err = cli("stream", program, "--port", sim(settings="32:1,110:12000,111:12000"))
     assert code == 0, err
+    program.write_text(program.read_text().replace("grbl-laser", "shop-laser"), encoding="ascii")
+    code, _, err = cli("stream", program, "--port", sim())
+    assert code == 2 and err.count("\n") == 1
+    assert f"{program}: made for machine shop-laser, which is not known here" in err and "give --machine" in err
 
 
 @pytest.mark.parametrize("body, options, message", [
@@ -184,7 +193,7 @@ def test_travel_soft_limits_and_build_options_are_checked(tmp_path, sim, body, o
 
 
 def test_the_receive_buffer_comes_from_the_build(tmp_path, sim):
-    program = write(tmp_path / "sheet.gcode", [f"G1 X{i % 7} Y{i % 5}" for i in range(60)])
+    program = write(tmp_path / "sheet.gcode", sawtooth(60))
     url = sim(rx_buffer=256, build_options="VN")
     streamer = Streamer(url, status_interval=0.02)
     assert streamer.run(program).completed and streamer.rx_buffer == 256 and streamer.build.line_numbers
@@ -243,7 +252,7 @@ def interrupted(program: Path, url: str, identity=None) -> None:
 
 
 def test_a_resume_is_refused_for_another_run_identity_and_a_new_run_of_another_job_starts_at_line_one(tmp_path, sim):
-    program = write(tmp_path / "sheet.gcode", [f"G1 X{i % 7} Y{i % 5}" for i in range(80)])
+    program = write(tmp_path / "sheet.gcode", sawtooth(80))
     url = sim(time_scale=5)
     first = {"job": "pavilion", "run": "1"}
     interrupted(program, url, identity=first)
@@ -259,7 +268,7 @@ def test_a_resume_is_refused_for_another_run_identity_and_a_new_run_of_another_j
 
 
 def test_a_torn_last_record_is_cut_off_before_a_resume_appends(tmp_path, sim):
-    program = write(tmp_path / "sheet.gcode", [f"G1 X{i % 7} Y{i % 5}" for i in range(80)])
+    program = write(tmp_path / "sheet.gcode", sawtooth(80))
     url = sim(time_scale=5)
     interrupted(program, url)
     journal = Path(f"{program}.journal")
@@ -318,7 +327,7 @@ def run_in_background(program: Path, url: str, **options):
 
 
 def test_two_streams_to_one_port_refuse_naming_the_holder(tmp_path, sim):
-    first = write(tmp_path / "a.gcode", [f"G1 X{i % 7} Y{i % 5}" for i in range(40)])
+    first = write(tmp_path / "a.gcode", sawtooth(40))
     second = write(tmp_path / "b.gcode", ["G1 X1"])
     url = sim(time_scale=1)
     streamer, thread, outcome = run_in_background(first, url)
@@ -334,7 +343,7 @@ def test_two_streams_to_one_port_refuse_naming_the_holder(tmp_path, sim):
 
 
 def test_a_refused_second_run_leaves_the_running_ones_journal_alone(tmp_path, sim):
-    program = write(tmp_path / "sheet.gcode", [f"G1 X{i % 7} Y{i % 5}" for i in range(40)])
+    program = write(tmp_path / "sheet.gcode", sawtooth(40))
     url = sim(time_scale=1)
     streamer, thread, outcome = run_in_background(program, url)
     journal = Path(f"{program}.journal")
@@ -351,7 +360,7 @@ def test_a_refused_second_run_leaves_the_running_ones_journal_alone(tmp_path, si
 
 @pytest.mark.parametrize("signal_number", [signal.SIGTERM, signal.SIGHUP])
 def test_sigterm_and_sighup_stop_like_ctrl_c_and_the_job_resumes(tmp_path, signal_number):
-    program = write(tmp_path / "sheet.gcode", [f"G1 X{i % 7} Y{i % 5}" for i in range(120)])
+    program = write(tmp_path / "sheet.gcode", sawtooth(120))
     log, journal = tmp_path / "executed.log", Path(f"{program}.journal")
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     command = [sys.executable, "-c", "import sys; from fabline.cli import main; sys.exit(main())", "stream",

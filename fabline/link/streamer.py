@@ -37,7 +37,7 @@ from typing import Callable
 import serial
 
 from fabline.errors import FablineError
-from fabline.fileio import open_append
+from fabline.fileio import check_outputs, open_append
 from fabline.link.build import ANY_BUILD, STOCK_BUILD, BuildInfo
 from fabline.link.codes import explain_alarm, explain_error, listing
 from fabline.link.compat import controller_problems, program_machine
@@ -224,6 +224,7 @@ class Streamer:
         if start_line is not None and not resume:
             raise FablineError("--from-line needs --resume")
         identity = _checked_identity(identity)
+        check_outputs(files=(Path(journal),))
         self.program, self.journal_path, self.force = program, Path(journal), force
         self.profile = program_machine(program, machine)
         device = self.url.split("?", 1)[0]  # one lock per device, whatever options the URL has
