@@ -11,15 +11,20 @@ import argparse
 import importlib
 import math
 import sys
+from contextlib import nullcontext
 from typing import Callable
 
 from fabline import __version__
 from fabline.errors import FablineError
+from fabline.fileio import OutputSet
 
 STAGE_COMMANDS = {"model": ("design", "inspect"), "importing": ("import",), "unroll": ("unroll", "limits"),
                   "nest": ("nest",), "export": ("export", "gcode-check"), "link": ("stream", "grbl-sim"),
                   "survey": ("survey",), "jobs": ("run", "runner")}
 """CLI module -> the commands it registers (a test checks this against the modules)."""
+KEEPS_PARTIAL_OUTPUTS = ("run", "runner", "stream", "grbl-sim")
+"""Commands whose files must outlive a failure (journals, logs, the programs an interrupted run resumes): their
+stages keep their own output sets. Every other command is one `OutputSet`: it fails or is interrupted whole."""
 
 
 def positive(kind: type, most: float = math.inf) -> Callable[[str], int | float]:
@@ -57,7 +62,8 @@ def main(argv: list[str] | None = None) -> int:
     module = next((name for name, commands in STAGE_COMMANDS.items() if command in commands), None)
     args = build_parser((module,) if module else tuple(STAGE_COMMANDS)).parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        with nullcontext() if args.command in KEEPS_PARTIAL_OUTPUTS else OutputSet():
+            return int(args.func(args) or 0)
     except FablineError as exc:
         print(f"fabline {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -66,7 +72,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fabline {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"fabline {args.command}: interrupted", file=sys.stderr)
+        print(f"fabline {args.command}: interrupted"
+              + ("" if args.command in KEEPS_PARTIAL_OUTPUTS else "; nothing was written"), file=sys.stderr)
         return 130
 
 

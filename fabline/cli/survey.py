@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from fabline.errors import FablineError
+from fabline.fileio import check_outputs
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -77,6 +78,7 @@ def _tags(args: argparse.Namespace) -> int:
     from fabline.model import load_network
     from fabline.survey import make_tag_map, write_tag_sheets
 
+    check_outputs(folders=(args.output,), inputs=(args.model,))
     network = load_network(args.model)
     written = write_tag_sheets(make_tag_map(network, args.tag_size, args.mount_offset, args.every), args.output)
     print(f"{len(written) - 2} sheet(s), tags.pdf and tagmap.json written to {args.output}")
@@ -136,6 +138,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     except ValueError:
         raise FablineError(f"--board {args.board!r}: expected squares as NxM, e.g. 7x5") from None
     spec = BoardSpec(columns, rows, args.square, args.marker)
+    check_outputs(files=(args.write_board or args.output,))
     if args.write_board:
         write_board(spec, args.write_board)
         print(f"board written to {args.write_board}: print at {columns * args.square:g} x {rows * args.square:g} mm")
@@ -163,6 +166,7 @@ def _simulate(args: argparse.Namespace) -> int:
         raise FablineError("--size must be at least 64x64 and --photos at least 2")
     if not 0 < args.coverage <= 2:
         raise FablineError(f"--coverage must be in (0, 2], got {args.coverage}")
+    check_outputs(folders=(args.output,), inputs=(args.model,))
     spec = SyntheticSpec(photos=args.photos, width=width, height=height, focal_px=args.focal or width * 5 / 6,
                          sag_mm=args.sag, noise_sigma=args.noise, blur_sigma=args.blur, tag_size_mm=args.tag_size,
                          every=args.every, coverage=args.coverage, seed=args.seed)
@@ -184,6 +188,7 @@ def _measure(args: argparse.Namespace) -> int:
     from fabline.model import load_network
     from fabline.survey import MeasureOptions, list_photos, load_camera, load_tag_map, make_tag_map, measure_survey
 
+    check_outputs(folders=(args.output,), inputs=(args.model, args.camera, args.tags))
     network = load_network(args.model)
     tag_map = load_tag_map(args.tags) if args.tags else make_tag_map(network)
     reference = args.reference if args.reference in ("all", "supports") else [n.strip() for n in args.reference.split(",") if n.strip()]
