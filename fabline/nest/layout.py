@@ -8,6 +8,7 @@ part's own origin, then translated by (x, y), in sheet millimetres with the orig
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -75,6 +76,12 @@ def place(points: np.ndarray, placement: Placement) -> np.ndarray:
     return out
 
 
+def sheet_file_stem(sheet_id: str) -> str:
+    """A sheet id as a file-name part (export's programs and drawings, nest's pictures): runs of characters other
+    than letters, digits, '.', '_' and '-' become one '_'. Two sheets whose stems differ only in case collide."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", sheet_id) or "sheet"
+
+
 def nesting_to_dict(nesting: Nesting) -> dict[str, Any]:
     """The JSON-ready form of a nesting."""
     return {
@@ -105,19 +112,19 @@ def nesting_from_dict(data: Any, source: str = "nesting") -> Nesting:
         raise FablineError(f"{source}: not a {SCHEMA} file")
     if not isinstance(data.get("parts_file"), str):
         raise FablineError(f"{source}: missing 'parts_file'")
-    sheets = []
+    sheets, stems = [], {}
     for i, raw in enumerate(_typed(data, "sheets", list, source)):
         raw = _object(raw, f"{source}: sheets[{i}]")
-        if "id" not in raw:
-            raise FablineError(f"{source}: sheets[{i}]: missing 'id'")
+        if not isinstance(raw.get("id"), (str, int)) or isinstance(raw.get("id"), bool):
+            raise FablineError(f"{source}: sheets[{i}]: 'id' must be a string or an integer")
         where = f"{source}: sheet {raw['id']}"
         sheet = Sheet(str(raw["id"]), _number(raw, "width", where), _number(raw, "height", where),
                       stock=str(raw.get("stock", "")))
         for k, p in enumerate(_typed(raw, "placements", list, where)):
             at = f"{where}: placements[{k}]"
             p = _object(p, at)
-            if "part" not in p:
-                raise FablineError(f"{at}: missing 'part'")
+            if not isinstance(p.get("part"), (str, int)) or isinstance(p.get("part"), bool):
+                raise FablineError(f"{at}: 'part' must name a part (a string)")
             sheet.placements.append(Placement(str(p["part"]), _number(p, "x", at), _number(p, "y", at),
                                               _number(p, "rotation", at, 0.0)))
         for k, c in enumerate(_typed(raw, "common_cuts", list, where)):
@@ -129,7 +136,14 @@ def nesting_from_dict(data: Any, source: str = "nesting") -> Nesting:
             sheet.common_cuts.append(CommonCut(tuple(map(str, parts)), _point(c, "start", at), _point(c, "end", at)))
         if sheet.width <= 0 or sheet.height <= 0:
             raise FablineError(f"{where}: width and height must be positive")
+        stem = sheet_file_stem(sheet.id).casefold()
+        if stem in stems:
+            same = "the same id" if stems[stem] == sheet.id else f"sheet {stems[stem]}: both are file name {stem!r}"
+            raise FablineError(f"{where}: collides with {same}; sheet ids must be unique as file names")
+        stems[stem] = sheet.id
         sheets.append(sheet)
+    if not sheets:
+        raise FablineError(f"{source}: 'sheets' is empty: a nesting places its parts on at least one sheet")
     return Nesting(sheets, data["parts_file"], _number(data, "kerf", source, 0.0), _number(data, "gap", source, 0.0),
                    _number(data, "margin", source, 0.0), dict(_typed(data, "summary", dict, source)),
                    list(_typed(data, "remnants", list, source)))
