@@ -266,9 +266,15 @@ def write_json(path: str | os.PathLike, data: Any, compact: bool = False) -> Non
         handle.write("\n")
 
 
-def finite_number(value: Any) -> bool:
-    """Whether a value read from JSON is a finite number (an int or a float; not a bool, NaN or infinity)."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+MAX_MM = 1e7
+"""The largest coordinate or size in millimetres (10 km) any reader takes: beyond it is a mistake in the file,
+and squares of such numbers overflow."""
+
+
+def finite_number(value: Any, limit: float = math.inf) -> bool:
+    """Whether a value read from JSON is a finite number (an int or a float; not a bool, NaN or infinity), at
+    most `limit` in size."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and abs(value) <= limit
 
 
 def read_bytes(path: str | os.PathLike) -> bytes:
@@ -293,7 +299,10 @@ def read_text(path: str | os.PathLike, what: str = "") -> str:
 
 
 def read_json(path: str | os.PathLike) -> Any:
-    """Read a JSON file; a missing file or bad JSON becomes a FablineError naming file and line."""
+    """Read a JSON file; a missing file or bad JSON becomes a FablineError naming file and line.
+
+    Integers beyond 64 bits become floats (10**400: infinity, which the readers' finite-number checks name), and
+    nesting deeper than orjson's 1024 levels is an error, not a RecursionError."""
     path = Path(path)
     text = read_text(path)
     try:
@@ -301,9 +310,17 @@ def read_json(path: str | os.PathLike) -> Any:
     except orjson.JSONDecodeError:
         pass  # not strict JSON: read as the standard library does (NaN literals, for the caller to name), or say why not
     try:
-        return json.loads(text)
+        return json.loads(text, parse_int=_json_integer)
     except json.JSONDecodeError as exc:
         raise FablineError(f"{path}:{exc.lineno}:{exc.colno}: malformed JSON: {exc.msg}") from None
+    except RecursionError:
+        raise FablineError(f"{path}: malformed JSON: nested too deeply (lists and objects within each other)") from None
+
+
+def _json_integer(text: str) -> int | float:
+    """A JSON integer as Python reads it, but as a float past 64 bits (no 4300-digit conversion limit, no
+    OverflowError where arrays are made of it)."""
+    return int(text) if len(text) < 19 else float(text)
 
 
 def check_outputs(files: tuple = (), folders: tuple = (), inputs: tuple = ()) -> None:

@@ -25,10 +25,13 @@ def helicoid():
 
 @pytest.fixture
 def cli(capsys):
-    """Run `fabline ARGS...` in-process; returns (exit code, stdout, stderr)."""
+    """Run `fabline ARGS...` in-process; returns (exit code, stdout, stderr), also of a usage error (SystemExit)."""
 
     def run(*args: str):
-        code = main([str(a) for a in args])
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as stop:
+            code = stop.code if isinstance(stop.code, int) else 1
         out = capsys.readouterr()
         return code, out.out, out.err
 

@@ -141,7 +141,7 @@ def test_bad_machine_profiles_name_the_file_and_the_field(cli, job, edit, field)
 def test_option_that_is_not_a_finite_number_is_named(cli, job, option, value):
     folder, _, _ = job
     err = _bad(cli, folder, option, value)
-    assert f"{option}: must be a finite number, at least" in err and f"got {value}" in err
+    assert f"{option}: must be a finite number" in err and f"got {value}" in err.replace("'", "")
 
 
 def test_unknown_machine_and_missing_parts_file(cli, job):

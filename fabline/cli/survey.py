@@ -96,8 +96,9 @@ def _detect(args: argparse.Namespace) -> int:
     report, failures = [], 0
     for path in args.photos:
         entry: dict = {"file": path}
+        notes: list[str] = []
         try:
-            gray = read_gray(path)
+            gray = read_gray(path, notes)
             if camera is not None:
                 camera.check_image(gray.shape, path)
         except FablineError as exc:
@@ -105,7 +106,7 @@ def _detect(args: argparse.Namespace) -> int:
             failures += 1
             report.append(entry)
             continue
-        entry["tags"] = []
+        entry.update({"warnings": notes} if notes else {}, tags=[])
         for det in detect_tags(gray):
             # partial: cut by the photo's edge, a corner extrapolated from the edges inside
             tag = {"id": det.tag_id, "corners_px": [[round(x, 3), round(y, 3)] for x, y in det.corners], "partial": det.partial}
@@ -125,6 +126,8 @@ def _detect(args: argparse.Namespace) -> int:
                 print(f"{entry['file']}: error: {entry['error']}")
                 continue
             print(f"{entry['file']}: {len(entry['tags'])} tag(s) {', '.join(str(t['id']) for t in entry['tags'])}")
+            for note in entry.get("warnings", []):
+                print(f"warning: {note}")
     if failures == len(report):
         raise FablineError("no photo could be read")
     return 0
@@ -157,6 +160,7 @@ def _calibrate(args: argparse.Namespace) -> int:
 def _simulate(args: argparse.Namespace) -> int:
     from fabline.model import load_network
     from fabline.survey import SyntheticSpec, simulate_survey
+    from fabline.survey.photos import MAX_PHOTO_PIXELS, MAX_SIMULATED_PHOTOS
 
     try:
         width, height = (int(v) for v in args.size.lower().split("x"))
@@ -164,6 +168,9 @@ def _simulate(args: argparse.Namespace) -> int:
         raise FablineError(f"--size {args.size!r}: expected WxH in pixels, e.g. 6000x4000") from None
     if width < 64 or height < 64 or args.photos < 2:
         raise FablineError("--size must be at least 64x64 and --photos at least 2")
+    if width * height > MAX_PHOTO_PIXELS or args.photos > MAX_SIMULATED_PHOTOS:
+        raise FablineError(f"--size {args.size} --photos {args.photos}: at most {MAX_PHOTO_PIXELS / 1e6:g} megapixels "
+                           f"per photo and {MAX_SIMULATED_PHOTOS} photos")
     if not 0 < args.coverage <= 2:
         raise FablineError(f"--coverage must be in (0, 2], got {args.coverage}")
     check_outputs(folders=(args.output,), inputs=(args.model,))

@@ -12,6 +12,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fabline.errors import FablineError
+from fabline.fileio import MAX_MM
 
 UNIT_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "ft": 304.8}
 NODE_KINDS = ("grid", "singularity", "support", "edge-end")
@@ -98,6 +99,8 @@ def validate(network: Network, source: str = "model") -> Network:
         where = f"{source}: node {nid}"
         _check_vector(node.xyz, f"{where}: xyz")
         _check_vector(node.normal, f"{where}: normal")
+        if np.abs(node.xyz).max() * network.mm_per_unit > MAX_MM:
+            raise FablineError(f"{where}: xyz {node.xyz.tolist()} lies more than {MAX_MM / 1e6:g} km from the origin")
         if abs(np.linalg.norm(node.normal) - 1.0) > 1e-3:
             raise FablineError(f"{where}: normal is not a unit vector (length {np.linalg.norm(node.normal):.4g})")
         if node.kind not in NODE_KINDS:
@@ -110,7 +113,7 @@ def validate(network: Network, source: str = "model") -> Network:
         seen.add(lam.id)
         if lam.family not in FAMILIES:
             raise FablineError(f"{where}: unknown family {lam.family!r} (use A or B)")
-        _check_curve(lam, where, NODE_OFF_CURVE_MM / network.mm_per_unit)
+        _check_curve(lam, where, network.mm_per_unit)
         if not lam.nodes:
             raise FablineError(f"{where}: lists no nodes (a lamella is held by the nodes along it)")
         for nid in lam.nodes:
@@ -200,7 +203,7 @@ def check_node_stations(lamella: Lamella, tau: np.ndarray, off: np.ndarray, mm_p
                            "the curve")
 
 
-def _check_curve(lam: Lamella, where: str, tolerance: float) -> None:
+def _check_curve(lam: Lamella, where: str, mm_per_unit: float) -> None:
     curve, normals = lam.curve, lam.normals
     if curve.ndim != 2 or curve.shape[1] != 3 or len(curve) < 2:
         raise FablineError(f"{where}: curve needs at least two [x, y, z] points")
@@ -209,6 +212,9 @@ def _check_curve(lam: Lamella, where: str, tolerance: float) -> None:
     bad = np.flatnonzero(~np.isfinite(curve).all(axis=1))
     if bad.size:
         raise FablineError(f"{where}: curve point {bad[0]} contains NaN or infinite values")
+    bad = np.flatnonzero(np.abs(curve).max(axis=1) > MAX_MM / mm_per_unit)
+    if bad.size:
+        raise FablineError(f"{where}: curve point {bad[0]} lies more than {MAX_MM / 1e6:g} km from the origin")
     bad = np.flatnonzero(~np.isfinite(normals).all(axis=1))
     if bad.size:
         raise FablineError(f"{where}: normal {bad[0]} contains NaN or infinite values")
@@ -222,7 +228,7 @@ def _check_curve(lam: Lamella, where: str, tolerance: float) -> None:
     reversal = np.flatnonzero(np.einsum("ij,ij->i", steps[1:], steps[:-1]) < -0.5)
     if reversal.size:
         raise FablineError(f"{where}: curve doubles back on itself at point {reversal[0] + 1}")
-    _check_no_self_overlap(curve, lengths, where, tolerance)
+    _check_no_self_overlap(curve, lengths, where, NODE_OFF_CURVE_MM / mm_per_unit)
     norms = np.linalg.norm(normals, axis=1)
     bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
     if bad.size:

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from fabline.errors import FablineError
-from fabline.fileio import finite_number, read_json, write_json
+from fabline.fileio import MAX_MM, finite_number, read_json, write_json
 
 SCHEMA = "fabline.nesting/1"
 
@@ -164,19 +164,20 @@ def _object(raw: Any, where: str) -> dict:
 
 
 def _number(raw: dict, key: str, where: str, default: float | None = None) -> float:
-    """raw[key] as a float (`default` when absent; required when there is none): a finite number."""
+    """raw[key] as a float (`default` when absent; required when there is none): a finite number, at most MAX_MM
+    in size (millimetres; degrees for a rotation)."""
     if key not in raw and default is None:
         raise FablineError(f"{where}: missing '{key}'")
     value = raw.get(key, default)
-    if not finite_number(value):
-        raise FablineError(f"{where}: '{key}' must be a finite number, got {value!r}")
+    if not finite_number(value, MAX_MM):
+        raise FablineError(f"{where}: '{key}' must be a finite number of at most {MAX_MM:g} in size, got {value!r}")
     return float(value)
 
 
 def _point(raw: dict, key: str, where: str) -> tuple[float, float]:
     value = raw.get(key)
-    if not isinstance(value, list) or len(value) != 2 or not all(map(finite_number, value)):
-        raise FablineError(f"{where}: '{key}' must be [x, y], two finite numbers")
+    if not isinstance(value, list) or len(value) != 2 or not all(finite_number(v, MAX_MM) for v in value):
+        raise FablineError(f"{where}: '{key}' must be [x, y], two finite numbers of at most {MAX_MM:g} mm")
     return float(value[0]), float(value[1])
 
 
