@@ -42,6 +42,7 @@ def positive(kind: type, most: float = math.inf) -> Callable[[str], int | float]
                 f"must be a positive {'whole number' if kind is int else 'number'}{bound}, got {text!r}")
         return value
 
+    parse.__name__ = kind.__name__  # argparse names the type in its messages; the campaign test finds number options
     return parse
 
 

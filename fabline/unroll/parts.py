@@ -229,14 +229,16 @@ def parts_from_dict(data: Any, source: str = "parts") -> PartSet:
         raise FablineError(f"{source}: no parts")
     pool, seen, entries = _ContourPool(), set(), []
     for i, raw in enumerate(raw_parts):
-        if not isinstance(raw, dict) or "id" not in raw:
-            raise FablineError(f"{source}: parts[{i}] has no id")
+        if not isinstance(raw, dict) or not isinstance(raw.get("id"), (str, int)) or isinstance(raw.get("id"), bool):
+            raise FablineError(f"{source}: parts[{i}] has no id (a string)")
         pid = str(raw["id"])
         where = f"{source}: part {pid}"
         if pid in seen:
             raise FablineError(f"{where}: duplicate part id")
         seen.add(pid)
         kind = raw.get("kind")
+        if not isinstance(raw.get("grain", False), bool):
+            raise FablineError(f"{where}: grain must be true or false")
         if kind not in PART_KINDS:
             raise FablineError(f"{where}: unknown kind {kind!r} (use one of {', '.join(PART_KINDS)})")
         slots = _field_list(raw, "slots", where)
