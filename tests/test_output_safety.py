@@ -16,19 +16,7 @@ from fabline import fileio
 from fabline.errors import FablineError
 from fabline.fileio import OutputSet, atomic_output, check_outputs, sweep_orphans, write_json
 
-
-@pytest.fixture(scope="module")
-def chain(tmp_path_factory):
-    """A small catenoid carried through design, unroll and nest."""
-    from fabline.cli import main
-
-    folder = tmp_path_factory.mktemp("safety")
-    network, parts, nesting = folder / "c.network.json", folder / "c.parts.json", folder / "c.nesting.json"
-    assert main(["design", "catenoid", "--waist", "1", "--height", "1.5", "--count", "8", "-o", str(network)]) == 0
-    assert main(["unroll", str(network), "-o", str(parts), "--no-hardware"]) == 0
-    assert main(["nest", str(parts), "-o", str(nesting), "--time-limit", "2"]) == 0
-    (folder / "program.gcode").write_text("G21\nG90\nG0 X1 Y1\n")
-    return {"network": network, "parts": parts, "nesting": nesting, "folder": folder}
+from test_cli_outputs import chain  # noqa: F401 (the fixture: a small catenoid's model, parts and nesting)
 
 
 def _snapshot(folder):
