@@ -426,7 +426,7 @@ WRITERS = {
     "stream --journal": (["stream", "{world}/program.gcode", "--port", "sim://outputs", "--journal", "{o}"], False),
 }
 OUTPUT_KINDS = ("device", "FIFO", "socket", "symlink to an input", "same as an input", "unwritable", "full disk",
-                "a file where the folder goes")
+                "a file in the path")
 INPUT_OF = {"design -o": None, "survey calibrate --write-board": None}
 
 

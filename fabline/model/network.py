@@ -99,7 +99,7 @@ def validate(network: Network, source: str = "model") -> Network:
         where = f"{source}: node {nid}"
         _check_vector(node.xyz, f"{where}: xyz")
         _check_vector(node.normal, f"{where}: normal")
-        if np.abs(node.xyz).max() * network.mm_per_unit > MAX_MM:
+        if np.abs(node.xyz).max() > MAX_MM / network.mm_per_unit:
             raise FablineError(f"{where}: xyz {node.xyz.tolist()} lies more than {MAX_MM / 1e6:g} km from the origin")
         if abs(np.linalg.norm(node.normal) - 1.0) > 1e-3:
             raise FablineError(f"{where}: normal is not a unit vector (length {np.linalg.norm(node.normal):.4g})")
