@@ -5,29 +5,228 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
+import secrets
+import signal
 import stat
 import tempfile
+import threading
+import time
 from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
-from typing import Any, Iterator, TextIO
+from typing import Any, Iterable, Iterator, TextIO
 
 import orjson
 
 from fabline.errors import FablineError
 
 
+TEMP_PATTERN = re.compile(r"^\.(?P<name>.+)\.fabline(?P<pid>\d+)-[A-Za-z0-9_]+\.tmp$")
+"""Temp files of `atomic_output` (and the backups an `OutputSet` keeps): `.<name>.fabline<pid>-<random>.tmp`."""
+_STARTED = time.time()  # temp files older than this process whose writer is gone are orphans of a killed run
+_SWEPT: set[str] = set()  # folders already cleaned of orphans in this process
+_CURRENT: ContextVar["OutputSet | None"] = ContextVar("fabline_outputs", default=None)
+
+
+def output_target(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] = ()) -> Path:
+    """Where writing `path` goes, checked: the path itself, or the regular file a symlink points to (written
+    through: the target is replaced, the link stays). A folder, a name ending in '/', anything but a regular file
+    (a device, FIFO or socket) and any of `inputs` (the same path or the same file by inode) are refused."""
+    text = os.fspath(path)
+    if text.endswith(("/", os.sep)):
+        raise FablineError(f"{text}: ends in '/', so it names a folder; give a file name")
+    path = Path(text)
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    try:
+        status = os.stat(target)
+    except (FileNotFoundError, NotADirectoryError):  # a new file (or a folder that is a file: check_outputs says)
+        status = None
+    except OSError as exc:
+        raise FablineError(f"{path}: cannot write: {exc.strerror}") from None
+    if status is not None and stat.S_ISDIR(status.st_mode):
+        raise FablineError(f"{path}: is a folder, expected a file name")
+    if status is not None and not stat.S_ISREG(status.st_mode):
+        raise FablineError(f"{path}: is not a regular file (a device, FIFO or socket); fabline writes only regular "
+                           f"files: give a file name")
+    for source in inputs:
+        if _same_file(target, status, Path(source)):
+            raise FablineError(f"{path}: is also an input of this command ({source}); writing it would destroy the "
+                               f"input: give another output name")
+    return target
+
+
+def _same_file(target: Path, status: os.stat_result | None, source: Path) -> bool:
+    """Whether an output (its status, None when it does not exist yet) is the input `source`: same path or inode."""
+    if os.path.realpath(target) == os.path.realpath(source):
+        return True
+    try:
+        return status is not None and os.path.samestat(status, os.stat(source))
+    except OSError:
+        return False
+
+
+class OutputSet:
+    """The files one command (or one pipeline stage) writes, as a unit: `atomic_output` inside `with OutputSet():`
+    records each file it renames into place (keeping a hard link to the file it replaced) and the folders it made.
+    A failure or Ctrl-C inside the block removes them again and puts the replaced files back; leaving the block
+    normally keeps them. Nested sets hand their files to the enclosing one. Inputs registered with
+    `check_outputs` are refused as outputs of every later write in the set."""
+
+    def __init__(self) -> None:
+        self.inputs: list[str] = []
+        self.written: dict[Path, Path | None] = {}  # file -> hard link to the file it replaced (None: new file)
+        self.folders: list[Path] = []                # folders made, in order
+        self._parent: OutputSet | None = None
+        self._token = None
+
+    def __enter__(self) -> "OutputSet":
+        self._parent = _CURRENT.get()
+        if self._parent is not None:
+            self.inputs = list(self._parent.inputs)
+        self._token = _CURRENT.set(self)
+        return self
+
+    def __exit__(self, kind, value, traceback) -> None:
+        _CURRENT.reset(self._token)
+        if kind is not None:
+            self.rollback()
+        elif self._parent is not None:
+            for path, backup in self.written.items():
+                if path in self._parent.written and backup is not None:
+                    _unlink(backup)  # the enclosing set keeps the file as it was before both
+                self._parent.written.setdefault(path, backup)
+            self._parent.folders += self.folders
+        else:
+            with _sigint_deferred(swallow=True):  # the outputs are complete: a Ctrl-C now interrupts nothing
+                self.commit()
+
+    def record(self, target: Path) -> Path | None:
+        """Before `target` is replaced: keep a hard link to its present file (the first time only)."""
+        if target in self.written or not target.exists():
+            self.written.setdefault(target, None)
+            return None
+        backup = target.parent / f".{target.name}.fabline{os.getpid()}-{secrets.token_hex(4)}.tmp"
+        try:
+            os.link(target, backup)
+        except OSError:
+            backup = None  # no hard links here: the replaced file cannot come back
+        self.written[target] = backup
+        return backup
+
+    def commit(self) -> None:
+        """Keep the outputs: drop the replaced files' links."""
+        for backup in self.written.values():
+            if backup is not None:
+                _unlink(backup)
+        self.written.clear()
+
+    def rollback(self) -> None:
+        """Remove the files written (putting back the ones they replaced) and the folders made, if empty."""
+        for path, backup in reversed(list(self.written.items())):
+            if backup is not None:
+                try:
+                    os.replace(backup, path)  # does nothing when `path` is still the same file (its write failed)
+                    _unlink(backup)
+                    continue
+                except OSError:
+                    _unlink(backup)
+            _unlink(path)
+        self.written.clear()
+        for folder in reversed(self.folders):
+            try:
+                folder.rmdir()
+            except OSError:
+                pass
+        self.folders.clear()
+
+
+def _unlink(path: Path) -> None:
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
+@contextmanager
+def _sigint_deferred(swallow: bool = False) -> Iterator[None]:
+    """Hold off Ctrl-C (in the main thread) while outputs are renamed into place; afterwards a Ctrl-C that came
+    meanwhile is raised, or with `swallow` dropped (it came when the work was done)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[Any] = []
+    previous = signal.signal(signal.SIGINT, lambda number, frame: pending.append(frame))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if pending and not swallow and callable(previous):
+        previous(signal.SIGINT, pending[0])
+
+
+def _make_folder(folder: Path) -> None:
+    """Create `folder` and its missing parents, recording the ones made in the current output set."""
+    missing = []
+    while not folder.exists() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    for made in reversed(missing):
+        made.mkdir(exist_ok=True)
+        outputs = _CURRENT.get()
+        if outputs is not None:
+            outputs.folders.append(made)
+
+
+def sweep_orphans(folder: str | os.PathLike) -> int:
+    """Remove temp files that a killed fabline process left in `folder` (our own temp-name pattern, written by a
+    process that is gone, before this one started); once per folder and process. Returns how many."""
+    key = os.path.realpath(folder)
+    if key in _SWEPT:
+        return 0
+    _SWEPT.add(key)
+    removed = 0
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return 0
+    for entry in entries:
+        match = TEMP_PATTERN.match(entry.name)
+        if match is None or int(match["pid"]) == os.getpid() or _alive(int(match["pid"])):
+            continue
+        try:
+            if entry.is_file(follow_symlinks=False) and entry.stat(follow_symlinks=False).st_mtime < _STARTED:
+                os.unlink(entry.path)
+                removed += 1
+        except OSError:
+            pass
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
+
+
 @contextmanager
 def atomic_output(path: str | os.PathLike, mode: str = "w") -> Iterator[Any]:
     """Open a temp file beside `path`; on success fsync and rename it over `path`, on failure remove it.
 
-    Readers never see a half-written file, and a failed run leaves no output behind.
+    Readers never see a half-written file, and a failed run leaves no output behind. The target is checked by
+    `output_target` (a symlink is written through; devices, FIFOs, sockets and the command's inputs are refused);
+    inside an `OutputSet` the file is recorded so that a later failure of the command removes it again.
     """
-    path = Path(path)
-    if path.is_dir():
-        raise FablineError(f"{path}: is a folder, expected a file name")
+    outputs = _CURRENT.get()
+    target = output_target(path, outputs.inputs if outputs is not None else ())
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        _make_folder(target.parent)
+        sweep_orphans(target.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.fabline{os.getpid()}-", suffix=".tmp", dir=target.parent)
     except OSError as exc:
         raise FablineError(f"{path}: cannot write: {exc.strerror}") from None
     umask = os.umask(0)
@@ -38,14 +237,15 @@ def atomic_output(path: str | os.PathLike, mode: str = "w") -> Iterator[Any]:
             yield handle
             handle.flush()
             os.fsync(handle.fileno())
-        os.replace(tmp, path)
+        with _sigint_deferred():
+            if outputs is not None:
+                outputs.record(target)
+            os.replace(tmp, target)
     except OSError as exc:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        _unlink(Path(tmp))
         raise FablineError(f"{path}: cannot write: {exc.strerror}") from None
     except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        _unlink(Path(tmp))
         raise
 
 
@@ -66,9 +266,15 @@ def write_json(path: str | os.PathLike, data: Any, compact: bool = False) -> Non
         handle.write("\n")
 
 
-def finite_number(value: Any) -> bool:
-    """Whether a value read from JSON is a finite number (an int or a float; not a bool, NaN or infinity)."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+MAX_MM = 1e7
+"""The largest coordinate or size in millimetres (10 km) any reader takes: beyond it is a mistake in the file,
+and squares of such numbers overflow."""
+
+
+def finite_number(value: Any, limit: float = math.inf) -> bool:
+    """Whether a value read from JSON is a finite number (an int or a float; not a bool, NaN or infinity), at
+    most `limit` in size."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and abs(value) <= limit
 
 
 def read_bytes(path: str | os.PathLike) -> bytes:
@@ -108,7 +314,10 @@ def read_text(path: str | os.PathLike, what: str = "") -> str:
 
 
 def read_json(path: str | os.PathLike) -> Any:
-    """Read a JSON file; a missing file or bad JSON becomes a FablineError naming file and line."""
+    """Read a JSON file; a missing file or bad JSON becomes a FablineError naming file and line.
+
+    Integers beyond 64 bits become floats (10**400: infinity, which the readers' finite-number checks name), and
+    nesting deeper than orjson's 1024 levels is an error, not a RecursionError."""
     path = Path(path)
     text = read_text(path)
     try:
@@ -116,19 +325,36 @@ def read_json(path: str | os.PathLike) -> Any:
     except orjson.JSONDecodeError:
         pass  # not strict JSON: read as the standard library does (NaN literals, for the caller to name), or say why not
     try:
-        return json.loads(text)
+        return json.loads(text, parse_int=_json_integer)
     except json.JSONDecodeError as exc:
         raise FablineError(f"{path}:{exc.lineno}:{exc.colno}: malformed JSON: {exc.msg}") from None
+    except RecursionError:
+        raise FablineError(f"{path}: malformed JSON: nested too deeply (lists and objects within each other)") from None
 
 
-def check_outputs(files: tuple = (), folders: tuple = ()) -> None:
-    """Check up front that the output files and folders can be written (a file name is not a folder, a folder
-    is not a file, the place takes files), so that a command fails before it computes or writes anything.
-    Nothing is created; None entries (options not given) are skipped."""
-    for path in [Path(f) for f in files if f]:
-        if path.is_dir():
-            raise FablineError(f"{path}: is a folder, expected a file name")
-        folders += (path.parent,)
+def _json_integer(text: str) -> int | float:
+    """A JSON integer as Python reads it, but as a float past 64 bits (no 4300-digit conversion limit, no
+    OverflowError where arrays are made of it)."""
+    return int(text) if len(text) < 19 else float(text)
+
+
+def check_outputs(files: tuple = (), folders: tuple = (), inputs: tuple = ()) -> None:
+    """Check up front that the output files and folders can be written (a file name is a regular file or a new
+    name, not a folder, a device, a FIFO or one of the command's `inputs`; a folder is not a file; the place takes
+    files), so that a command fails before it computes or writes anything. Nothing is created; None entries
+    (options not given) are skipped. The inputs are remembered by the current `OutputSet`, whose later writes
+    refuse them too."""
+    inputs = tuple(str(i) for i in inputs if i)
+    outputs = _CURRENT.get()
+    if outputs is not None:
+        outputs.inputs += inputs
+    targets: dict[str, str] = {}
+    for name in [f for f in files if f]:
+        target = output_target(name, inputs)
+        if os.path.realpath(target) in targets:
+            raise FablineError(f"{name}: named twice as an output (also as {targets[os.path.realpath(target)]})")
+        targets[os.path.realpath(target)] = str(name)
+        folders += (target.parent,)
     for folder in [Path(f) for f in folders if f]:
         existing = folder
         while not existing.exists() and existing != existing.parent:

@@ -25,11 +25,36 @@ def helicoid():
 
 @pytest.fixture
 def cli(capsys):
-    """Run `fabline ARGS...` in-process; returns (exit code, stdout, stderr)."""
+    """Run `fabline ARGS...` in-process; returns (exit code, stdout, stderr), also of a usage error (SystemExit)."""
 
     def run(*args: str):
-        code = main([str(a) for a in args])
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as stop:
+            code = stop.code if isinstance(stop.code, int) else 1
         out = capsys.readouterr()
         return code, out.out, out.err
 
     return run
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The bad-input campaign's count of cases per reader (and per output kind and number option), in every run that
+    ran it, even with -q."""
+    counts: dict[str, list[int]] = {}
+    for outcome in ("passed", "failed", "skipped"):
+        for report in terminalreporter.stats.get(outcome, []):
+            nodeid = getattr(report, "nodeid", "")
+            if "test_bad_input_campaign.py" not in nodeid or "[" not in nodeid or report.when not in ("call", "setup"):
+                continue
+            if outcome != "skipped" and report.when == "setup":
+                continue
+            case = nodeid.split("[", 1)[1]
+            reader = (case.split(":")[0] if "output_that_must_not" not in nodeid
+                      else "outputs: " + case.rsplit("-", 1)[-1].rstrip("]"))
+            counts.setdefault(reader, [0, 0, 0])[("passed", "failed", "skipped").index(outcome)] += 1
+    if counts:
+        terminalreporter.write_sep("-", "bad-input campaign: cases per reader (passed/failed/skipped)")
+        for reader, (passed, failed, skipped) in sorted(counts.items()):
+            terminalreporter.write_line(f"{reader:<32}{passed + failed + skipped:>5}   {passed}/{failed}/{skipped}")
+        terminalreporter.write_line(f"{'total':<32}{sum(map(sum, counts.values())):>5}")

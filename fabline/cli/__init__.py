@@ -11,15 +11,20 @@ import argparse
 import importlib
 import math
 import sys
+from contextlib import nullcontext
 from typing import Callable
 
 from fabline import __version__
 from fabline.errors import FablineError
+from fabline.fileio import OutputSet
 
 STAGE_COMMANDS = {"model": ("design", "inspect"), "importing": ("import",), "unroll": ("unroll", "limits"),
                   "nest": ("nest",), "export": ("export", "gcode-check"), "link": ("stream", "grbl-sim"),
                   "survey": ("survey",), "jobs": ("run", "runner")}
 """CLI module -> the commands it registers (a test checks this against the modules)."""
+KEEPS_PARTIAL_OUTPUTS = ("run", "runner", "stream", "grbl-sim")
+"""Commands whose files must outlive a failure (journals, logs, the programs an interrupted run resumes): their
+stages keep their own output sets. Every other command is one `OutputSet`: it fails or is interrupted whole."""
 
 
 def positive(kind: type, most: float = math.inf) -> Callable[[str], int | float]:
@@ -31,23 +36,63 @@ def positive(kind: type, most: float = math.inf) -> Callable[[str], int | float]
             value = kind(text)
         except ValueError:
             value = math.nan
-        if not (0 < value <= most and math.isfinite(value)):
+        if not (0 < value <= min(most, MAX_OPTION_NUMBER)):  # NaN fails too
             bound = f", at most {most:g}" if most < math.inf else ""
             raise argparse.ArgumentTypeError(
                 f"must be a positive {'whole number' if kind is int else 'number'}{bound}, got {text!r}")
         return value
 
+    parse.__name__ = kind.__name__  # argparse names the type in its messages; the campaign test finds number options
     return parse
 
 
+MAX_OPTION_NUMBER = 1e9
+"""The largest size of any number option (a plain int or float option; many have tighter limits of their own):
+beyond it a value is a mistake, and products of such values overflow."""
+
+
+def bounded(kind: type) -> Callable[[str], int | float]:
+    """An argparse type for a plain int or float option: a finite number of at most MAX_OPTION_NUMBER in size."""
+
+    def parse(text: str) -> int | float:
+        try:
+            value = kind(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) if isinstance(value, float) else True) or abs(value) > MAX_OPTION_NUMBER:
+            raise argparse.ArgumentTypeError(f"must be a finite {'whole number' if kind is int else 'number'} of at "
+                                             f"most {MAX_OPTION_NUMBER:g} in size, got {text!r}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in "invalid int value" messages
+    return parse
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose mistakes are one line (`fabline CMD: error: ...`, exit 2), as the stages' are."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def build_parser(modules: tuple[str, ...] = tuple(STAGE_COMMANDS)) -> argparse.ArgumentParser:
-    """The argument parser with the subcommands of the given CLI modules (default: all)."""
-    parser = argparse.ArgumentParser(prog="fabline", description="Fabrication pipeline for elastic lamella gridshells.")
+    """The argument parser with the subcommands of the given CLI modules (default: all); every plain int or float
+    option is `bounded`."""
+    parser = OneLineParser(prog="fabline", description="Fabrication pipeline for elastic lamella gridshells.")
     parser.add_argument("--version", action="version", version=f"fabline {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in modules:
         importlib.import_module(f"fabline.cli.{name}").register(subparsers)
+    _bound_numbers(parser)
     return parser
+
+
+def _bound_numbers(parser: argparse.ArgumentParser) -> None:
+    for action in parser._actions:
+        if action.type in (int, float):
+            action.type = bounded(action.type)
+        for sub in (action.choices or {}).values() if isinstance(action, argparse._SubParsersAction) else ():
+            _bound_numbers(sub)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -57,7 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     module = next((name for name, commands in STAGE_COMMANDS.items() if command in commands), None)
     args = build_parser((module,) if module else tuple(STAGE_COMMANDS)).parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        with nullcontext() if args.command in KEEPS_PARTIAL_OUTPUTS else OutputSet():
+            return int(args.func(args) or 0)
     except FablineError as exc:
         print(f"fabline {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -66,7 +112,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fabline {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"fabline {args.command}: interrupted", file=sys.stderr)
+        print(f"fabline {args.command}: interrupted"
+              + ("" if args.command in KEEPS_PARTIAL_OUTPUTS else "; nothing was written"), file=sys.stderr)
         return 130
 
 

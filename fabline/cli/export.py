@@ -51,7 +51,7 @@ def run_export(args: argparse.Namespace) -> int:
             raise FablineError(f"{name}: must be a finite number, at least {low:g}, got {value}")
     options = ToolpathOptions(kerf=kerf, lead_in=args.lead_in, tabs=args.tabs, tab_width=args.tab_width,
                               optimise=not args.no_optimise)
-    check_outputs(folders=(args.dxf, args.gcode))
+    check_outputs(folders=(args.dxf, args.gcode), inputs=(args.nesting, profile.source))
     result = export_nesting(args.nesting, profile, options, args.dxf, args.gcode)
     print(f"machine {result.machine}, kerf {result.kerf:.3f} mm")
     print(f"{'sheet':<12}{'parts':>6}{'cut m':>10}{'mark m':>10}{'travel m':>10}{'time':>10}")

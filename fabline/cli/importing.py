@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from fabline.fileio import check_outputs
 from fabline.model import save_network
 from fabline.model.importers import FORMATS, import_model
 from fabline.model.network import UNIT_TO_MM
@@ -28,6 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_import(args: argparse.Namespace) -> int:
     """Import, print the summary (counts, near-misses, notes), write the model."""
+    check_outputs(files=(args.output,), inputs=(args.file, args.surface))
     network, report = import_model(args.file, args.surface, args.units, args.tolerance)
     save_network(network, args.output)
     for line in report.summary():

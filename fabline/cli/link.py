@@ -17,6 +17,7 @@ from tqdm import tqdm
 
 from fabline.cli import positive
 from fabline.errors import FablineError
+from fabline.fileio import check_outputs
 from fabline.link import STOP_SIGNALS, Progress, Streamer, default_journal_path
 from fabline.link.streamer import MODES
 
@@ -82,6 +83,7 @@ def _stream(args: argparse.Namespace) -> int:
                         connect_timeout=args.connect_timeout, reconnect_timeout=args.reconnect_timeout,
                         exchange_log=args.log or f"{args.gcode}.link.log")
     journal = args.journal or default_journal_path(args.gcode)
+    check_outputs(files=(args.log or f"{args.gcode}.link.log", journal), inputs=(args.gcode,))
     interactive = sys.stdin.isatty() and sys.stderr.isatty()
     bar = tqdm(total=None, unit="line", disable=not sys.stderr.isatty(), dynamic_ncols=True,
                bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}<{remaining}] {postfix}")

@@ -6,6 +6,7 @@ import argparse
 import json
 
 from fabline.errors import FablineError
+from fabline.fileio import check_outputs
 from fabline.geometry import analyse, lamella_table
 from fabline.model import load_network, save_network
 from fabline.model.designs import BOUNDARIES, DESIGNS
@@ -49,6 +50,7 @@ def _size(text: str) -> tuple[float, float]:
 
 def run_design(args: argparse.Namespace) -> int:
     """Build the chosen design and write it."""
+    check_outputs(files=(args.output,))
     options = {k: v for k, v in vars(args).items() if k not in ("command", "design", "output", "func")}
     network = DESIGNS[args.design](**options)
     save_network(network, args.output)

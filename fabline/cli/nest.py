@@ -49,9 +49,9 @@ def run_nest(args: argparse.Namespace) -> int:
         options.remnant_min = parse_sheet_size(args.remnant_min)
     except FablineError:
         raise FablineError(f"--remnant-min {args.remnant_min!r}: expected WIDTHxHEIGHT in mm, e.g. 400x200") from None
+    check_outputs(files=(args.output, args.stock_out), folders=(args.svg,), inputs=(args.parts, args.stock))
     stock = load_stock(args.stock) if args.stock else [StockItem("sheet", *parse_sheet_size(args.sheet))]
     partset = load_parts(args.parts)
-    check_outputs(files=(args.output, args.stock_out), folders=(args.svg,))
     relative = os.path.relpath(Path(args.parts).resolve(), Path(args.output).resolve().parent)
     try:
         result = nest(partset, stock, options, parts_file=relative)

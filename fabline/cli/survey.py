@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from fabline.errors import FablineError
+from fabline.fileio import check_outputs
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -77,6 +78,7 @@ def _tags(args: argparse.Namespace) -> int:
     from fabline.model import load_network
     from fabline.survey import make_tag_map, write_tag_sheets
 
+    check_outputs(folders=(args.output,), inputs=(args.model,))
     network = load_network(args.model)
     written = write_tag_sheets(make_tag_map(network, args.tag_size, args.mount_offset, args.every), args.output)
     print(f"{len(written) - 2} sheet(s), tags.pdf and tagmap.json written to {args.output}")
@@ -94,8 +96,9 @@ def _detect(args: argparse.Namespace) -> int:
     report, failures = [], 0
     for path in args.photos:
         entry: dict = {"file": path}
+        notes: list[str] = []
         try:
-            gray = read_gray(path)
+            gray = read_gray(path, notes)
             if camera is not None:
                 camera.check_image(gray.shape, path)
         except FablineError as exc:
@@ -103,7 +106,7 @@ def _detect(args: argparse.Namespace) -> int:
             failures += 1
             report.append(entry)
             continue
-        entry["tags"] = []
+        entry.update({"warnings": notes} if notes else {}, tags=[])
         for det in detect_tags(gray):
             # partial: cut by the photo's edge, a corner extrapolated from the edges inside
             tag = {"id": det.tag_id, "corners_px": [[round(x, 3), round(y, 3)] for x, y in det.corners], "partial": det.partial}
@@ -123,6 +126,8 @@ def _detect(args: argparse.Namespace) -> int:
                 print(f"{entry['file']}: error: {entry['error']}")
                 continue
             print(f"{entry['file']}: {len(entry['tags'])} tag(s) {', '.join(str(t['id']) for t in entry['tags'])}")
+            for note in entry.get("warnings", []):
+                print(f"warning: {note}")
     if failures == len(report):
         raise FablineError("no photo could be read")
     return 0
@@ -136,6 +141,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     except ValueError:
         raise FablineError(f"--board {args.board!r}: expected squares as NxM, e.g. 7x5") from None
     spec = BoardSpec(columns, rows, args.square, args.marker)
+    check_outputs(files=(args.write_board or args.output,))
     if args.write_board:
         write_board(spec, args.write_board)
         print(f"board written to {args.write_board}: print at {columns * args.square:g} x {rows * args.square:g} mm")
@@ -154,6 +160,7 @@ def _calibrate(args: argparse.Namespace) -> int:
 def _simulate(args: argparse.Namespace) -> int:
     from fabline.model import load_network
     from fabline.survey import SyntheticSpec, simulate_survey
+    from fabline.survey.photos import MAX_PHOTO_PIXELS, MAX_SIMULATED_PHOTOS
 
     try:
         width, height = (int(v) for v in args.size.lower().split("x"))
@@ -161,8 +168,12 @@ def _simulate(args: argparse.Namespace) -> int:
         raise FablineError(f"--size {args.size!r}: expected WxH in pixels, e.g. 6000x4000") from None
     if width < 64 or height < 64 or args.photos < 2:
         raise FablineError("--size must be at least 64x64 and --photos at least 2")
+    if width * height > MAX_PHOTO_PIXELS or args.photos > MAX_SIMULATED_PHOTOS:
+        raise FablineError(f"--size {args.size} --photos {args.photos}: at most {MAX_PHOTO_PIXELS / 1e6:g} megapixels "
+                           f"per photo and {MAX_SIMULATED_PHOTOS} photos")
     if not 0 < args.coverage <= 2:
         raise FablineError(f"--coverage must be in (0, 2], got {args.coverage}")
+    check_outputs(folders=(args.output,), inputs=(args.model,))
     spec = SyntheticSpec(photos=args.photos, width=width, height=height, focal_px=args.focal or width * 5 / 6,
                          sag_mm=args.sag, noise_sigma=args.noise, blur_sigma=args.blur, tag_size_mm=args.tag_size,
                          every=args.every, coverage=args.coverage, seed=args.seed)
@@ -184,6 +195,7 @@ def _measure(args: argparse.Namespace) -> int:
     from fabline.model import load_network
     from fabline.survey import MeasureOptions, list_photos, load_camera, load_tag_map, make_tag_map, measure_survey
 
+    check_outputs(folders=(args.output,), inputs=(args.model, args.camera, args.tags))
     network = load_network(args.model)
     tag_map = load_tag_map(args.tags) if args.tags else make_tag_map(network)
     reference = args.reference if args.reference in ("all", "supports") else [n.strip() for n in args.reference.split(",") if n.strip()]

@@ -62,8 +62,8 @@ def _material_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_unroll(args: argparse.Namespace) -> int:
     """Unroll, write the parts (and previews), print the lamella table; warnings to stderr."""
+    check_outputs(files=(args.output,), folders=(args.svg,), inputs=(args.model, args.materials))
     network = load_network(args.model)
-    check_outputs(files=(args.output,), folders=(args.svg,))
     options = UnrollOptions(
         profile=parse_profile(args.profile), material=get_material(args.material, args.materials),
         pair_spacing=args.pair_spacing, slot_clearance=args.slot_clearance, slot_width=args.slot_width,

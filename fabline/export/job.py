@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import gc
 import os
-import re
 import textwrap
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -26,7 +25,8 @@ from fabline.export.machine import MachineProfile
 from fabline.export.motion import MotionSummary, summarise
 from fabline.export.toolpath import Toolpath, ToolpathOptions, check_placements, sheet_toolpaths
 from fabline.fileio import atomic_output
-from fabline.nest.layout import Nesting, Sheet, load_nesting, parts_path
+from fabline.nest.layout import Nesting, Sheet, load_nesting, parts_path, sheet_file_stem
+from fabline.nest.validate import validate_nesting
 from fabline.progress import progress
 from fabline.unroll.parts import Part, load_parts
 
@@ -61,10 +61,18 @@ class ExportResult:
 
 
 def load_job(nesting_path: str | os.PathLike) -> tuple[Nesting, dict[str, Part]]:
-    """A nesting and the parts it refers to, by id."""
+    """A nesting and the parts it refers to, by id, checked by the nesting validator (`nest --check`): overlaps,
+    a part placed twice or off its sheet, an outline that crosses itself become one error, before anything is made."""
     nesting = load_nesting(nesting_path)
     partset = load_parts(parts_path(nesting_path, nesting))
-    return nesting, {p.id: p for p in partset.parts}
+    parts = {p.id: p for p in partset.parts}
+    for sheet in nesting.sheets:
+        check_placements(sheet, parts, str(nesting_path))
+    problems = validate_nesting(nesting, partset)
+    if problems:
+        more = f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""
+        raise FablineError(f"{nesting_path}: {problems[0]}{more}; see fabline nest --check {nesting_path}")
+    return nesting, parts
 
 
 def export_job(nesting: Nesting, parts: dict[str, Part], profile: MachineProfile, options: ToolpathOptions,
@@ -91,7 +99,7 @@ def export_job(nesting: Nesting, parts: dict[str, Part], profile: MachineProfile
         results, outputs = [], {}
         for future in progress(futures, "export", count):
             done, drawing = future.result()
-            stem = f"{name}_{_safe(done.sheet)}"
+            stem = f"{name}_{sheet_file_stem(done.sheet)}"
             if gcode_dir is not None:
                 outputs[Path(gcode_dir) / f"{stem}.gcode"] = done.gcode
             if drawing is not None:
@@ -194,7 +202,3 @@ def _header(name, sheet, number, count, profile, options, summary) -> list[str]:
                                subsequent_indent="  ", break_long_words=True))
     return lines
 
-
-def _safe(text: str) -> str:
-    """A sheet id as a file-name part."""
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", text) or "sheet"

@@ -185,12 +185,19 @@ def load_machine(name_or_path: str) -> MachineProfile:
     return _profile_from_dict(_merged_table(path, seen=()), str(path))
 
 
+MAX_EXTENDS = 16  # profiles in one `extends` chain
+
+
 def _merged_table(path: Path, seen: tuple[str, ...]) -> dict[str, Any]:
+    if len(seen) >= MAX_EXTENDS:
+        raise FablineError(f"{path}: extends: more than {MAX_EXTENDS} profiles in one chain")
     try:
         with open(path, "rb") as handle:
             table = tomllib.load(handle)
     except tomllib.TOMLDecodeError as exc:
         raise FablineError(f"{path}: malformed TOML: {exc}") from None
+    except UnicodeDecodeError:
+        raise FablineError(f"{path}: not UTF-8 text (a TOML profile is UTF-8)") from None
     except OSError as exc:
         raise FablineError(f"{path}: cannot read: {exc}") from None
     parent = table.pop("extends", None)
@@ -214,8 +221,10 @@ class _Fields:
 
     def __init__(self, table: dict, source: str):
         self.table, self.source = table, source
+        self.read: set[str] = set()
 
     def get(self, dotted: str) -> Any:
+        self.read.add(dotted)
         node: Any = self.table
         for key in dotted.split("."):
             if not isinstance(node, dict) or key not in node:
@@ -239,16 +248,28 @@ class _Fields:
         return value
 
     def text(self, dotted: str, default: str | None = None) -> str:
+        self.read.add(dotted)
         value = self.get(dotted) if default is None else self.table.get(dotted, default)
         if not isinstance(value, str):
             raise FablineError(f"{self.source}: {dotted}: must be text, got {value!r}")
         return value
 
     def flag(self, dotted: str, default: bool) -> bool:
+        self.read.add(dotted)
         value = self.table.get(dotted, default)
         if not isinstance(value, bool):
             raise FablineError(f"{self.source}: {dotted}: must be true or false, got {value!r}")
         return value
+
+    def check_unknown(self, table: dict | None = None, prefix: str = "") -> None:
+        """A setting that was never read is unknown (misspelt, or not one of this kind of profile): name it."""
+        for key, value in (self.table if table is None else table).items():
+            dotted = f"{prefix}{key}"
+            if isinstance(value, dict) and dotted not in self.read:
+                self.check_unknown(value, f"{dotted}.")
+            elif dotted not in self.read:
+                raise FablineError(f"{self.source}: {dotted}: unknown setting (misspelt, or not one of a "
+                                   f"{self.table.get('mode')} profile)")
 
     def lines(self, dotted: str) -> tuple[str, ...]:
         value = self.get(dotted)
@@ -279,7 +300,9 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
             depth=fields.number(f"{key}.depth", 0, 1000, low_inclusive=False) if mode == "mill" else 0.0,
         )
     variables = {}
-    for key, value in (table.get("vars") or {}).items():
+    if not isinstance(table.get("vars", {}), dict):
+        raise FablineError(f"{source}: vars: must be a table of numbers ([vars] name = value)")
+    for key, value in table.get("vars", {}).items():
         variables[key] = fields.number(f"vars.{key}", -1e6, 1e6)
     profile = MachineProfile(
         name=fields.text("name"), source=source, description=fields.text("description", ""),
@@ -297,6 +320,7 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
         junction_deviation=fields.number("motion.junction_deviation", 0, 10),
         s_min=s_min, s_max=s_max, operations=operations, variables=variables,
     )
+    fields.read.add("requires")
     requires = table.get("requires", {})
     if isinstance(requires, str):  # the free text of older profiles: shown in the program header, not checked
         profile = replace(profile, requires=requires)
@@ -305,6 +329,7 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
         profile = replace(profile, required_settings=settings, requires=", ".join(map(str, settings)))
     else:
         raise FablineError(f"{source}: requires: must be a table of controller settings, such as {{ 32 = 1 }}")
+    fields.check_unknown()
     if profile.laser_mode and mode != "laser":
         raise FablineError(f"{source}: laser_mode: only a laser profile (mode = \"laser\") can use laser mode")
     needed = {"G0", "G1"} | ({"G2", "G3"} if profile.arcs else set())

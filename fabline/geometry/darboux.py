@@ -12,14 +12,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import CubicSpline
-from scipy.spatial import cKDTree
 
-from fabline.errors import FablineError
-from fabline.model.network import Lamella, Network
+from fabline.model.network import Lamella, Network, check_node_stations, project_onto_curve
 from fabline.progress import progress
 
 GAUSS_X, GAUSS_W = np.polynomial.legendre.leggauss(5)  # per-interval arc-length quadrature, shared by offsets
-NODE_OFF_CURVE_MM = 1.0  # a lamella's node farther than this from its centreline is an error in the model
 
 
 @dataclass
@@ -95,25 +92,8 @@ class CurveFit:
         return {"t": t, "u": u, "n": n, "k_g": k_g, "k_n": k_n, "tau_g": tau_g}
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Closest points on the sampled centreline to `points` (M, 3): their parameters and distances.
-
-        The nearest sample (KD-tree) decides the neighbourhood; the exact foot lies on one of its two segments.
-        """
-        p = self.curve(self.tau)
-        nearest = np.clip(cKDTree(p).query(points)[1], 1, len(p) - 2) if len(p) > 2 else np.ones(len(points), int)
-        best_tau, best_dist = None, None
-        for start in (nearest - 1, np.minimum(nearest, len(p) - 2)):
-            a, seg = p[start], p[start + 1] - p[start]
-            rel = points - a
-            f = np.clip(_dot(rel, seg) / _dot(seg, seg), 0.0, 1.0)
-            dist = _norm(rel - f[:, None] * seg)
-            tau = self.tau[start] + f * (self.tau[start + 1] - self.tau[start])
-            if best_tau is None:
-                best_tau, best_dist = tau, dist
-            else:
-                closer = dist < best_dist
-                best_tau, best_dist = np.where(closer, tau, best_tau), np.minimum(dist, best_dist)
-        return best_tau, best_dist
+        """Closest points on the sampled centreline to `points` (M, 3): their parameters and distances."""
+        return project_onto_curve(self.curve(self.tau), self.tau, points)
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -160,16 +140,8 @@ def lamella_geometry(lamella: Lamella, network: Network) -> LamellaGeometry:
     fit = CurveFit.of(lamella.curve, lamella.normals)
     node_xyz = np.array([network.nodes[nid].xyz for nid in lamella.nodes]).reshape(-1, 3)
     node_tau, off = fit.project(node_xyz)
-    far = np.flatnonzero(off > NODE_OFF_CURVE_MM)
-    if far.size:
-        k = far[0]
-        raise FablineError(f"lamella {lamella.id}: node {lamella.nodes[k]} lies {off[k]:.2f} mm off its centreline "
-                           f"(more than {NODE_OFF_CURVE_MM:g} mm): it is on no lamella there")
+    check_node_stations(lamella, node_tau, off, 1.0, f"lamella {lamella.id}")
     node_s = fit.arc_length(node_tau)
-    if np.any(np.diff(node_s) <= 0):
-        k = int(np.flatnonzero(np.diff(node_s) <= 0)[0])
-        raise FablineError(f"lamella {lamella.id}: nodes {lamella.nodes[k]} and {lamella.nodes[k + 1]} "
-                           "are not in order along the curve")
     frame = fit.frame(np.concatenate([fit.tau, node_tau]))
     samples = len(fit.tau)
     tangents = frame["t"][samples:]

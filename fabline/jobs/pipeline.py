@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from fabline.errors import FablineError
-from fabline.fileio import atomic_output, write_json
+from fabline.fileio import OutputSet, atomic_output, check_outputs, write_json
 from fabline.jobs.jobfile import JobSpec, load_job_file, nest_options
 
 if TYPE_CHECKING:  # the model stage pulls in scipy; the runner imports this package and must start fast
@@ -66,6 +66,10 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
 
     spec = job if isinstance(job, JobSpec) else load_job_file(job)
     timings: dict[str, float] = {}
+    check_outputs(files=[spec.output(name) for name in ("network.json", "parts.json", "nesting.json", spec.report_name,
+                                                        Path(spec.report_name).with_suffix(".json"))],
+                  folders=[spec.output(name) for name in ("dxf", "gcode", "sheets")],
+                  inputs=(spec.path, spec.model.get("file")))
     result = JobResult(spec, network=_timed(timings, "model", lambda: build_network(spec)), timings=timings)
     save_network(result.network, spec.output("network.json"))
     say(f"model: {result.network.name}, {len(result.network.lamellas)} lamellas, {len(result.network.nodes)} nodes")
@@ -126,8 +130,10 @@ def write_report(result: JobResult) -> Path:
 
 
 def _timed(timings: dict[str, float], name: str, work: Callable[[], Any]) -> Any:
+    """Run one stage, timed; a stage that fails removes the files it wrote (an `OutputSet` of its own)."""
     started = time.perf_counter()
-    value = work()
+    with OutputSet():
+        value = work()
     timings[name] = round(time.perf_counter() - started, 3)
     return value
 

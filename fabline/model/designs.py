@@ -264,8 +264,8 @@ def catenoid_network(waist: float = 1.0, height: float = 3.0, count: int = 16) -
     step = 2 * np.pi / count
     reach = int(np.floor(height / waist / step + 1e-9))
     # a = theta + z/w, b = theta - z/w: node (i, j) at a = i*step, b = (i - d)*step with |z| <= height/2.
+    _check_grid("catenoid", f"count {count} (height {height:g} m, waist {waist:g} m)", count + 2 * reach, count + 2 * reach)
     values = step * np.arange(-reach, count + reach)
-    _check_grid("catenoid", f"count {count} (height {height:g} m, waist {waist:g} m)", len(values), len(values))
     offset = reach
 
     def inside(a, b):

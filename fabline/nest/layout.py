@@ -8,6 +8,7 @@ part's own origin, then translated by (x, y), in sheet millimetres with the orig
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from fabline.errors import FablineError
-from fabline.fileio import finite_number, read_json, write_json
+from fabline.fileio import MAX_MM, finite_number, read_json, write_json
 
 SCHEMA = "fabline.nesting/1"
 
@@ -75,6 +76,12 @@ def place(points: np.ndarray, placement: Placement) -> np.ndarray:
     return out
 
 
+def sheet_file_stem(sheet_id: str) -> str:
+    """A sheet id as a file-name part (export's programs and drawings, nest's pictures): runs of characters other
+    than letters, digits, '.', '_' and '-' become one '_'. Two sheets whose stems differ only in case collide."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", sheet_id) or "sheet"
+
+
 def nesting_to_dict(nesting: Nesting) -> dict[str, Any]:
     """The JSON-ready form of a nesting."""
     return {
@@ -105,19 +112,19 @@ def nesting_from_dict(data: Any, source: str = "nesting") -> Nesting:
         raise FablineError(f"{source}: not a {SCHEMA} file")
     if not isinstance(data.get("parts_file"), str):
         raise FablineError(f"{source}: missing 'parts_file'")
-    sheets = []
+    sheets, stems = [], {}
     for i, raw in enumerate(_typed(data, "sheets", list, source)):
         raw = _object(raw, f"{source}: sheets[{i}]")
-        if "id" not in raw:
-            raise FablineError(f"{source}: sheets[{i}]: missing 'id'")
+        if not isinstance(raw.get("id"), (str, int)) or isinstance(raw.get("id"), bool):
+            raise FablineError(f"{source}: sheets[{i}]: 'id' must be a string or an integer")
         where = f"{source}: sheet {raw['id']}"
         sheet = Sheet(str(raw["id"]), _number(raw, "width", where), _number(raw, "height", where),
                       stock=str(raw.get("stock", "")))
         for k, p in enumerate(_typed(raw, "placements", list, where)):
             at = f"{where}: placements[{k}]"
             p = _object(p, at)
-            if "part" not in p:
-                raise FablineError(f"{at}: missing 'part'")
+            if not isinstance(p.get("part"), (str, int)) or isinstance(p.get("part"), bool):
+                raise FablineError(f"{at}: 'part' must name a part (a string)")
             sheet.placements.append(Placement(str(p["part"]), _number(p, "x", at), _number(p, "y", at),
                                               _number(p, "rotation", at, 0.0)))
         for k, c in enumerate(_typed(raw, "common_cuts", list, where)):
@@ -129,7 +136,14 @@ def nesting_from_dict(data: Any, source: str = "nesting") -> Nesting:
             sheet.common_cuts.append(CommonCut(tuple(map(str, parts)), _point(c, "start", at), _point(c, "end", at)))
         if sheet.width <= 0 or sheet.height <= 0:
             raise FablineError(f"{where}: width and height must be positive")
+        stem = sheet_file_stem(sheet.id).casefold()
+        if stem in stems:
+            same = "the same id" if stems[stem] == sheet.id else f"sheet {stems[stem]}: both are file name {stem!r}"
+            raise FablineError(f"{where}: collides with {same}; sheet ids must be unique as file names")
+        stems[stem] = sheet.id
         sheets.append(sheet)
+    if not sheets:
+        raise FablineError(f"{source}: 'sheets' is empty: a nesting places its parts on at least one sheet")
     return Nesting(sheets, data["parts_file"], _number(data, "kerf", source, 0.0), _number(data, "gap", source, 0.0),
                    _number(data, "margin", source, 0.0), dict(_typed(data, "summary", dict, source)),
                    list(_typed(data, "remnants", list, source)))
@@ -150,19 +164,20 @@ def _object(raw: Any, where: str) -> dict:
 
 
 def _number(raw: dict, key: str, where: str, default: float | None = None) -> float:
-    """raw[key] as a float (`default` when absent; required when there is none): a finite number."""
+    """raw[key] as a float (`default` when absent; required when there is none): a finite number, at most MAX_MM
+    in size (millimetres; degrees for a rotation)."""
     if key not in raw and default is None:
         raise FablineError(f"{where}: missing '{key}'")
     value = raw.get(key, default)
-    if not finite_number(value):
-        raise FablineError(f"{where}: '{key}' must be a finite number, got {value!r}")
+    if not finite_number(value, MAX_MM):
+        raise FablineError(f"{where}: '{key}' must be a finite number of at most {MAX_MM:g} in size, got {value!r}")
     return float(value)
 
 
 def _point(raw: dict, key: str, where: str) -> tuple[float, float]:
     value = raw.get(key)
-    if not isinstance(value, list) or len(value) != 2 or not all(map(finite_number, value)):
-        raise FablineError(f"{where}: '{key}' must be [x, y], two finite numbers")
+    if not isinstance(value, list) or len(value) != 2 or not all(finite_number(v, MAX_MM) for v in value):
+        raise FablineError(f"{where}: '{key}' must be [x, y], two finite numbers of at most {MAX_MM:g} mm")
     return float(value[0]), float(value[1])
 
 

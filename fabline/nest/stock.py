@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from fabline.errors import FablineError
-from fabline.fileio import read_json, write_json
+from fabline.fileio import MAX_MM, read_json, write_json
 
 SCHEMA = "fabline.stock/1"
 
@@ -42,8 +42,8 @@ def parse_sheet_size(text: str) -> tuple[float, float]:
         width, height = (float(v) for v in text.lower().split("x"))
     except ValueError:
         raise FablineError(f"--sheet {text!r}: expected WIDTHxHEIGHT in mm, e.g. 4000x2000") from None
-    if not (width > 0 and height > 0 and math.isfinite(width) and math.isfinite(height)):
-        raise FablineError(f"--sheet {text!r}: width and height must be positive")
+    if not (0 < width <= MAX_MM and 0 < height <= MAX_MM):
+        raise FablineError(f"--sheet {text!r}: width and height must be positive, at most {MAX_MM:g} mm")
     return width, height
 
 
@@ -61,15 +61,19 @@ def stock_from_dict(data: Any, source: str = "stock") -> list[StockItem]:
             where = f"{source}: {section}[{k}]"
             if not isinstance(raw, dict):
                 raise FablineError(f"{where}: must be an object with id, width and height")
-            sid = str(raw.get("id", f"{section}-{k + 1}"))
+            sid = raw.get("id", f"{section}-{k + 1}")
+            if not isinstance(sid, (str, int)) or isinstance(sid, bool):
+                raise FablineError(f"{where}: 'id' must be a string")
+            sid = str(sid)
             where = f"{source}: {'remnant' if remnant else 'sheet'} {sid}"
             try:
                 width, height = float(raw["width"]), float(raw["height"])
                 count = None if raw.get("count") is None else int(raw["count"])
-            except (KeyError, TypeError, ValueError):
+            except (KeyError, TypeError, ValueError, OverflowError):
                 raise FablineError(f"{where}: needs numeric 'width' and 'height' (mm)") from None
-            if not (math.isfinite(width) and math.isfinite(height)) or width <= 0 or height <= 0:
-                raise FablineError(f"{where}: width and height must be positive, got {width:g} x {height:g}")
+            if not (0 < width <= MAX_MM and 0 < height <= MAX_MM):  # NaN fails too
+                raise FablineError(f"{where}: width and height must be positive, at most {MAX_MM:g} mm, got "
+                                   f"{width:g} x {height:g}")
             if count is not None and count < 0:
                 raise FablineError(f"{where}: count must not be negative, got {count}")
             if sid in seen:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from fabline.fileio import atomic_output
-from fabline.nest.layout import Nesting, Sheet, place
+from fabline.nest.layout import Nesting, Sheet, place, sheet_file_stem
 from fabline.unroll.parts import Part, PartSet, flatten_contour
 
 PART_FILL = {"strip": "#9ecae1", "curved-strip": "#a1d99b", "washer": "#fdae6b", "clamp": "#bcbddc", "joint": "#fc9272"}
@@ -68,7 +68,7 @@ def write_sheet_svgs(nesting: Nesting, partset: PartSet, folder: str | os.PathLi
         remnants = [r for r in nesting.remnants if r.get("sheet") == sheet.id]
         tree = ET.ElementTree(sheet_svg(sheet, parts, nesting.margin, remnants))
         ET.indent(tree)
-        path = folder / f"{sheet.id}.svg"
+        path = folder / f"{sheet_file_stem(sheet.id)}.svg"
         with atomic_output(path, "wb") as handle:
             tree.write(handle, encoding="utf-8", xml_declaration=True)
         written.append(path)

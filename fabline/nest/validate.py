@@ -33,7 +33,9 @@ def _placed_polygon(part: Part, placement: Placement, with_holes: bool) -> Polyg
 def validate_nesting(nesting: Nesting, partset: PartSet) -> list[str]:
     """All problems found, one line each naming the sheet and part; an empty list means the nesting is sound."""
     parts = {p.id: p for p in partset.parts}
-    problems: list[str] = []
+    problems = [f"{name} is {value:g} mm: must not be negative" for name, value in
+                (("kerf", nesting.kerf), ("gap", nesting.gap), ("margin", nesting.margin)) if value < 0]
+    problems += [problem for part in partset.parts if (problem := _outline_problem(part))]
     counts = Counter(pl.part for sheet in nesting.sheets for pl in sheet.placements)
     for pid in parts:
         if counts[pid] == 0:
@@ -48,6 +50,17 @@ def validate_nesting(nesting: Nesting, partset: PartSet) -> list[str]:
     for sheet in nesting.sheets:
         problems += _check_sheet(sheet, parts, nesting.margin, clearance, nesting.kerf, with_holes)
     return problems
+
+
+def _outline_problem(part: Part) -> str:
+    """Why a part's outline cannot be cut (empty or crossing itself, like a bow-tie), or ""."""
+    polygon = Polygon(flatten_contour(part.outline, ARC_TOLERANCE))
+    reason = shapely.is_valid_reason(polygon)
+    if reason.startswith("Self-intersection"):
+        return f"part {part.id}: outline crosses itself ({reason})"
+    if polygon.area <= 1e-9:
+        return f"part {part.id}: outline encloses no area"
+    return ""
 
 
 def _check_sheet(sheet, parts: dict[str, Part], margin: float, clearance: float, kerf: float,
@@ -69,6 +82,13 @@ def _check_sheet(sheet, parts: dict[str, Part], margin: float, clearance: float,
             problems.append(f"sheet {sheet.id}: part {part.id} lies outside the usable area "
                             f"(margin {margin:g} mm) by {overshoot:.2f} mm")
         placed.append((part.id, polygon))
+    on_sheet = {pid for pid, _ in placed}
+    for cut in sheet.common_cuts:
+        missing = [pid for pid in cut.parts if pid not in on_sheet]
+        if missing:
+            problems.append(f"sheet {sheet.id}: common cut names part {missing[0]}, which is not on this sheet")
+    if not placed:
+        return problems
     shared = {frozenset(cut.parts) for cut in sheet.common_cuts}
     geometries = [g for _, g in placed]
     tree = shapely.STRtree(geometries)

@@ -12,6 +12,8 @@ from fabline.errors import FablineError
 from fabline.fileio import finite_number, read_json, write_json
 
 CAMERA_SCHEMA = "fabline.camera/1"
+MAX_PIXELS = 1e6       # image sides, focal lengths and principal points (px) a camera file may give
+MAX_DISTORTION = 1e4   # size of a distortion coefficient (real lenses: well under 100)
 
 
 @dataclass
@@ -71,16 +73,17 @@ def camera_from_dict(data: object, source: str = "camera") -> Camera:
     values = {}
     for key in ("width", "height", "fx", "fy", "cx", "cy"):
         value = data.get(key)
-        if not finite_number(value) or value <= 0:
-            raise FablineError(f"{source}: field '{key}' must be a positive number")
+        if not finite_number(value, MAX_PIXELS) or value <= 0:
+            raise FablineError(f"{source}: field '{key}' must be a positive number of pixels, at most {MAX_PIXELS:g}")
         values[key] = value
     for key in ("width", "height"):
         if int(values[key]) != values[key]:
             raise FablineError(f"{source}: field '{key}' must be a whole number of pixels")
     distortion = data.get("distortion", [0.0] * 5)
     if (not isinstance(distortion, list) or len(distortion) not in (4, 5, 8, 12, 14)
-            or not all(isinstance(v, (int, float)) and np.isfinite(v) for v in distortion)):
-        raise FablineError(f"{source}: field 'distortion' must be a list of 4, 5, 8, 12 or 14 numbers")
+            or not all(finite_number(v, MAX_DISTORTION) for v in distortion)):
+        raise FablineError(f"{source}: field 'distortion' must be a list of 4, 5, 8, 12 or 14 numbers, each at most "
+                           f"{MAX_DISTORTION:g} in size")
     matrix = np.array([[values["fx"], 0, values["cx"]], [0, values["fy"], values["cy"]], [0, 0, 1]], dtype=float)
     error = data.get("reprojection_error_px")
     return Camera(matrix, np.array(distortion, dtype=float), int(values["width"]), int(values["height"]),

@@ -24,6 +24,7 @@ from scipy.ndimage import map_coordinates, spline_filter
 
 from fabline.errors import FablineError
 from fabline.fileio import atomic_output
+from fabline.survey.photos import check_photo
 from fabline.survey.camera import Camera
 from fabline.survey.tagmap import TAG_CELLS, TAG_DICTIONARY
 
@@ -85,9 +86,14 @@ class TagDetection:
     partial: bool = False  # a corner lies outside the photo: it is extrapolated from the edges inside, not measured
 
 
-def read_gray(path: str | os.PathLike) -> np.ndarray:
-    """An image file as 8-bit grayscale; an unreadable or missing file raises naming it."""
-    image = cv2.imread(os.fspath(path), cv2.IMREAD_GRAYSCALE)
+def read_gray(path: str | os.PathLike, notes: list[str] | None = None) -> np.ndarray:
+    """An image file as 8-bit grayscale; an unreadable, missing or too large file raises naming it (`check_photo`:
+    the size is checked before decoding; a JPEG cut short is added to `notes`)."""
+    check_photo(path, notes)
+    try:
+        image = cv2.imread(os.fspath(path), cv2.IMREAD_GRAYSCALE)
+    except cv2.error as exc:
+        raise FablineError(f"{path}: cannot read the image: {str(exc).strip().splitlines()[-1]}") from None
     if image is None:
         raise FablineError(f"{path}: cannot read the image (missing, unreadable or not an image)")
     return image

@@ -64,13 +64,15 @@ def detect_photos(photos: list[Path], camera: Camera | None, known_tags: set[int
     detections: dict[int, list[TagDetection]] = {}
     problems: list[dict] = []
     for k, path in enumerate(progress(photos, "detecting tags")):
+        notes: list[str] = []
         try:
-            gray = read_gray(path)
+            gray = read_gray(path, notes)
             if camera is not None:
                 camera.check_image(gray.shape, str(path))
         except FablineError as exc:
             problems.append({"file": str(path), "problem": str(exc)})
             continue
+        problems += [{"file": str(path), "problem": note} for note in notes]
         found = detect_tags(gray)
         if not found:
             problems.append({"file": str(path), "problem": f"{path}: no tags found in this photo"})

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fabline.errors import FablineError
-from fabline.fileio import read_text
+from fabline.fileio import finite_number, read_text
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -18,6 +18,7 @@ else:  # pragma: no cover - exercised on Python 3.10 only
 
 BUILTIN_MATERIALS = Path(__file__).with_name("materials.toml")
 MATERIAL_FIELDS = ("E", "G", "f_y", "density")
+MAX_MATERIAL_VALUE = 1e7  # moduli and strengths in N/mm2, density in kg/m3: steel is 2.1e5 and 7850
 
 
 @dataclass(frozen=True)
@@ -100,8 +101,15 @@ def _read_table(path: Path) -> dict[str, Material]:
         values = {}
         for key in MATERIAL_FIELDS:
             value = raw.get(key)
-            if not isinstance(value, (int, float)) or isinstance(value, bool) or value <= 0:
-                raise FablineError(f"{path}: material {name}: {key} must be a positive number, got {value!r}")
+            if not finite_number(value, MAX_MATERIAL_VALUE) or value <= 0:
+                raise FablineError(f"{path}: material {name}: {key} must be a positive number of at most "
+                                   f"{MAX_MATERIAL_VALUE:g}, got {value!r}")
             values[key] = float(value)
-        materials[name] = Material(name, description=str(raw.get("description", "")), **values)
+        unknown = sorted(set(raw) - set(MATERIAL_FIELDS) - {"description"})
+        if unknown:
+            raise FablineError(f"{path}: material {name}: {unknown[0]}: unknown setting (use description, "
+                               f"{', '.join(MATERIAL_FIELDS)})")
+        if not isinstance(raw.get("description", ""), str):
+            raise FablineError(f"{path}: material {name}: description must be text")
+        materials[name] = Material(name, description=raw.get("description", ""), **values)
     return materials

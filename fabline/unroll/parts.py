@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from fabline.errors import FablineError
-from fabline.fileio import read_json, write_json
+from fabline.fileio import MAX_MM, read_json, write_json
 from fabline.unroll.collector import collector_paused
 
 SCHEMA = "fabline.parts/1"
@@ -229,14 +229,16 @@ def parts_from_dict(data: Any, source: str = "parts") -> PartSet:
         raise FablineError(f"{source}: no parts")
     pool, seen, entries = _ContourPool(), set(), []
     for i, raw in enumerate(raw_parts):
-        if not isinstance(raw, dict) or "id" not in raw:
-            raise FablineError(f"{source}: parts[{i}] has no id")
+        if not isinstance(raw, dict) or not isinstance(raw.get("id"), (str, int)) or isinstance(raw.get("id"), bool):
+            raise FablineError(f"{source}: parts[{i}] has no id (a string)")
         pid = str(raw["id"])
         where = f"{source}: part {pid}"
         if pid in seen:
             raise FablineError(f"{where}: duplicate part id")
         seen.add(pid)
         kind = raw.get("kind")
+        if not isinstance(raw.get("grain", False), bool):
+            raise FablineError(f"{where}: grain must be true or false")
         if kind not in PART_KINDS:
             raise FablineError(f"{where}: unknown kind {kind!r} (use one of {', '.join(PART_KINDS)})")
         slots = _field_list(raw, "slots", where)
@@ -258,10 +260,10 @@ def parts_from_dict(data: Any, source: str = "parts") -> PartSet:
             slots=[Slot(str(s.get("node", "")), contour, s.get("edge"))
                    for s, contour in zip(slots, pool.contours(slot_outlines))],
             marks=pool.polylines(marks), text=pool.polylines(text),
-            nodes=list(raw.get("nodes", [])), meta=dict(raw.get("meta", {})),
+            nodes=_field_list(raw, "nodes", where), meta=_field(raw, "meta", dict, where),
         ))
-    return PartSet(parts, dict(data.get("profile", {})), str(data.get("material", "")),
-                   str(data.get("source", "")), dict(data.get("report", {})))
+    return PartSet(parts, _field(data, "profile", dict, source), str(data.get("material", "")),
+                   str(data.get("source", "")), _field(data, "report", dict, source))
 
 
 class _ContourPool:
@@ -304,6 +306,7 @@ class _ContourPool:
                 return False
             closed = np.array(self.closed[width])
             if (points.ndim != 2 or points.shape[1] != width or counts.min() < 2 or not np.all(np.isfinite(points))
+                    or np.abs(points[:, :2]).max() > MAX_MM
                     or np.any(closed & (counts < 4))):
                 return False
             first = np.cumsum(counts) - counts
@@ -344,10 +347,15 @@ def _diagnose(raw_parts: list, source: str) -> None:
 
 
 def _field_list(raw: dict, name: str, where: str) -> list:
-    """A part's list field (holes, slots, marks, text), empty when absent; anything but a list is an error."""
-    value = raw.get(name, [])
-    if not isinstance(value, list):
-        raise FablineError(f"{where}: {name} must be a list")
+    """A part's list field (holes, slots, marks, text, nodes), empty when absent; anything but a list is an error."""
+    return _field(raw, name, list, where)
+
+
+def _field(raw: dict, name: str, kind: type, where: str) -> Any:
+    """A list or object field (`kind`), empty when absent; anything else is an error naming it."""
+    value = raw.get(name, kind())
+    if not isinstance(value, kind):
+        raise FablineError(f"{where}: {name} must be {'a list' if kind is list else 'an object'}, got {value!r:.40}")
     return value
 
 
@@ -373,6 +381,8 @@ def _contour(raw: Any, where: str, closed: bool = False) -> np.ndarray:
         raise FablineError(f"{where}: must be a list of [x, y] or [x, y, bulge] vertices")
     if not np.all(np.isfinite(value)):
         raise FablineError(f"{where}: contains NaN or infinite values")
+    if np.abs(value[:, :2]).max() > MAX_MM:
+        raise FablineError(f"{where}: a vertex lies more than {MAX_MM / 1e6:g} km from the part's origin")
     if closed and (len(value) < 4 or not np.allclose(value[0, :2], value[-1, :2])):
         raise FablineError(f"{where}: must be closed (at least 3 vertices, last equal to first)")
     return value

@@ -126,6 +126,8 @@ def check_surface_units(source: CurveSource, units: str, surface_path: str, surf
     """Refuse a surface that declares other units than the curves, or whose size is 10x off theirs."""
     if surface_units is not None and surface_units != units:
         raise FablineError(f"mixed units: {source.path} is in {units} but {surface_path} is in {surface_units}")
+    if not source.curves:
+        return  # no curves: the network builder names that
     points = np.concatenate([c.points for c in source.curves])
     curve_size = float(np.linalg.norm(np.ptp(points, axis=0)))
     surface_size = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0))) if len(mesh.vertices) else 0.0

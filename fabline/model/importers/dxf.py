@@ -85,7 +85,7 @@ def _read_document(path: str, text: str | None = None):
         return ezdxf.readfile(path) if text is None else ezdxf.read(io.StringIO(text))
     except FileNotFoundError:
         raise FablineError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError, ValueError, ezdxf.DXFError) as exc:
+    except (OSError, UnicodeDecodeError, ValueError, StopIteration, ezdxf.DXFError) as exc:
         message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise FablineError(f"{path}: malformed DXF: {message}") from None
 
@@ -113,7 +113,7 @@ def _bulk_3d_polylines(path: str) -> _BulkPolylines | None:
         encoding = dxf_file_info(path).encoding
         "".encode(encoding)  # an encoding Python does not know raises LookupError here
         raw = Path(path).read_bytes()
-    except (OSError, LookupError, ezdxf.DXFError):
+    except (OSError, LookupError, StopIteration, ezdxf.DXFError):  # StopIteration: an empty file
         return None
     tags = _tag_lines(raw)
     if tags is None:

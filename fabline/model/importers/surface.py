@@ -48,6 +48,8 @@ def load_mesh_file(path: str | Path) -> trimesh.Trimesh:
         loaded = trimesh.load(str(path), force="mesh", process=False)
     except FileNotFoundError:
         raise FablineError(f"{path}: file not found") from None
+    except ImportError:  # trimesh guesses a broken file's text encoding with an optional module
+        raise FablineError(f"{path}: cannot read as a mesh: neither a binary nor a text mesh file") from None
     except Exception as exc:  # trimesh raises many types for a broken file
         raise FablineError(f"{path}: cannot read as a mesh: {exc}".splitlines()[0]) from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
