@@ -1,0 +1,115 @@
+"""`design asymptotic`: from a designer's surface file to a validated asymptotic network and its quality report."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from fabline.errors import FablineError
+from fabline.model.importers.surface import mesh_from_arrays
+from fabline.model.network import UNIT_TO_MM, Network
+from fabline.model.surfaces.field import Region, special_regions
+from fabline.model.surfaces.layout import SupportRule, build_network, check_seed, default_seed, rail_layout
+from fabline.model.surfaces.mesh import SmoothMesh
+
+DEGENERATE_AREA = 1e-10  # a face smaller than this fraction of the mean edge length squared has no area
+
+
+@dataclass
+class AsymptoticDesign:
+    """A traced network with what was found on the way: regions without asymptotic lines, early stops."""
+
+    network: Network
+    regions: list[Region]
+    stops: list[str]
+    surface: SmoothMesh
+    notes: list[str] = field(default_factory=list)
+
+
+def read_surface(path: str | Path, units: str | None = None) -> tuple[trimesh.Trimesh, str, list[str]]:
+    """A surface file as one checked triangle mesh, its units, and notes (assumed units)."""
+    path = str(path)
+    notes = []
+    if Path(path).suffix.lower() == ".3dm":
+        from fabline.model.importers.rhino import read_3dm_surface
+        mesh, declared = read_3dm_surface(path)
+        vertices, faces = mesh.vertices, mesh.faces
+    else:
+        try:
+            loaded = trimesh.load(path, force="mesh", process=False)
+        except FileNotFoundError:
+            raise FablineError(f"{path}: file not found") from None
+        except Exception as exc:  # trimesh raises many types for a broken file
+            raise FablineError(f"{path}: cannot read as a mesh: {exc}".splitlines()[0]) from None
+        if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+            raise FablineError(f"{path}: no mesh faces found")
+        vertices, faces, declared = loaded.vertices, loaded.faces, None
+    if units is None:
+        units = declared or "m"
+        if declared is None:
+            notes.append(f"{path}: the file declares no units; taken as m (give --units)")
+    elif declared is not None and declared != units:
+        raise FablineError(f"{path}: the file is in {declared}, --units says {units}")
+    if units not in UNIT_TO_MM:
+        raise FablineError(f"{path}: unknown units {units!r} (use one of {', '.join(UNIT_TO_MM)})")
+    return check_mesh(np.asarray(vertices, dtype=float), np.asarray(faces, dtype=np.int64), path), units, notes
+
+
+def check_mesh(vertices: np.ndarray, faces: np.ndarray, source: str) -> trimesh.Trimesh:
+    """Refuse degenerate triangles, non-manifold edges and disconnected pieces, naming where; weld and orient."""
+    raw = trimesh.Trimesh(vertices, faces, process=False)
+    if not np.all(np.isfinite(vertices)):
+        raise FablineError(f"{source}: the surface has NaN or infinite vertex coordinates")
+    edge = float(np.mean(raw.edges_unique_length)) if len(raw.edges_unique) else 0.0
+    tiny = np.flatnonzero(raw.area_faces <= DEGENERATE_AREA * edge * edge)
+    if tiny.size:
+        raise FablineError(f"{source}: face {tiny[0]} at ({_xyz(raw.triangles_center[tiny[0]])}) is degenerate "
+                           f"(area {raw.area_faces[tiny[0]]:.3g}); {tiny.size} such faces: remove or repair them")
+    mesh = mesh_from_arrays(vertices, faces, source)
+    edges = mesh.edges_sorted
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    shared = trimesh.grouping.group_rows(edges, require_count=None)
+    crowded = [group for group in shared if len(group) > 2]
+    if crowded:
+        a, b = mesh.vertices[edges[crowded[0][0]]]
+        raise FablineError(f"{source}: non-manifold edge from ({_xyz(a)}) to ({_xyz(b)}) is shared by "
+                           f"{len(crowded[0])} faces; {len(crowded)} such edges: the surface must be a manifold")
+    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
+    pieces = np.bincount(labels)
+    if len(pieces) > 1:
+        small = int(np.argsort(pieces)[0])
+        where = mesh.triangles_center[labels == small].mean(axis=0)
+        raise FablineError(f"{source}: the mesh has {len(pieces)} separate pieces (one of {pieces[small]} faces around "
+                           f"({_xyz(where)})): give one connected surface")
+    return mesh
+
+
+def design_asymptotic(path: str | Path, spacing: float, seed: np.ndarray | None = None, supports: str | None = None,
+                      units: str | None = None, step: float | None = None) -> AsymptoticDesign:
+    """Trace an asymptotic network at `spacing` (model units) on the surface in `path`; seed defaults to the centre."""
+    source = str(path)
+    if not (0 < spacing < np.inf):
+        raise FablineError(f"--spacing must be a positive number, got {spacing:g}")
+    rule = SupportRule.parse(supports) if supports else None
+    mesh, units, notes = read_surface(path, units)
+    surface = SmoothMesh(mesh)
+    k1, k2, _, _ = surface.vertex_curvatures()
+    if not np.any((k1 > 0) & (k2 < 0)):
+        worst = int(np.argmin(k1 * k2))
+        raise FablineError(f"{source}: K >= 0 everywhere (synclastic or flat, no asymptotic directions; the most "
+                           f"anticlastic point ({_xyz(surface.vertices[worst])}) has K = {k1[worst] * k2[worst]:.3g})")
+    regions = special_regions(surface.vertices, surface.faces, k1, k2)
+    seed = check_seed(surface, np.asarray(seed, dtype=float), source) if seed is not None else check_seed(surface, default_seed(surface), source)
+    step = step or min(spacing / 4.0, 0.05 * float(np.linalg.norm(np.ptp(surface.vertices, axis=0))))
+    layout = rail_layout(surface, seed, spacing, step, source)
+    meta = {"design": "asymptotic", "surface": Path(source).name, "spacing": spacing, "seed": seed.round(9).tolist(),
+            "step": step, "supports": str(rule) if rule else None}
+    network = build_network(surface, layout, spacing, units, rule, Path(source).stem.split(".")[0], meta, source)
+    return AsymptoticDesign(network, regions, layout.stops, surface, notes)
+
+
+def _xyz(point: np.ndarray) -> str:
+    return ", ".join(f"{v:.4g}" for v in point)

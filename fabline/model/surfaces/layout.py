@@ -1,0 +1,214 @@
+"""Lay out an asymptotic network at a requested spacing and turn the traced curves into a `Network`.
+
+The rail strategy: the family A curve through the seed point is the rail; family B curves start on it
+at equal arc-length spacing from the seed; then family A curves start at equal spacing along the middle
+B curve (the one through the seed). On a surface whose asymptotic lines are coordinate lines (Enneper:
+u, v) this reproduces the closed-form network with nodes at equal arc length along the two axes. The
+crossings (found as the importer finds them) become nodes with the surface normal; lamella ends at the
+edge become `edge-end` nodes, nodes matching the supports rule `support`.
+"""
+
+from __future__ import annotations
+
+import operator
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from fabline.errors import FablineError
+from fabline.model.importers.crossings import find_crossings
+from fabline.model.network import UNIT_TO_MM, Lamella, Network, Node, validate
+from fabline.model.surfaces.field import asymptotic_directions
+from fabline.model.surfaces.mesh import SmoothMesh
+from fabline.model.surfaces.trace import TracedCurve, trace_family
+
+CROSSING_TOLERANCE_MM = 1.0  # traced curves of the two families that pass this close cross
+SAMPLES_PER_STEP = 4  # output samples per tracing step (cubic spline through the traced points, projected)
+END_MERGE_FRACTION = 0.1  # a crossing this fraction of the spacing from a lamella's end becomes that end
+
+
+@dataclass
+class SupportRule:
+    """Nodes whose coordinate `axis` compares with `value` by `op` (e.g. z < 0.05) are supports."""
+
+    axis: int
+    op: str
+    value: float
+
+    OPS = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
+
+    @classmethod
+    def parse(cls, text: str) -> "SupportRule":
+        match = re.fullmatch(r"\s*([xyzXYZ])\s*(<=|>=|<|>)\s*([-+0-9.eE]+)\s*", text)
+        if not match:
+            raise FablineError(f"--supports {text!r}: write it as AXIS OP VALUE, e.g. z<0.05 (axis x, y or z; op <, <=, >, >=)")
+        try:
+            value = float(match.group(3))
+        except ValueError:
+            raise FablineError(f"--supports {text!r}: {match.group(3)!r} is not a number") from None
+        return cls("xyz".index(match.group(1).lower()), match.group(2), value)
+
+    def holds(self, xyz: np.ndarray) -> bool:
+        return bool(self.OPS[self.op](xyz[self.axis], self.value))
+
+    def __str__(self) -> str:
+        return f"{'xyz'[self.axis]}{self.op}{self.value:g}"
+
+
+@dataclass
+class Layout:
+    """The traced curves of both families, the seed, and the stop reasons that are not the edge."""
+
+    curves: list[np.ndarray]
+    families: list[str]
+    indices: list[int]
+    seed: np.ndarray
+    stops: list[str] = field(default_factory=list)
+
+
+def rail_layout(surface: SmoothMesh, seed: np.ndarray, spacing: float, step: float, source: str) -> Layout:
+    """Trace the rail through the seed, B curves at equal spacing along it, A curves at equal spacing along the middle B."""
+    reach = 4.0 * float(np.linalg.norm(np.ptp(surface.vertices, axis=0)))
+    rail = trace_family(surface, seed[None], "A", step, reach)[0]
+    rail_points, rail_seed = _dense(surface, rail, step)
+    starts_b, index_b = _spaced(rail_points, rail_seed, spacing, "A", source)
+    curves_b = trace_family(surface, starts_b, "B", step, reach)
+    middle = curves_b[index_b.tolist().index(0)]
+    middle_points, middle_seed = _dense(surface, middle, step)
+    starts_a, index_a = _spaced(middle_points, middle_seed, spacing, "B", source)
+    others = index_a != 0
+    curves_a = trace_family(surface, starts_a[others], "A", step, reach)
+    traced_a = dict(zip(index_a[others].tolist(), curves_a)) | {0: rail}
+    layout = Layout([], [], [], rail_points[rail_seed])
+    for family, traced in (("A", sorted(traced_a.items())), ("B", list(zip(index_b.tolist(), curves_b)))):
+        for index, curve in traced:
+            layout.curves.append(_dense(surface, curve, step)[0])
+            layout.families.append(family)
+            layout.indices.append(index)
+            layout.stops += [f"{family} curve {index}: stops where K >= 0 near ({_xyz(curve.points[end])})"
+                             for end, why in zip((0, -1), curve.stops) if why == "K>=0"]
+    return layout
+
+
+def _dense(surface: SmoothMesh, curve: TracedCurve, step: float) -> tuple[np.ndarray, int]:
+    """The traced polyline resampled on a cubic spline (SAMPLES_PER_STEP per step); the seed's index.
+
+    The spline through the projected tracing points stays on the surface within micrometres and is
+    smoother than projecting every sample again would be (the blended surface is only C1 across edges).
+    """
+    points = curve.points
+    chord = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    keep = np.r_[True, np.diff(chord) > 1e-9 * step]
+    points, chord = points[keep], chord[keep]
+    seed_chord = chord[min(curve.seed_index, len(chord) - 1)]
+    if len(points) < 2:
+        return points, 0
+    before = np.linspace(0.0, seed_chord, max(1, int(np.ceil(seed_chord * SAMPLES_PER_STEP / step))) + 1)
+    after = np.linspace(seed_chord, chord[-1], max(1, int(np.ceil((chord[-1] - seed_chord) * SAMPLES_PER_STEP / step))) + 1)
+    t = np.unique(np.r_[before, after])
+    if len(points) > 2:
+        dense = CubicSpline(chord, points, bc_type="natural")(t)
+    else:
+        dense = points[0] + np.outer(t / chord[-1], points[-1] - points[0])
+    return dense, int(np.searchsorted(t, seed_chord))
+
+
+def _spaced(points: np.ndarray, seed: int, spacing: float, family: str, source: str) -> tuple[np.ndarray, np.ndarray]:
+    """Points at arc lengths k * spacing from the seed along a dense polyline, and their signed indices k."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]) - 0.0
+    s = s - s[seed]
+    ks = np.arange(int(np.ceil(s[0] / spacing - 1e-9)), int(np.floor(s[-1] / spacing + 1e-9)) + 1)
+    ks = ks[(ks * spacing > s[0] + 1e-9 * spacing) & (ks * spacing < s[-1] - 1e-9 * spacing) | (ks == 0)]
+    if len(ks) < 2:
+        raise FablineError(f"{source}: spacing {spacing:g} is larger than the surface: the family {family} curve "
+                           f"through the seed is {s[-1] - s[0]:.3g} long (lower --spacing)")
+    starts = np.c_[[np.interp(ks * spacing, s, points[:, i]) for i in range(3)]].T
+    return starts, ks
+
+
+def build_network(surface: SmoothMesh, layout: Layout, spacing: float, units: str, supports: SupportRule | None,
+                  name: str, meta: dict, source: str) -> Network:
+    """Nodes at the crossings of the traced curves, lamellas through them to the edge, validated."""
+    first = {f: min(i for g, i in zip(layout.families, layout.indices) if g == f) for f in set(layout.families)}
+    number = [i - first[f] for f, i in zip(layout.families, layout.indices)]
+    ids = [f"{f}-{n:03d}" for f, n in zip(layout.families, number)]
+    tolerance = CROSSING_TOLERANCE_MM / UNIT_TO_MM[units]
+    crossings = find_crossings(layout.curves, layout.families, ids, tolerance, source)
+    if len(crossings.xyz) == 0:
+        raise FablineError(f"{source}: the traced curves do not cross (spacing {spacing:g} too large for the surface?)")
+    normals = surface.project(crossings.xyz).normal
+    nodes: dict[str, Node] = {}
+    per_curve: list[list[tuple[float, str]]] = [[] for _ in layout.curves]
+    for k, members in enumerate(crossings.members):
+        by_family = {layout.families[c]: number[c] for c, _ in members}
+        nid = f"N{by_family['B']:03d}-{by_family['A']:03d}"
+        nid = nid if nid not in nodes else f"{nid}-{k}"
+        nodes[nid] = Node(nid, crossings.xyz[k], normals[k], "grid" if len(members) == 2 else "singularity")
+        for c, arc in members:
+            per_curve[c].append((arc, nid))
+    lamellas = []
+    for c, points in enumerate(layout.curves):
+        if not per_curve[c]:
+            continue
+        lamellas.append(_lamella(surface, ids[c], layout.families[c], points, sorted(per_curve[c]), nodes, spacing))
+    if supports is not None:
+        for node in nodes.values():
+            if supports.holds(node.xyz):
+                node.kind = "support"
+    used = {nid for lam in lamellas for nid in lam.nodes}
+    nodes = {nid: node for nid, node in sorted(nodes.items()) if nid in used}
+    return validate(Network(units, nodes, sorted(lamellas, key=lambda lam: (lam.family, lam.id.split("-", 1)[1])), name, meta), source)
+
+
+def _lamella(surface: SmoothMesh, lamella_id: str, family: str, points: np.ndarray, crossings: list[tuple[float, str]],
+             nodes: dict[str, Node], spacing: float) -> Lamella:
+    """A lamella through its crossing nodes to both ends of its curve, the nodes inserted as curve samples."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    arcs = [arc for arc, _ in crossings]
+    names = [nid for _, nid in crossings]
+    merge = END_MERGE_FRACTION * spacing
+    ends = []
+    for side, (arc_end, nearest) in enumerate(((0.0, arcs[0]), (s[-1], arcs[-1]))):
+        if abs(arc_end - nearest) <= merge:
+            ends.append(None)
+            continue
+        nid = f"E{lamella_id}-{'se'[side]}"
+        nodes[nid] = Node(nid, points[0 if side == 0 else -1].copy(), surface.project(points[[0 if side == 0 else -1]]).normal[0], "edge-end")
+        ends.append((arc_end, nid))
+    lo = arcs[0] if ends[0] is None else 0.0
+    hi = arcs[-1] if ends[1] is None else s[-1]
+    if ends[0] is None:
+        nodes[names[0]].kind = "edge-end"
+    if ends[1] is None:
+        nodes[names[-1]].kind = "edge-end"
+    stations = [e for e in ends[:1] if e] + list(zip(arcs, names)) + [e for e in ends[1:] if e]
+    gap = 0.5 * (s[1] - s[0])
+    inner = s[(s > lo + gap) & (s < hi - gap)]
+    curve = CubicSpline(s, points, bc_type="natural")(np.r_[lo, inner, hi])
+    return Lamella(lamella_id, family, [nid for _, nid in stations], curve, surface.project(curve).normal)
+
+
+def default_seed(surface: SmoothMesh) -> np.ndarray:
+    """The surface point closest to the mesh's area-weighted centroid."""
+    return surface.project(surface.mesh.center_mass[None] if surface.mesh.is_watertight else
+                           np.average(surface.mesh.triangles_center, axis=0, weights=surface.mesh.area_faces)[None]).xyz[0]
+
+
+def check_seed(surface: SmoothMesh, seed: np.ndarray, source: str) -> np.ndarray:
+    """The seed on the surface; refused when it lies off the surface, beyond its edge, or where K >= 0."""
+    on = surface.project(seed[None])
+    distance = float(np.linalg.norm(on.xyz[0] - seed))
+    if distance > max(2.0 * surface.edge_length, 1e-6) or surface.outside(seed[None])[0]:
+        raise FablineError(f"{source}: seed ({_xyz(seed)}) lies {distance:.4g} off the surface (closest surface point "
+                           f"({_xyz(on.xyz[0])})); give a point on the surface")
+    a, _, gauss = asymptotic_directions(on.normal, on.shape)
+    if not np.isfinite(a).all():
+        raise FablineError(f"{source}: seed ({_xyz(seed)}) lies where K = {gauss[0]:.3g} >= 0 (no asymptotic directions); "
+                           "choose a seed where the surface is anticlastic")
+    return on.xyz[0]
+
+
+def _xyz(point: np.ndarray) -> str:
+    return ", ".join(f"{v:.4g}" for v in point)
