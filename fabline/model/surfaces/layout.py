@@ -109,7 +109,7 @@ def _dense(surface: SmoothMesh, curve: TracedCurve, step: float) -> tuple[np.nda
     after = np.linspace(seed_chord, chord[-1], max(1, int(np.ceil((chord[-1] - seed_chord) * SAMPLES_PER_STEP / step))) + 1)
     t = np.unique(np.r_[before, after])
     if len(points) > 2:
-        dense = CubicSpline(chord, points, bc_type="natural")(t)
+        dense = CubicSpline(chord, points)(t)
     else:
         dense = points[0] + np.outer(t / chord[-1], points[-1] - points[0])
     return dense, int(np.searchsorted(t, seed_chord))
@@ -175,7 +175,7 @@ def _lamella(surface: SmoothMesh, lamella_id: str, family: str, points: np.ndarr
             ends.append(None)
             continue
         nid = f"E{lamella_id}-{'se'[side]}"
-        nodes[nid] = Node(nid, points[0 if side == 0 else -1].copy(), surface.project(points[[0 if side == 0 else -1]]).normal[0], "edge-end")
+        nodes[nid] = Node(nid, points[0 if side == 0 else -1].copy(), surface.at(points[[0 if side == 0 else -1]]).normal[0], "edge-end")
         ends.append((arc_end, nid))
     lo = arcs[0] if ends[0] is None else 0.0
     hi = arcs[-1] if ends[1] is None else s[-1]
@@ -186,8 +186,8 @@ def _lamella(surface: SmoothMesh, lamella_id: str, family: str, points: np.ndarr
     stations = [e for e in ends[:1] if e] + list(zip(arcs, names)) + [e for e in ends[1:] if e]
     gap = 0.5 * (s[1] - s[0])
     inner = s[(s > lo + gap) & (s < hi - gap)]
-    curve = CubicSpline(s, points, bc_type="natural")(np.r_[lo, inner, hi])
-    return Lamella(lamella_id, family, [nid for _, nid in stations], curve, surface.project(curve).normal)
+    curve = CubicSpline(s, points)(np.r_[lo, inner, hi])
+    return Lamella(lamella_id, family, [nid for _, nid in stations], curve, surface.at(curve).normal)
 
 
 def default_seed(surface: SmoothMesh) -> np.ndarray:

@@ -21,7 +21,7 @@ from fabline.errors import FablineError
 
 JET_TERMS = 10  # 1, x, y, x^2, xy, y^2, x^3, x^2 y, x y^2, y^3
 MIN_JET_POINTS = 16  # fewer neighbours than this in the two-ring: take the three-ring
-PROJECTION_ITERATIONS = 3  # Newton steps for the foot point of a normal projection onto the blended surface
+PROJECTION_ITERATIONS = 2  # Newton steps for the foot point of a normal projection onto the blended surface
 
 
 @dataclass
@@ -55,11 +55,15 @@ class SmoothMesh:
         squared, face, foot = self.tree.squared_distance(self.vertices, self.faces, np.ascontiguousarray(points, dtype=float))
         return np.asarray(face, dtype=np.int64), foot, squared
 
-    def lift(self, face: np.ndarray, foot: np.ndarray) -> SurfacePoints:
-        """The smooth surface over points `foot` of the flat faces `face`: blended jets of the three corners."""
+    def lift(self, face: np.ndarray, foot: np.ndarray, above: np.ndarray | None = None) -> SurfacePoints:
+        """The smooth surface over points `above` (default: the feet), blending the jets of the corners of the feet's faces.
+
+        Beyond the boundary the feet stop at the edge while the jets go on: a smooth continuation of the surface.
+        """
+        above = foot if above is None else above
         weights = _barycentric(self.vertices[self.faces[face]], foot)
         corner = self.faces[face].T.ravel()
-        p, n, s = jet_at(self.vertices[corner], self.frames[corner], self.jets[corner], self.scale[corner], np.tile(foot, (3, 1)))
+        p, n, s = jet_at(self.vertices[corner], self.frames[corner], self.jets[corner], self.scale[corner], np.tile(above, (3, 1)))
         w = weights.T.reshape(3, -1)
         xyz = np.einsum("cv,cvi->vi", w, p.reshape(3, -1, 3))
         normal = np.einsum("cv,cvi->vi", w, n.reshape(3, -1, 3))
@@ -70,19 +74,20 @@ class SmoothMesh:
         return SurfacePoints(xyz, normal, shape, face, foot)
 
     def at(self, points: np.ndarray) -> SurfacePoints:
-        """The smooth surface over the closest flat points: enough to read the field near the surface."""
-        return self.lift(*self.closest(np.asarray(points, dtype=float).reshape(-1, 3))[:2])
-
-    def project(self, points: np.ndarray) -> SurfacePoints:
-        """Normal projection onto the smooth surface: the foot moves until point - surface is along the normal."""
+        """The smooth surface above points near it: enough to read the field there."""
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         face, foot, _ = self.closest(points)
-        lifted = self.lift(face, foot)
+        return self.lift(face, foot, points)
+
+    def project(self, points: np.ndarray) -> SurfacePoints:
+        """Normal projection onto the smooth surface (or its continuation beyond the edge), by Newton steps along it."""
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        query = points
+        lifted = self.at(query)
         for _ in range(PROJECTION_ITERATIONS):
             gap = points - lifted.xyz
-            tangential = gap - np.einsum("ij,ij->i", gap, lifted.normal)[:, None] * lifted.normal
-            face, foot, _ = self.closest(foot + tangential)
-            lifted = self.lift(face, foot)
+            query = lifted.xyz + gap - np.einsum("ij,ij->i", gap, lifted.normal)[:, None] * lifted.normal
+            lifted = self.at(query)
         return lifted
 
     def outside(self, points: np.ndarray) -> np.ndarray:
@@ -164,17 +169,15 @@ def jet_at(origin: np.ndarray, frame: np.ndarray, jet: np.ndarray, scale: np.nda
     hxx = (2 * c[3] + 6 * c[6] * x + 2 * c[7] * y) / scale
     hxy = (c[4] + 2 * c[7] * x + 2 * c[8] * y) / scale
     hyy = (2 * c[5] + 2 * c[8] * x + 6 * c[9] * y) / scale
-    point = origin + scale[:, None] * np.einsum("vi,vij->vj", np.c_[x, y, h], frame)
+    point = origin + scale[:, None] * np.einsum("vi,vij->vj", np.stack([x, y, h], axis=-1), frame)
     width = np.sqrt(1 + hx * hx + hy * hy)
-    normal = np.einsum("vi,vij->vj", np.c_[-hx, -hy, np.ones_like(hx)] / width[:, None], frame)
+    normal = np.einsum("vi,vij->vj", np.stack([-hx, -hy, np.ones_like(hx)], axis=-1) / width[:, None], frame)
     # second fundamental form on tangent vectors J a (J = [(1, 0, hx), (0, 1, hy)]): a^T II a, II = Hess / width;
     # as an ambient form J I^-1 II I^-1 J^T with I = J^T J.
-    jac = np.zeros((len(x), 3, 2))
-    jac[:, 0, 0] = jac[:, 1, 1] = 1.0
-    jac[:, 2, 0], jac[:, 2, 1] = hx, hy
-    first = np.einsum("vki,vkj->vij", jac, jac)
-    second = np.stack([np.c_[hxx, hxy], np.c_[hxy, hyy]], axis=1) / width[:, None, None]
-    pseudo = jac @ np.linalg.inv(first)
+    det = 1 + hx * hx + hy * hy
+    inverse = np.stack([1 + hy * hy, -hx * hy, -hx * hy, 1 + hx * hx], axis=-1).reshape(-1, 2, 2) / det[:, None, None]
+    pseudo = np.concatenate([inverse, np.stack([hx, hy], axis=-1)[:, None, :] @ inverse], axis=1)
+    second = np.stack([hxx, hxy, hxy, hyy], axis=-1).reshape(-1, 2, 2) / width[:, None, None]
     local_form = pseudo @ second @ np.swapaxes(pseudo, 1, 2)
     return point, normal, np.swapaxes(frame, 1, 2) @ local_form @ frame
 
@@ -221,7 +224,7 @@ def _barycentric(triangles: np.ndarray, points: np.ndarray) -> np.ndarray:
     denom = d00 * d11 - d01 * d01
     w1 = (d11 * d20 - d01 * d21) / denom
     w2 = (d00 * d21 - d01 * d20) / denom
-    weights = np.clip(np.c_[1 - w1 - w2, w1, w2], 0.0, None)
+    weights = np.clip(np.stack([1 - w1 - w2, w1, w2], axis=-1), 0.0, None)
     return weights / weights.sum(axis=1, keepdims=True)
 
 

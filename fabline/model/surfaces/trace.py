@@ -60,20 +60,23 @@ def trace_family(surface: Surface, seeds: np.ndarray, family: str, step: float, 
         move = (k1 + 2 * k2 + 2 * k3 + k4) / 6.0
         target = p + step * move
         finite = np.isfinite(target).all(axis=1)
+        landed = surface.project(target[finite]).xyz
         out = np.zeros(len(alive), dtype=bool)
-        out[finite] = surface.outside(target[finite])
+        out[finite] = surface.outside(landed)
         keep = finite & ~out
-        new = surface.project(target[keep]).xyz
+        new = landed[~out[finite]]
         for row, index in enumerate(alive[keep]):
             paths[index].append(new[row])
         points[alive[keep]] = new
         heading[alive[keep]] = move[keep] / np.linalg.norm(move[keep], axis=1, keepdims=True)
         edge = alive[out]
         if edge.size:
-            ends = _trim(surface, points[edge], step * move[out])
+            beyond = landed[out[finite]]
+            ends = _trim(surface, p[out], k1[out], beyond, _direction(surface, beyond, family, move[out]), step)
             for row, index in enumerate(edge):
-                if np.linalg.norm(ends[row] - points[index]) > 1e-9 * step:
-                    paths[index].append(ends[row])
+                if len(paths[index]) > 1 and np.linalg.norm(ends[row] - points[index]) < 0.5 * step:
+                    paths[index].pop()  # a short last interval would magnify the end point's tiny error
+                paths[index].append(ends[row])
                 stops[index] = "edge"
         for index in alive[~finite]:
             stops[index] = "K>=0"
@@ -100,12 +103,24 @@ def _direction(surface: Surface, points: np.ndarray, family: str, previous: np.n
     return direction
 
 
-def _trim(surface: Surface, starts: np.ndarray, moves: np.ndarray) -> np.ndarray:
-    """Where each step from an inside point leaves the surface, by bisection on the step fraction."""
-    lo, hi = np.zeros(len(starts)), np.ones(len(starts))
+def _trim(surface: Surface, start: np.ndarray, start_dir: np.ndarray, end: np.ndarray, end_dir: np.ndarray,
+          step: float) -> np.ndarray:
+    """Where each step from `start` (inside) to `end` (beyond the edge, on the surface's continuation) crosses the edge.
+
+    Bisection along the cubic Hermite curve of the step (both ends and their directions), so the curve's
+    end joins it smoothly and lies on the surface to the accuracy of the step.
+    """
+    span = np.linalg.norm(end - start, axis=1, keepdims=True)
+
+    def at(t: np.ndarray) -> np.ndarray:
+        t = t[:, None]
+        return ((2 * t**3 - 3 * t**2 + 1) * start + (t**3 - 2 * t**2 + t) * span * start_dir
+                + (-2 * t**3 + 3 * t**2) * end + (t**3 - t**2) * span * end_dir)
+
+    lo, hi = np.zeros(len(start)), np.ones(len(start))
     for _ in range(TRIM_BISECTIONS):
         mid = 0.5 * (lo + hi)
-        out = surface.outside(starts + mid[:, None] * moves)
+        out = surface.outside(at(mid))
         hi = np.where(out, mid, hi)
         lo = np.where(out, lo, mid)
-    return surface.project(starts + lo[:, None] * moves).xyz
+    return at(lo)
