@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 
+from fabline.cli import positive
 from fabline.errors import FablineError
 from fabline.geometry import analyse, lamella_table
-from fabline.model import load_network, save_network
+from fabline.model import UNIT_TO_MM, load_network, save_network
 from fabline.model.designs import BOUNDARIES, DESIGNS
 
 
@@ -32,11 +33,62 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     for sub in (enneper, catenoid, helicoid):
         sub.add_argument("-o", "--output", required=True, help="network JSON to write")
         sub.set_defaults(func=run_design)
+    _register_surface_designs(kinds)
 
     inspect = subparsers.add_parser("inspect", help="table of lamellas, lengths, curvatures and crossing angles")
     inspect.add_argument("model", help="a fabline.network/1 JSON file")
     inspect.add_argument("--json", action="store_true", help="print the table as JSON")
     inspect.set_defaults(func=run_inspect)
+
+
+def _register_surface_designs(kinds: argparse._SubParsersAction) -> None:
+    """`design asymptotic` (trace a network on a designer's surface)."""
+    traced = kinds.add_parser("asymptotic", help="trace an asymptotic network on an anticlastic mesh or .3dm surface")
+    traced.add_argument("--surface", required=True, help="surface: OBJ, STL, PLY (trimesh) or .3dm (rhino3dm)")
+    traced.add_argument("--spacing", type=positive(float), required=True, help="node spacing along the curves, model units")
+    traced.add_argument("--seed", type=_point, help="x,y,z of the point the rails start from (default: the surface's centre)")
+    traced.add_argument("--supports", help="nodes matching this rule are supports, e.g. z<0.05")
+    traced.add_argument("--units", choices=sorted(UNIT_TO_MM), help="units of a mesh file that declares none (default m)")
+    traced.add_argument("--step", type=positive(float), help="tracing step, model units (default spacing/4)")
+    traced.add_argument("--material", default="steel-s235", help="lamella material for the limits (default steel-s235)")
+    traced.add_argument("--profile", default="100x1.5", help="lamella profile HxT in mm for the limits (default 100x1.5)")
+    traced.add_argument("--json", action="store_true", help="print the quality report as JSON")
+    traced.add_argument("-o", "--output", required=True, help="network JSON to write")
+    traced.set_defaults(func=run_asymptotic)
+
+
+def _point(text: str) -> tuple[float, float, float]:
+    try:
+        x, y, z = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a point must look like 0.2,1.5,0, got {text!r}") from None
+    return x, y, z
+
+
+def run_asymptotic(args: argparse.Namespace) -> int:
+    """Trace the network, write it, print what was found and the quality report."""
+    from fabline.model.surfaces import design_asymptotic, summary_lines
+
+    design = design_asymptotic(args.surface, args.spacing, args.seed, args.supports, args.units, args.step,
+                               args.material, args.profile)
+    network = design.network
+    save_network(network, args.output)
+    report = network.meta["quality"]
+    if args.json:
+        print(json.dumps({"output": args.output, "notes": design.notes, "regions": network.meta["regions"],
+                          "stops": design.stops, "quality": report}, indent=1))
+        return 0
+    for note in design.notes:
+        print(f"note: {note}")
+    print(f"{args.output}: asymptotic network on {args.surface}, {len(network.nodes)} nodes, {len(network.lamellas)} lamellas "
+          f"(units {network.units})")
+    for region in design.regions:
+        print(f"found: {region.describe()}")
+    for stop in design.stops:
+        print(f"found: {stop}")
+    for line in summary_lines(report, network.units):
+        print(f"  {line}")
+    return 0
 
 
 def _size(text: str) -> tuple[float, float]:
@@ -64,7 +116,8 @@ def run_inspect(args: argparse.Namespace) -> int:
     except FablineError as exc:
         raise FablineError(f"{args.model}: {exc}") from None
     if args.json:
-        print(json.dumps({"model": args.model, "units": network.units, "lamellas": rows}, indent=1))
+        print(json.dumps({"model": args.model, "units": network.units, "lamellas": rows,
+                          **({"quality": network.meta["quality"]} if "quality" in network.meta else {})}, indent=1))
         return 0
     print(f"{'lamella':<10}{'fam':>4}{'nodes':>6}{'length m':>10}{'max k_g':>9}{'max tau_g':>10}{'max k_n':>9}{'angle min..max':>16}")
     for r in rows:
@@ -76,4 +129,10 @@ def run_inspect(args: argparse.Namespace) -> int:
           f"max k_g {max(r['max_k_g'] for r in rows):.3f} 1/m, max tau_g {max(r['max_tau_g'] for r in rows):.3f} 1/m, "
           f"max k_n {max(r['max_k_n'] for r in rows):.2e} 1/m; crossing angles "
           + (f"{min(angles):.2f}..{max(angles):.2f} deg" if angles else "none"))
+    if "quality" in network.meta:
+        from fabline.model.surfaces import summary_lines
+
+        print(f"\ntraced on the surface {network.meta.get('surface', '')} (fabline design asymptotic):")
+        for line in summary_lines(network.meta["quality"], network.units):
+            print(f"  {line}")
     return 0

@@ -14,6 +14,7 @@ from fabline.model.network import UNIT_TO_MM, Network
 from fabline.model.surfaces.field import Region, special_regions
 from fabline.model.surfaces.layout import SupportRule, build_network, check_seed, default_seed, rail_layout
 from fabline.model.surfaces.mesh import SmoothMesh
+from fabline.model.surfaces.quality import quality_report
 
 DEGENERATE_AREA = 1e-10  # a face smaller than this fraction of the mean edge length squared has no area
 
@@ -88,8 +89,12 @@ def check_mesh(vertices: np.ndarray, faces: np.ndarray, source: str) -> trimesh.
 
 
 def design_asymptotic(path: str | Path, spacing: float, seed: np.ndarray | None = None, supports: str | None = None,
-                      units: str | None = None, step: float | None = None) -> AsymptoticDesign:
-    """Trace an asymptotic network at `spacing` (model units) on the surface in `path`; seed defaults to the centre."""
+                      units: str | None = None, step: float | None = None, material: str = "steel-s235",
+                      profile: str = "100x1.5") -> AsymptoticDesign:
+    """Trace an asymptotic network at `spacing` (model units) on the surface in `path`; seed defaults to the centre.
+
+    The quality report (quality_report) and the regions without asymptotic lines go into the network's meta.
+    """
     source = str(path)
     if not (0 < spacing < np.inf):
         raise FablineError(f"--spacing must be a positive number, got {spacing:g}")
@@ -108,6 +113,10 @@ def design_asymptotic(path: str | Path, spacing: float, seed: np.ndarray | None 
     meta = {"design": "asymptotic", "surface": Path(source).name, "spacing": spacing, "seed": seed.round(9).tolist(),
             "step": step, "supports": str(rule) if rule else None}
     network = build_network(surface, layout, spacing, units, rule, Path(source).stem.split(".")[0], meta, source)
+    network.meta["regions"] = [{"kind": r.kind, "centre": r.centre.round(6).tolist(), "vertices": r.vertices,
+                                "extent": r.extent} for r in regions]
+    network.meta["stops"] = layout.stops
+    network.meta["quality"] = quality_report(network, surface, spacing, material, profile)
     return AsymptoticDesign(network, regions, layout.stops, surface, notes)
 
 

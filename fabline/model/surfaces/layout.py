@@ -171,7 +171,7 @@ def _lamella(surface: SmoothMesh, lamella_id: str, family: str, points: np.ndarr
     merge = END_MERGE_FRACTION * spacing
     ends = []
     for side, (arc_end, nearest) in enumerate(((0.0, arcs[0]), (s[-1], arcs[-1]))):
-        if abs(arc_end - nearest) <= merge:
+        if abs(arc_end - nearest) <= merge and len(arcs) > 1:
             ends.append(None)
             continue
         nid = f"E{lamella_id}-{'se'[side]}"
@@ -198,11 +198,12 @@ def default_seed(surface: SmoothMesh) -> np.ndarray:
 
 def check_seed(surface: SmoothMesh, seed: np.ndarray, source: str) -> np.ndarray:
     """The seed on the surface; refused when it lies off the surface, beyond its edge, or where K >= 0."""
-    on = surface.project(seed[None])
-    distance = float(np.linalg.norm(on.xyz[0] - seed))
+    _, foot, squared = surface.closest(seed[None])
+    distance = float(np.sqrt(squared[0]))
     if distance > max(2.0 * surface.edge_length, 1e-6) or surface.outside(seed[None])[0]:
         raise FablineError(f"{source}: seed ({_xyz(seed)}) lies {distance:.4g} off the surface (closest surface point "
-                           f"({_xyz(on.xyz[0])})); give a point on the surface")
+                           f"({_xyz(foot[0])})); give a point on the surface")
+    on = surface.project(seed[None])
     a, _, gauss = asymptotic_directions(on.normal, on.shape)
     if not np.isfinite(a).all():
         raise FablineError(f"{source}: seed ({_xyz(seed)}) lies where K = {gauss[0]:.3g} >= 0 (no asymptotic directions); "

@@ -21,6 +21,7 @@ from fabline.errors import FablineError
 
 JET_TERMS = 10  # 1, x, y, x^2, xy, y^2, x^3, x^2 y, x y^2, y^3
 MIN_JET_POINTS = 16  # fewer neighbours than this in the two-ring: take the three-ring
+MAX_JET_POINTS = 24  # the nearest this many of the ring (with the vertex) enter the fit
 PROJECTION_ITERATIONS = 2  # Newton steps for the foot point of a normal projection onto the blended surface
 
 
@@ -117,7 +118,7 @@ class SmoothMesh:
 def fit_jets(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per vertex a frame (rows e1, e2, n), cubic jet coefficients in scaled local coordinates, and the scale.
 
-    Least squares over the two-ring (three-ring below MIN_JET_POINTS points), coordinates divided by the
+    Least squares over the nearest MAX_JET_POINTS of the two-ring (three-ring below MIN_JET_POINTS points), coordinates divided by the
     mean neighbour distance so the normal equations are well conditioned.
     """
     count = len(vertices)
@@ -126,20 +127,20 @@ def fit_jets(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> tu
                               shape=(count, count)).tocsr()
     adjacency = (adjacency + sp.identity(count, format="csr")).astype(bool).astype(np.int32)
     two = (adjacency @ adjacency).astype(bool).tocsr()
-    sizes = np.diff(two.indptr)
-    small = np.flatnonzero(sizes < MIN_JET_POINTS)
-    rings = two.tolil()
-    if small.size:
-        three = (two[small] @ adjacency).astype(bool).tolil()
-        for row, v in enumerate(small):
-            rings.rows[v] = three.rows[row]
-            rings.data[v] = three.data[row]
-    rings = rings.tocsr()
+    small = np.diff(two.indptr) < MIN_JET_POINTS
+    pick = sp.csr_matrix((np.ones(small.sum()), (np.flatnonzero(small), np.arange(small.sum()))), shape=(count, small.sum()))
+    rings = (sp.diags((~small).astype(float)) @ two + pick @ (two[small] @ adjacency)).astype(bool).tocsr()
+    rings.sort_indices()
     sizes = np.diff(rings.indptr)
     width = int(sizes.max())
     index = np.zeros((count, width), dtype=np.int64)
     mask = np.arange(width)[None, :] < sizes[:, None]
     index[mask] = rings.indices
+    squared = np.where(mask, np.einsum("vki,vki->vk", vertices[index] - vertices[:, None], vertices[index] - vertices[:, None]), np.inf)
+    nearest = np.argsort(squared, axis=1)[:, :MAX_JET_POINTS]
+    index = np.take_along_axis(index, nearest, axis=1)
+    mask = np.take_along_axis(mask, nearest, axis=1)
+    sizes = mask.sum(axis=1)
     frames = _frames(normals)
     offsets = vertices[index] - vertices[:, None, :]
     local = np.einsum("vkj,vij->vki", offsets, frames)

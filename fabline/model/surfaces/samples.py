@@ -65,3 +65,41 @@ def ellipse(half_a: float, half_b: float, count: int = 400) -> np.ndarray:
 def rectangle(a0: float, a1: float, b0: float, b1: float) -> np.ndarray:
     """A closed polygon on the rectangle [a0, a1] x [b0, b1]."""
     return np.array([[a0, b0], [a1, b0], [a1, b1], [a0, b1]], dtype=float)
+
+
+def rail_grid(surface: AsymptoticSurface, seed: tuple[float, float], spacing: float,
+              inside: Callable[[np.ndarray, np.ndarray], np.ndarray], rail_along_a: bool = True,
+              reach: float = 10.0, samples: int = 200_001) -> np.ndarray:
+    """Closed-form nodes of the rail layout: (a_k, b_j) at arc lengths k * spacing along the rail through the seed and
+    j * spacing along the middle curve of the other family, kept where inside; positions (N, 3).
+
+    The rail is the a-line through the seed (or the b-line with `rail_along_a` False); arc lengths by
+    trapezoidal integration of the partials' length on `samples` points over +-`reach` in the parameter.
+    """
+    a0, b0 = seed
+
+    def stations(fixed: float, start: float, along_a: bool) -> np.ndarray:
+        t = np.linspace(start - reach, start + reach, samples)
+        fixed_values = np.full_like(t, fixed)
+        a, b = (t, fixed_values) if along_a else (fixed_values, t)
+        ok = inside(a, b)
+        centre = int(np.argmin(np.abs(t - start)))
+        lo, hi = centre, centre
+        while lo > 0 and ok[lo - 1]:
+            lo -= 1
+        while hi < samples - 1 and ok[hi + 1]:
+            hi += 1
+        xa, xb = surface.partials(a, b)
+        speed = np.linalg.norm(xa if along_a else xb, axis=1)
+        s = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t))])
+        s -= np.interp(start, t, s)
+        ks = np.arange(np.ceil(s[lo] / spacing), np.floor(s[hi] / spacing) + 1)
+        return np.interp(ks * spacing, s, t)
+
+    if rail_along_a:
+        a_values, b_values = stations(b0, a0, True), stations(a0, b0, False)
+    else:
+        b_values, a_values = stations(a0, b0, False), stations(b0, a0, True)
+    a, b = np.meshgrid(a_values, b_values, indexing="ij")
+    keep = inside(a, b)
+    return surface.point(a[keep], b[keep])

@@ -60,7 +60,7 @@ def trace_family(surface: Surface, seeds: np.ndarray, family: str, step: float, 
         move = (k1 + 2 * k2 + 2 * k3 + k4) / 6.0
         target = p + step * move
         finite = np.isfinite(target).all(axis=1)
-        landed = surface.project(target[finite]).xyz
+        landed = surface.project(target[finite]).xyz if finite.any() else np.empty((0, 3))
         out = np.zeros(len(alive), dtype=bool)
         out[finite] = surface.outside(landed)
         keep = finite & ~out
@@ -94,9 +94,12 @@ def trace_family(surface: Surface, seeds: np.ndarray, family: str, step: float, 
 
 def _direction(surface: Surface, points: np.ndarray, family: str, previous: np.ndarray | None) -> np.ndarray:
     """The family's unit asymptotic direction at the points' projections, signed to agree with `previous`."""
-    lifted = surface.at(points)
-    a, b, _ = asymptotic_directions(lifted.normal, lifted.shape)
-    direction = a if family == "A" else b
+    direction = np.full_like(points, np.nan)
+    finite = np.isfinite(points).all(axis=1)
+    if finite.any():
+        lifted = surface.at(points[finite])
+        a, b, _ = asymptotic_directions(lifted.normal, lifted.shape)
+        direction[finite] = a if family == "A" else b
     if previous is not None:
         flip = np.einsum("ij,ij->i", direction, previous) < 0
         direction[flip] *= -1
