@@ -17,11 +17,11 @@ from scipy.spatial import Delaunay, cKDTree
 
 from fabline.errors import FablineError
 from fabline.model import load_network
-from fabline.model.designs import catenoid_surface, enneper_network, enneper_surface, helicoid_surface
+from fabline.model.designs import enneper_network, enneper_surface
 from fabline.model.surfaces import SmoothMesh, design_asymptotic
 from fabline.model.surfaces.field import asymptotic_directions
 from fabline.model.surfaces.mesh import principal
-from fabline.model.surfaces.samples import ellipse, irregular_mesh, rail_grid, rectangle
+from fabline.model.surfaces.samples import closed_form_cases, ellipse, irregular_mesh, rail_grid
 
 COARSE_TRIANGLES = 8000  # the suite's meshes; the benchmark runs the pavilion's 20,000 and more
 
@@ -32,21 +32,6 @@ def enneper_case():
     scale, dom = net.meta["scale_m_per_unit"], net.meta["domain"]
     return net, enneper_surface(scale), ellipse(dom["u"], dom["v"]), \
         lambda a, b: (a / dom["u"]) ** 2 + (b / dom["v"]) ** 2 <= 1 + 1e-9, scale
-
-
-def cases():
-    """name -> (surface, boundary polygon, inside test, seed parameters) of the three closed forms."""
-    _, enneper, outline, inside, _ = enneper_case()
-    half_theta, half_z = 1.2, 1.5  # catenoid patch |theta| <= 1.2, |z| <= 1.5 in a = theta + z, b = theta - z
-    diamond = np.array([[half_theta + half_z, half_theta - half_z], [half_theta - half_z, half_theta + half_z],
-                        [-half_theta - half_z, -half_theta + half_z], [-half_theta + half_z, -half_theta - half_z]])
-    return {
-        "enneper": (enneper, outline, inside, (0.0, 0.0)),
-        "catenoid": (catenoid_surface(1.0), diamond,
-                     lambda a, b: (np.abs(a + b) / 2 <= half_theta + 1e-9) & (np.abs(a - b) / 2 <= half_z + 1e-9), (0.3, -0.2)),
-        "helicoid": (helicoid_surface(6.0), rectangle(-3, 3, 0, np.pi),
-                     lambda a, b: (np.abs(a) <= 3 + 1e-9) & (b >= -1e-9) & (b <= np.pi + 1e-9), (0.4, 1.3)),
-    }
 
 
 @pytest.fixture(scope="module")
@@ -106,14 +91,13 @@ def test_families_are_labelled_consistently_over_the_whole_surface(enneper_mesh)
 
 @pytest.mark.parametrize("name", ["enneper", "catenoid", "helicoid"])
 def test_traced_network_matches_the_closed_form_rail_grid(tmp_path, name):
-    surface, outline, inside, seed = cases()[name]
+    case = closed_form_cases()[name]
     path = tmp_path / f"{name}.ply"
-    irregular_mesh(surface, outline, inside, COARSE_TRIANGLES, seed=2).export(path)
-    seed_xyz = surface.point(np.array(seed[0]), np.array(seed[1]))
-    design = design_asymptotic(path, 0.35, seed=seed_xyz)
+    case.mesh(COARSE_TRIANGLES, seed=2).export(path)
+    design = design_asymptotic(path, 0.35, seed=case.seed_point())
     network = design.network
     crossings = np.array([node.xyz for nid, node in network.nodes.items() if len(network.lamellas_at()[nid]) >= 2])
-    truth = rail_grid(surface, seed, 0.35, inside)
+    truth = rail_grid(case.surface, case.seed, 0.35, case.inside)
     distance = cKDTree(crossings).query(truth)[0]
     assert len(crossings) == len(truth)
     assert distance.mean() < 0.002 and distance.max() < 0.010

@@ -42,7 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _register_surface_designs(kinds: argparse._SubParsersAction) -> None:
-    """`design asymptotic` (trace a network on a designer's surface)."""
+    """`design asymptotic` (trace a network on a designer's surface) and `design minimal` (a surface from its edges)."""
     traced = kinds.add_parser("asymptotic", help="trace an asymptotic network on an anticlastic mesh or .3dm surface")
     traced.add_argument("--surface", required=True, help="surface: OBJ, STL, PLY (trimesh) or .3dm (rhino3dm)")
     traced.add_argument("--spacing", type=positive(float), required=True, help="node spacing along the curves, model units")
@@ -55,6 +55,12 @@ def _register_surface_designs(kinds: argparse._SubParsersAction) -> None:
     traced.add_argument("--json", action="store_true", help="print the quality report as JSON")
     traced.add_argument("-o", "--output", required=True, help="network JSON to write")
     traced.set_defaults(func=run_asymptotic)
+    minimal = kinds.add_parser("minimal", help="discrete minimal surface spanning one or two closed boundary curves")
+    minimal.add_argument("--boundary", required=True, help="closed curves: .dxf (polylines, circles, splines) or .json")
+    minimal.add_argument("--mesh-size", type=positive(float), required=True, help="triangle size, model units")
+    minimal.add_argument("--units", choices=sorted(UNIT_TO_MM), help="units of a file that declares none (default m)")
+    minimal.add_argument("-o", "--output", required=True, help="surface mesh to write (.obj, .stl, .ply, .off)")
+    minimal.set_defaults(func=run_minimal)
 
 
 def _point(text: str) -> tuple[float, float, float]:
@@ -88,6 +94,18 @@ def run_asymptotic(args: argparse.Namespace) -> int:
         print(f"found: {stop}")
     for line in summary_lines(report, network.units):
         print(f"  {line}")
+    return 0
+
+
+def run_minimal(args: argparse.Namespace) -> int:
+    """Compute the minimal surface and write it as a mesh."""
+    from fabline.model.surfaces.minimal import minimal_surface, read_boundaries, write_mesh
+
+    curves, units = read_boundaries(args.boundary, args.units)
+    mesh = minimal_surface(curves, args.mesh_size, args.boundary)
+    write_mesh(mesh, args.output)
+    print(f"{args.output}: minimal surface spanning {len(curves)} boundary curve{'s' * (len(curves) > 1)}, "
+          f"{len(mesh.faces)} triangles, area {mesh.area:.4g} {units}2 (units {units})")
     return 0
 
 

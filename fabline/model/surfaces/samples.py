@@ -7,13 +7,14 @@ asymptotic line, as a designer's mesh would not. Optional noise moves vertices a
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 import trimesh
 from scipy.spatial import Delaunay, cKDTree
 
-from fabline.model.designs import AsymptoticSurface
+from fabline.model.designs import AsymptoticSurface, catenoid_surface, enneper_network, enneper_surface, helicoid_surface
 
 
 def irregular_mesh(surface: AsymptoticSurface, boundary: np.ndarray, inside: Callable[[np.ndarray, np.ndarray], np.ndarray],
@@ -103,3 +104,37 @@ def rail_grid(surface: AsymptoticSurface, seed: tuple[float, float], spacing: fl
     a, b = np.meshgrid(a_values, b_values, indexing="ij")
     keep = inside(a, b)
     return surface.point(a[keep], b[keep])
+
+
+@dataclass
+class SampleCase:
+    """A closed-form surface patch to mesh and trace on: its domain in asymptotic coordinates and a seed there."""
+
+    surface: AsymptoticSurface
+    outline: np.ndarray
+    inside: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    seed: tuple[float, float]
+
+    def mesh(self, triangles: int, seed: int = 0, noise: float = 0.0) -> trimesh.Trimesh:
+        return irregular_mesh(self.surface, self.outline, self.inside, triangles, seed, noise)
+
+    def seed_point(self) -> np.ndarray:
+        return self.surface.point(np.array(self.seed[0]), np.array(self.seed[1]))
+
+
+def closed_form_cases() -> dict[str, SampleCase]:
+    """The pavilion's Enneper patch (the built-in design's domain), a catenoid patch (waist 1 m) and a helicoid (pitch 6 m)."""
+    network = enneper_network()
+    dom = network.meta["domain"]
+    half_theta, half_z = 1.2, 1.5  # catenoid patch |theta| <= 1.2, |z| <= 1.5 in a = theta + z, b = theta - z
+    diamond = np.array([[half_theta + half_z, half_theta - half_z], [half_theta - half_z, half_theta + half_z],
+                        [-half_theta - half_z, -half_theta + half_z], [-half_theta + half_z, -half_theta - half_z]])
+    return {
+        "enneper": SampleCase(enneper_surface(network.meta["scale_m_per_unit"]), ellipse(dom["u"], dom["v"]),
+                              lambda a, b: (a / dom["u"]) ** 2 + (b / dom["v"]) ** 2 <= 1 + 1e-9, (0.0, 0.0)),
+        "catenoid": SampleCase(catenoid_surface(1.0), diamond,
+                               lambda a, b: (np.abs(a + b) / 2 <= half_theta + 1e-9) & (np.abs(a - b) / 2 <= half_z + 1e-9),
+                               (0.3, -0.2)),
+        "helicoid": SampleCase(helicoid_surface(6.0), rectangle(-3, 3, 0, np.pi),
+                               lambda a, b: (np.abs(a) <= 3 + 1e-9) & (b >= -1e-9) & (b <= np.pi + 1e-9), (0.4, 1.3)),
+    }
