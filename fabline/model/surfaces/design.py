@@ -14,6 +14,7 @@ from fabline.model.network import UNIT_TO_MM, Network
 from fabline.model.surfaces.field import Region, special_regions
 from fabline.model.surfaces.layout import SupportRule, build_network, check_seed, default_seed, rail_layout
 from fabline.model.surfaces.mesh import SmoothMesh
+from fabline.model.surfaces.nurbs import NurbsPatch, read_nurbs
 from fabline.model.surfaces.quality import quality_report
 
 DEGENERATE_AREA = 1e-10  # a face smaller than this fraction of the mean edge length squared has no area
@@ -26,7 +27,7 @@ class AsymptoticDesign:
     network: Network
     regions: list[Region]
     stops: list[str]
-    surface: SmoothMesh
+    surface: SmoothMesh | NurbsPatch
     notes: list[str] = field(default_factory=list)
 
 
@@ -57,6 +58,18 @@ def read_surface(path: str | Path, units: str | None = None) -> tuple[trimesh.Tr
     if units not in UNIT_TO_MM:
         raise FablineError(f"{path}: unknown units {units!r} (use one of {', '.join(UNIT_TO_MM)})")
     return check_mesh(np.asarray(vertices, dtype=float), np.asarray(faces, dtype=np.int64), path), units, notes
+
+
+def load_surface(path: str | Path, units: str | None = None) -> tuple[SmoothMesh | NurbsPatch, str, list[str]]:
+    """The surface to trace on: a .3dm file's one NURBS surface exactly, else any surface file as a smooth mesh."""
+    if Path(path).suffix.lower() == ".3dm":
+        patch, declared = read_nurbs(str(path))
+        if patch is not None:
+            if units is not None and declared is not None and declared != units:
+                raise FablineError(f"{path}: the file is in {declared}, --units says {units}")
+            return patch, units or declared or "m", []
+    mesh, units, notes = read_surface(path, units)
+    return SmoothMesh(mesh), units, notes
 
 
 def check_mesh(vertices: np.ndarray, faces: np.ndarray, source: str) -> trimesh.Trimesh:
@@ -99,8 +112,7 @@ def design_asymptotic(path: str | Path, spacing: float, seed: np.ndarray | None 
     if not (0 < spacing < np.inf):
         raise FablineError(f"--spacing must be a positive number, got {spacing:g}")
     rule = SupportRule.parse(supports) if supports else None
-    mesh, units, notes = read_surface(path, units)
-    surface = SmoothMesh(mesh)
+    surface, units, notes = load_surface(path, units)
     k1, k2, _, _ = surface.vertex_curvatures()
     if not np.any((k1 > 0) & (k2 < 0)):
         worst = int(np.argmin(k1 * k2))

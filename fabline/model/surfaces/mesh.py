@@ -173,14 +173,24 @@ def jet_at(origin: np.ndarray, frame: np.ndarray, jet: np.ndarray, scale: np.nda
     point = origin + scale[:, None] * np.einsum("vi,vij->vj", np.stack([x, y, h], axis=-1), frame)
     width = np.sqrt(1 + hx * hx + hy * hy)
     normal = np.einsum("vi,vij->vj", np.stack([-hx, -hy, np.ones_like(hx)], axis=-1) / width[:, None], frame)
-    # second fundamental form on tangent vectors J a (J = [(1, 0, hx), (0, 1, hy)]): a^T II a, II = Hess / width;
-    # as an ambient form J I^-1 II I^-1 J^T with I = J^T J.
-    det = 1 + hx * hx + hy * hy
-    inverse = np.stack([1 + hy * hy, -hx * hy, -hx * hy, 1 + hx * hx], axis=-1).reshape(-1, 2, 2) / det[:, None, None]
-    pseudo = np.concatenate([inverse, np.stack([hx, hy], axis=-1)[:, None, :] @ inverse], axis=1)
+    # second fundamental form II = Hess / width on the tangent vectors J a, J = [(1, 0, hx), (0, 1, hy)]
+    jac = np.zeros((len(x), 3, 2))
+    jac[:, 0, 0] = jac[:, 1, 1] = 1.0
+    jac[:, 2, 0], jac[:, 2, 1] = hx, hy
     second = np.stack([hxx, hxy, hxy, hyy], axis=-1).reshape(-1, 2, 2) / width[:, None, None]
-    local_form = pseudo @ second @ np.swapaxes(pseudo, 1, 2)
+    local_form = ambient_form(jac, second)
     return point, normal, np.swapaxes(frame, 1, 2) @ local_form @ frame
+
+
+def ambient_form(jac: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """The second fundamental form II (n, 2, 2) of a parametrisation with partials `jac` (n, 3, 2) as a 3 x 3 form.
+
+    J I^-1 II I^-1 J^T with I = J^T J: on a tangent vector J a it gives a^T II a, so forms of different
+    parametrisations (vertex jets, NURBS) can be blended and read in any tangent frame.
+    """
+    first = np.einsum("vki,vkj->vij", jac, jac)
+    pseudo = jac @ np.linalg.inv(first)
+    return pseudo @ second @ np.swapaxes(pseudo, 1, 2)
 
 
 def principal(normal: np.ndarray, shape: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
