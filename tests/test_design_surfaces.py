@@ -20,7 +20,6 @@ from fabline.model import load_network
 from fabline.model.designs import enneper_network, enneper_surface
 from fabline.model.surfaces import SmoothMesh, design_asymptotic
 from fabline.model.surfaces.field import asymptotic_directions
-from fabline.model.surfaces.mesh import principal
 from fabline.model.surfaces.samples import closed_form_cases, ellipse, irregular_mesh, rail_grid
 
 COARSE_TRIANGLES = 8000  # the suite's meshes; the benchmark runs the pavilion's 20,000 and more

@@ -9,7 +9,7 @@ import numpy as np
 import trimesh
 
 from fabline.errors import FablineError
-from fabline.model.importers.surface import mesh_from_arrays
+from fabline.model.importers.surface import mesh_from_arrays, read_mesh_arrays
 from fabline.model.network import UNIT_TO_MM, Network
 from fabline.model.surfaces.field import Region, special_regions
 from fabline.model.surfaces.layout import SupportRule, build_network, check_seed, default_seed, rail_layout
@@ -40,15 +40,7 @@ def read_surface(path: str | Path, units: str | None = None) -> tuple[trimesh.Tr
         mesh, declared = read_3dm_surface(path)
         vertices, faces = mesh.vertices, mesh.faces
     else:
-        try:
-            loaded = trimesh.load(path, force="mesh", process=False)
-        except FileNotFoundError:
-            raise FablineError(f"{path}: file not found") from None
-        except Exception as exc:  # trimesh raises many types for a broken file
-            raise FablineError(f"{path}: cannot read as a mesh: {exc}".splitlines()[0]) from None
-        if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-            raise FablineError(f"{path}: no mesh faces found")
-        vertices, faces, declared = loaded.vertices, loaded.faces, None
+        (vertices, faces), declared = read_mesh_arrays(path), None
     if units is None:
         units = declared or "m"
         if declared is None:
@@ -84,7 +76,6 @@ def check_mesh(vertices: np.ndarray, faces: np.ndarray, source: str) -> trimesh.
                            f"(area {raw.area_faces[tiny[0]]:.3g}); {tiny.size} such faces: remove or repair them")
     mesh = mesh_from_arrays(vertices, faces, source)
     edges = mesh.edges_sorted
-    _, counts = np.unique(edges, axis=0, return_counts=True)
     shared = trimesh.grouping.group_rows(edges, require_count=None)
     crowded = [group for group in shared if len(group) > 2]
     if crowded:
