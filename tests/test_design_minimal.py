@@ -71,7 +71,7 @@ def test_dxf_circles_give_the_catenoid(tmp_path, cli):
 
 @pytest.mark.parametrize("curves, words", [
     ([[[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]], "curve 0: open curve"),
-    ([], "no boundary curves"),
+    ([], "no curves found"),
     ([[[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 0]]] * 3, "3 boundary curves"),
 ])
 def test_bad_boundaries_are_named_with_exit_2_and_nothing_written(tmp_path, cli, curves, words):

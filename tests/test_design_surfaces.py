@@ -259,3 +259,36 @@ def test_nurbs_surface_is_traced_exactly(tmp_path):
     assert len(crossings) == len(truth)
     assert distance.max() < 0.0001  # measured 0.02 mm: exact evaluation, no mesh error
     assert design.network.meta["quality"]["k_n"]["max"] < 0.002
+
+
+def test_seed_curves_replace_the_rail_and_the_middle_curve(tmp_path, enneper_mesh, cli):
+    net, surface, _, _, _ = enneper_case()
+    path = tmp_path / "enneper.obj"
+    enneper_mesh.export(path)
+    u, v = (np.linspace(-net.meta["domain"][k], net.meta["domain"][k], 301) for k in "uv")
+    axes = [surface.point(u, 0 * u), surface.point(0 * v, v)]  # the u and v lines through the centre, edge to edge
+    curves = tmp_path / "rails.json"
+    curves.write_text(json.dumps({"units": "m", "curves": [axes[1][::-1].tolist(), axes[0].tolist()]}))
+    out = tmp_path / "out.network.json"
+    code, stdout, stderr = cli("design", "asymptotic", "--surface", path, "--spacing", "0.35", "--seed-curves", curves, "-o", out)
+    assert code == 0, stderr
+    network = load_network(out)
+    at = network.lamellas_at()
+    crossings = np.array([n.xyz for nid, n in network.nodes.items() if len(at[nid]) >= 2])
+    truth = np.array([n.xyz for n in enneper_network().nodes.values()])
+    assert len(crossings) == len(truth) and cKDTree(crossings).query(truth)[0].max() < 0.010
+    off = tmp_path / "off.json"
+    off.write_text(json.dumps({"units": "m", "curves": [(axes[0] + [0, 0, 1.0]).tolist()]}))
+    code, _, stderr = cli("design", "asymptotic", "--surface", path, "--spacing", "0.35", "--seed-curves", off, "-o", out)
+    assert code == 2 and "seed curve 1: point 0" in stderr and "off the surface" in stderr
+
+
+def test_a_flat_point_is_reported_where_the_network_needs_a_singularity(tmp_path):
+    x, y = np.meshgrid(np.linspace(-1, 1, 61), np.linspace(-1, 1, 61), indexing="ij")
+    vertices = np.c_[x.ravel(), y.ravel(), 0.2 * (x.ravel() ** 3 - 3 * x.ravel() * y.ravel() ** 2)]  # monkey saddle
+    index = np.arange(x.size).reshape(x.shape)
+    a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
+    path = write_mesh(tmp_path / "monkey.obj", vertices, np.r_[np.c_[a, b, c], np.c_[a, c, d]])
+    design = design_asymptotic(path, 0.25, seed=np.array([0.6, 0.3, 0.2 * (0.216 - 3 * 0.6 * 0.09)]))
+    flat = [r for r in design.regions if r.kind == "flat"]
+    assert len(flat) == 1 and np.linalg.norm(flat[0].centre[:2]) < 0.05

@@ -48,6 +48,8 @@ def _register_surface_designs(kinds: argparse._SubParsersAction) -> None:
     traced.add_argument("--spacing", type=positive(float), required=True, help="node spacing along the curves, model units")
     traced.add_argument("--seed", type=_point, help="x,y,z of the point the rails start from (default: the surface's centre)")
     traced.add_argument("--supports", help="nodes matching this rule are supports, e.g. z<0.05")
+    traced.add_argument("--seed-curves", help="one or two curves on the surface (.dxf or .json) to use as the rail and "
+                        "the middle curve")
     traced.add_argument("--units", choices=sorted(UNIT_TO_MM), help="units of a mesh file that declares none (default m)")
     traced.add_argument("--step", type=positive(float), help="tracing step, model units (default spacing/4)")
     traced.add_argument("--material", default="steel-s235", help="lamella material for the limits (default steel-s235)")
@@ -74,9 +76,16 @@ def _point(text: str) -> tuple[float, float, float]:
 def run_asymptotic(args: argparse.Namespace) -> int:
     """Trace the network, write it, print what was found and the quality report."""
     from fabline.model.surfaces import design_asymptotic, summary_lines
+    from fabline.model.surfaces.curves import read_curves
 
+    curves = None
+    if args.seed_curves:
+        found, _ = read_curves(args.seed_curves, args.units)
+        if len(found) > 2:
+            raise FablineError(f"{args.seed_curves}: {len(found)} curves; give one (the rail) or two (rail and middle curve)")
+        curves = [points for points, _ in found]
     design = design_asymptotic(args.surface, args.spacing, args.seed, args.supports, args.units, args.step,
-                               args.material, args.profile)
+                               args.material, args.profile, curves)
     network = design.network
     save_network(network, args.output)
     report = network.meta["quality"]

@@ -10,9 +10,11 @@ import trimesh
 
 from fabline.errors import FablineError
 from fabline.model.importers.surface import mesh_from_arrays, read_mesh_arrays
-from fabline.model.network import UNIT_TO_MM, Network
+from fabline.model.network import Network
+from fabline.model.surfaces.curves import declared_or_given
 from fabline.model.surfaces.field import Region, special_regions
-from fabline.model.surfaces.layout import SupportRule, build_network, check_seed, default_seed, rail_layout
+from fabline.model.surfaces.layout import (SupportRule, build_network, check_on_surface, check_seed, default_seed,
+                                          rail_layout)
 from fabline.model.surfaces.mesh import SmoothMesh
 from fabline.model.surfaces.nurbs import NurbsPatch, read_nurbs
 from fabline.model.surfaces.quality import quality_report
@@ -41,14 +43,9 @@ def read_surface(path: str | Path, units: str | None = None) -> tuple[trimesh.Tr
         vertices, faces = mesh.vertices, mesh.faces
     else:
         (vertices, faces), declared = read_mesh_arrays(path), None
-    if units is None:
-        units = declared or "m"
-        if declared is None:
-            notes.append(f"{path}: the file declares no units; taken as m (give --units)")
-    elif declared is not None and declared != units:
-        raise FablineError(f"{path}: the file is in {declared}, --units says {units}")
-    if units not in UNIT_TO_MM:
-        raise FablineError(f"{path}: unknown units {units!r} (use one of {', '.join(UNIT_TO_MM)})")
+    if units is None and declared is None:
+        notes.append(f"{path}: the file declares no units; taken as m (give --units)")
+    units = declared_or_given(path, declared, units)
     return check_mesh(np.asarray(vertices, dtype=float), np.asarray(faces, dtype=np.int64), path), units, notes
 
 
@@ -57,9 +54,7 @@ def load_surface(path: str | Path, units: str | None = None) -> tuple[SmoothMesh
     if Path(path).suffix.lower() == ".3dm":
         patch, declared = read_nurbs(str(path))
         if patch is not None:
-            if units is not None and declared is not None and declared != units:
-                raise FablineError(f"{path}: the file is in {declared}, --units says {units}")
-            return patch, units or declared or "m", []
+            return patch, declared_or_given(path, declared, units), []
     mesh, units, notes = read_surface(path, units)
     return SmoothMesh(mesh), units, notes
 
@@ -94,9 +89,11 @@ def check_mesh(vertices: np.ndarray, faces: np.ndarray, source: str) -> trimesh.
 
 def design_asymptotic(path: str | Path, spacing: float, seed: np.ndarray | None = None, supports: str | None = None,
                       units: str | None = None, step: float | None = None, material: str = "steel-s235",
-                      profile: str = "100x1.5") -> AsymptoticDesign:
+                      profile: str = "100x1.5", seed_curves: list[np.ndarray] | None = None) -> AsymptoticDesign:
     """Trace an asymptotic network at `spacing` (model units) on the surface in `path`; seed defaults to the centre.
 
+    `seed_curves` (one or two polylines on the surface, model units) replace the rail and the middle curve;
+    the seed then defaults to the middle of the first.
     The quality report (quality_report) and the regions without asymptotic lines go into the network's meta.
     """
     source = str(path)
@@ -110,10 +107,16 @@ def design_asymptotic(path: str | Path, spacing: float, seed: np.ndarray | None 
         raise FablineError(f"{source}: K >= 0 everywhere (synclastic or flat, no asymptotic directions; the most "
                            f"anticlastic point ({_xyz(surface.vertices[worst])}) has K = {k1[worst] * k2[worst]:.3g})")
     regions = special_regions(surface.vertices, surface.faces, k1, k2)
-    seed = check_seed(surface, np.asarray(seed, dtype=float), source) if seed is not None else check_seed(surface, default_seed(surface), source)
+    curves = tuple(np.asarray(c, dtype=float) for c in seed_curves or ())
+    for k, curve in enumerate(curves):
+        check_on_surface(surface, curve, f"{source}: seed curve {k + 1}")
+    if seed is None:
+        seed = _middle(curves[0]) if curves else default_seed(surface)
+    seed = check_seed(surface, np.asarray(seed, dtype=float), source)
     step = step or min(spacing / 4.0, 0.05 * float(np.linalg.norm(np.ptp(surface.vertices, axis=0))))
-    layout = rail_layout(surface, seed, spacing, step, source)
+    layout = rail_layout(surface, seed, spacing, step, source, curves)
     meta = {"design": "asymptotic", "surface": Path(source).name, "spacing": spacing, "seed": seed.round(9).tolist(),
+            "seed_curves": len(curves),
             "step": step, "supports": str(rule) if rule else None}
     network = build_network(surface, layout, spacing, units, rule, Path(source).stem.split(".")[0], meta, source)
     network.meta["regions"] = [{"kind": r.kind, "centre": r.centre.round(6).tolist(), "vertices": r.vertices,
@@ -121,6 +124,12 @@ def design_asymptotic(path: str | Path, spacing: float, seed: np.ndarray | None 
     network.meta["stops"] = layout.stops
     network.meta["quality"] = quality_report(network, surface, spacing, material, profile)
     return AsymptoticDesign(network, regions, layout.stops, surface, notes)
+
+
+def _middle(curve: np.ndarray) -> np.ndarray:
+    """The point halfway along a polyline."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
+    return np.array([np.interp(s[-1] / 2, s, curve[:, i]) for i in range(3)])
 
 
 def _xyz(point: np.ndarray) -> str:

@@ -68,21 +68,37 @@ class Layout:
     stops: list[str] = field(default_factory=list)
 
 
-def rail_layout(surface: SmoothMesh, seed: np.ndarray, spacing: float, step: float, source: str) -> Layout:
-    """Trace the rail through the seed, B curves at equal spacing along it, A curves at equal spacing along the middle B."""
+def rail_layout(surface: SmoothMesh, seed: np.ndarray, spacing: float, step: float, source: str,
+                seed_curves: tuple[np.ndarray, ...] = ()) -> Layout:
+    """Rail through the seed, the other family's curves at equal spacing along it, then the first family at equal
+    spacing along the middle one of those (the one through the seed).
+
+    `seed_curves` replace the traced rail (first) and the middle curve (second): curves of any shape on the
+    surface, along which the family more transverse to the first starts, then the other one.
+    """
     reach = 4.0 * float(np.linalg.norm(np.ptp(surface.vertices, axis=0)))
-    rail = trace_family(surface, seed[None], "A", step, reach)[0]
-    rail_points, rail_seed = _dense(surface, rail, step)
-    starts_b, index_b = _spaced(rail_points, rail_seed, spacing, "A", source)
-    curves_b = trace_family(surface, starts_b, "B", step, reach)
-    middle = curves_b[index_b.tolist().index(0)]
-    middle_points, middle_seed = _dense(surface, middle, step)
-    starts_a, index_a = _spaced(middle_points, middle_seed, spacing, "B", source)
-    others = index_a != 0
-    curves_a = trace_family(surface, starts_a[others], "A", step, reach)
-    traced_a = dict(zip(index_a[others].tolist(), curves_a)) | {0: rail}
+    rail = None
+    if seed_curves:
+        rail_points, rail_seed = _given(surface, seed_curves[0], seed, step, f"{source}: seed curve 1")
+        across = _transverse_family(surface, rail_points)
+    else:
+        rail = trace_family(surface, seed[None], "A", step, reach)[0]
+        rail_points, rail_seed = _dense(surface, rail, step)
+        across = "B"
+    along = "A" if across == "B" else "B"
+    starts, index_across = _spaced(rail_points, rail_seed, spacing, along, source)
+    curves_across = trace_family(surface, starts, across, step, reach)
+    if len(seed_curves) > 1:
+        middle_points, middle_seed = _given(surface, seed_curves[1], seed, step, f"{source}: seed curve 2")
+    else:
+        middle_points, middle_seed = _dense(surface, curves_across[index_across.tolist().index(0)], step)
+    starts, index_along = _spaced(middle_points, middle_seed, spacing, across, source)
+    reuse = index_along == 0 if rail is not None else np.zeros(len(index_along), dtype=bool)
+    traced_along = dict(zip(index_along[~reuse].tolist(), trace_family(surface, starts[~reuse], along, step, reach)))
+    if reuse.any():
+        traced_along[0] = rail
     layout = Layout([], [], [], rail_points[rail_seed])
-    for family, traced in (("A", sorted(traced_a.items())), ("B", list(zip(index_b.tolist(), curves_b)))):
+    for family, traced in ((along, sorted(traced_along.items())), (across, list(zip(index_across.tolist(), curves_across)))):
         for index, curve in traced:
             layout.curves.append(_dense(surface, curve, step)[0])
             layout.families.append(family)
@@ -90,6 +106,34 @@ def rail_layout(surface: SmoothMesh, seed: np.ndarray, spacing: float, step: flo
             layout.stops += [f"{family} curve {index}: stops where K >= 0 near ({_xyz(curve.points[end])})"
                              for end, why in zip((0, -1), curve.stops) if why == "K>=0"]
     return layout
+
+
+def _given(surface: SmoothMesh, points: np.ndarray, seed: np.ndarray, step: float, where: str) -> tuple[np.ndarray, int]:
+    """A designer's seed curve on the surface, resampled like a traced one, and its point nearest the seed."""
+    check_on_surface(surface, points, where)
+    on = surface.project(points).xyz
+    nearest = int(np.argmin(np.linalg.norm(on - seed, axis=1)))
+    return _dense(surface, TracedCurve(on, ("given", "given"), nearest), step)
+
+
+def check_on_surface(surface: SmoothMesh, points: np.ndarray, where: str) -> None:
+    """Refuse a seed curve with a point farther from the surface than two mesh edges, naming the point."""
+    _, _, squared = surface.closest(points)
+    far = np.flatnonzero(np.sqrt(squared) > 2.0 * surface.edge_length)
+    if far.size:
+        raise FablineError(f"{where}: point {far[0]} ({_xyz(points[far[0]])}) lies {np.sqrt(squared[far[0]]):.4g} off "
+                           "the surface; a seed curve must lie on it")
+
+
+def _transverse_family(surface: SmoothMesh, points: np.ndarray) -> str:
+    """The asymptotic family that crosses a curve more squarely on average: the one to start along it."""
+    tangents = np.gradient(points, axis=0)
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    lifted = surface.at(points)
+    a, b, _ = asymptotic_directions(lifted.normal, lifted.shape)
+    along_a = np.nanmean(np.abs(np.einsum("ij,ij->i", tangents, a)))
+    along_b = np.nanmean(np.abs(np.einsum("ij,ij->i", tangents, b)))
+    return "B" if along_a >= along_b else "A"
 
 
 def _dense(surface: SmoothMesh, curve: TracedCurve, step: float) -> tuple[np.ndarray, int]:

@@ -11,10 +11,8 @@ by more than a micrometre-scale tolerance.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-import ezdxf
 import igl
 import numpy as np
 import scipy.sparse as sp
@@ -25,8 +23,8 @@ from scipy.spatial import Delaunay, cKDTree
 from shapely.geometry import Point, Polygon
 
 from fabline.errors import FablineError
-from fabline.fileio import atomic_output, read_text
-from fabline.model.network import UNIT_TO_MM
+from fabline.fileio import atomic_output
+from fabline.model.surfaces.curves import read_curves
 
 MAX_ITERATIONS = 400
 RELAX_SWEEPS = 2
@@ -35,54 +33,12 @@ CLOSED_FRACTION = 1e-6  # ends of a curve closer than this fraction of its lengt
 
 
 def read_boundaries(path: str | Path, units: str | None = None) -> tuple[list[np.ndarray], str]:
-    """Closed boundary curves from a DXF (polylines, circles, ellipses, splines) or JSON file, and their units.
+    """Closed boundary curves from a DXF or JSON file (fabline.model.surfaces.curves), and their units.
 
-    JSON: {"units": "m", "curves": [[[x, y, z], ...], ...]}, each curve's last point equal to its first.
+    A JSON curve is closed when its last point repeats its first; a DXF polyline by its closed flag too.
     """
-    path = str(path)
-    suffix = Path(path).suffix.lower()
-    if suffix == ".json":
-        try:
-            data = json.loads(read_text(path))
-        except json.JSONDecodeError as exc:
-            raise FablineError(f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}): {exc.msg}") from None
-        if not isinstance(data, dict) or not isinstance(data.get("curves"), list):
-            raise FablineError(f'{path}: expected {{"units": ..., "curves": [[[x, y, z], ...], ...]}}')
-        declared = data.get("units")
-        curves = []
-        for k, raw in enumerate(data["curves"]):
-            try:
-                points = np.asarray(raw, dtype=float)
-            except (TypeError, ValueError):
-                raise FablineError(f"{path}: curve {k}: points must be [x, y, z] numbers") from None
-            if points.ndim != 2 or points.shape[1] != 3 or len(points) < 4 or not np.isfinite(points).all():
-                raise FablineError(f"{path}: curve {k}: needs at least 4 finite [x, y, z] points")
-            curves.append(_closed(points, f"{path}: curve {k}"))
-    elif suffix == ".dxf":
-        from fabline.model.importers.dxf import _declared_units, _read_document
-
-        doc = _read_document(path)
-        declared = _declared_units(doc, path)
-        curves = []
-        for entity in doc.modelspace():
-            if entity.dxftype() not in ("LWPOLYLINE", "POLYLINE", "CIRCLE", "ELLIPSE", "SPLINE", "ARC", "LINE"):
-                continue
-            where = f"{path}: {entity.dxftype()} #{entity.dxf.handle}"
-            points = np.array([tuple(v) for v in ezdxf.path.make_path(entity).flattening(1e-5)], dtype=float)
-            if entity.dxftype() in ("LWPOLYLINE", "POLYLINE") and entity.is_closed and len(points) > 2 \
-                    and np.linalg.norm(points[0] - points[-1]) > 0:
-                points = np.vstack([points, points[:1]])
-            curves.append(_closed(points, where))
-    else:
-        raise FablineError(f"{path}: unknown boundary file type {suffix or '(none)'} (use .dxf or .json)")
-    if not curves:
-        raise FablineError(f"{path}: no boundary curves found")
-    if units is not None and declared is not None and units != declared:
-        raise FablineError(f"{path}: the file is in {declared}, --units says {units}")
-    units = units or declared or "m"
-    if units not in UNIT_TO_MM:
-        raise FablineError(f"{path}: unknown units {units!r} (use one of {', '.join(UNIT_TO_MM)})")
-    return curves, units
+    curves, units = read_curves(path, units)
+    return [_closed(points, where) for points, where in curves], units
 
 
 def _closed(points: np.ndarray, where: str) -> np.ndarray:
