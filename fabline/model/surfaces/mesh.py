@@ -22,6 +22,9 @@ from fabline.errors import FablineError
 JET_TERMS = 10  # 1, x, y, x^2, xy, y^2, x^3, x^2 y, x y^2, y^3
 MIN_JET_POINTS = 16  # fewer neighbours than this in the two-ring: take the three-ring
 MAX_JET_POINTS = 24  # the nearest this many of the ring (with the vertex) enter the fit
+JET_REACH = 2.0  # edge lengths a two-ring jet averages over
+SIGNAL_TO_NOISE = 160.0  # wanted |k| r^2 / noise for the weakest-curved tenth of the surface on a noisy mesh
+MAX_SMOOTHING = 60  # averaging sweeps at most (a diffusion over about sqrt(60) edge lengths)
 PROJECTION_ITERATIONS = 2  # Newton steps for the foot point of a normal projection onto the blended surface
 
 
@@ -44,7 +47,10 @@ class SmoothMesh:
         self.vertices = np.ascontiguousarray(mesh.vertices, dtype=float)
         self.faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
         self.edge_length = float(mesh.edges_unique_length.mean())
-        self.frames, self.jets, self.scale = fit_jets(self.vertices, self.faces, np.asarray(mesh.vertex_normals))
+        self.frames, self.jets, self.scale, residual = fit_jets(self.vertices, self.faces, np.asarray(mesh.vertex_normals))
+        self.smoothing = 0
+        self.vertex_shape = None
+        self._smooth_noisy_field(residual)
         self.tree = igl.AABB()
         self.tree.init(self.vertices, self.faces)
         self.boundary_side = _boundary_sides(self.faces)
@@ -68,11 +74,40 @@ class SmoothMesh:
         w = weights.T.reshape(3, -1)
         xyz = np.einsum("cv,cvi->vi", w, p.reshape(3, -1, 3))
         normal = np.einsum("cv,cvi->vi", w, n.reshape(3, -1, 3))
-        shape = np.einsum("cv,cvij->vij", w, s.reshape(3, -1, 3, 3))
+        if self.vertex_shape is None:
+            shape = np.einsum("cv,cvij->vij", w, s.reshape(3, -1, 3, 3))
+        else:
+            shape = np.einsum("cv,cvij->vij", w, self.vertex_shape[corner].reshape(3, -1, 3, 3))
         normal /= np.linalg.norm(normal, axis=1, keepdims=True)
         tangent = np.eye(3)[None] - normal[:, :, None] * normal[:, None, :]
         shape = tangent @ shape @ tangent
         return SurfacePoints(xyz, normal, shape, face, foot)
+
+    def _smooth_noisy_field(self, residual: np.ndarray) -> None:
+        """On a noisy mesh, average the vertices' second fundamental forms over their neighbours (repeatedly, a
+        diffusion) until the weakest curvature stands SIGNAL_TO_NOISE times above the noise's curvature error.
+
+        The noise is the jets' median fit residual; the tenth percentile of |k| is the weak curvature; a
+        mesh whose needed radius is within the jets' own reach (two rings) is left as it is.
+        """
+        noise = float(np.median(residual))
+        lifted = self.lift(*self._vertex_feet())
+        k1, k2, _, _ = principal(lifted.normal, lifted.shape)
+        weak = float(np.percentile(np.maximum(np.abs(k1), np.abs(k2)), 10))
+        radius = np.sqrt(SIGNAL_TO_NOISE * noise / max(weak, 1e-12))
+        if radius <= JET_REACH * self.edge_length:
+            return  # the jets' own rings already average enough
+        self.smoothing = int(min(MAX_SMOOTHING, np.ceil((radius / self.edge_length) ** 2)))
+        count = len(self.vertices)
+        edges = self.mesh.edges_unique
+        ones = np.ones(len(edges))
+        adjacency = sp.coo_matrix((np.r_[ones, ones], (np.r_[edges[:, 0], edges[:, 1]], np.r_[edges[:, 1], edges[:, 0]])),
+                                  shape=(count, count)).tocsr() + sp.identity(count, format="csr")
+        average = sp.diags(1.0 / np.asarray(adjacency.sum(axis=1)).ravel()) @ adjacency
+        shape = lifted.shape.reshape(count, 9)
+        for _ in range(self.smoothing):
+            shape = average @ shape
+        self.vertex_shape = shape.reshape(count, 3, 3)
 
     def at(self, points: np.ndarray) -> SurfacePoints:
         """The smooth surface above points near it: enough to read the field there."""
@@ -115,8 +150,9 @@ class SmoothMesh:
         return face, self.vertices.copy()
 
 
-def fit_jets(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per vertex a frame (rows e1, e2, n), cubic jet coefficients in scaled local coordinates, and the scale.
+def fit_jets(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Per vertex a frame (rows e1, e2, n), cubic jet coefficients in scaled local coordinates, the scale, and the
+    RMS fit residual (the mesh's noise, in length units).
 
     Least squares over the nearest MAX_JET_POINTS of the two-ring (three-ring below MIN_JET_POINTS points), coordinates divided by the
     mean neighbour distance so the normal equations are well conditioned.
@@ -155,7 +191,9 @@ def fit_jets(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> tu
     if thin.size:
         raise FablineError(f"vertex {thin[0]} at {_xyz(vertices[thin[0]])} has only {sizes[thin[0]] - 1} neighbours "
                            "within three rings: too few to fit the surface there (a loose triangle?)")
-    return frames, jets, scale
+    misfit = (np.einsum("vki,vi->vk", design, jets) - z) * mask
+    residual = np.sqrt((misfit ** 2).sum(axis=1) / np.maximum(sizes - JET_TERMS, 1)) * scale
+    return frames, jets, scale, residual
 
 
 def jet_at(origin: np.ndarray, frame: np.ndarray, jet: np.ndarray, scale: np.ndarray, points: np.ndarray
