@@ -22,7 +22,10 @@ from fabline.model.importers.crossings import find_crossings
 from fabline.model.network import UNIT_TO_MM, Lamella, Network, Node, validate
 from fabline.model.surfaces.field import asymptotic_directions
 from fabline.model.surfaces.mesh import SmoothMesh
+from fabline.model.surfaces.nurbs import NurbsPatch
 from fabline.model.surfaces.trace import TracedCurve, trace_family
+
+TracingSurface = SmoothMesh | NurbsPatch
 
 CROSSING_TOLERANCE_MM = 1.0  # traced curves of the two families that pass this close cross
 SAMPLES_PER_STEP = 4  # output samples per tracing step (cubic spline through the traced points, projected)
@@ -59,16 +62,15 @@ class SupportRule:
 
 @dataclass
 class Layout:
-    """The traced curves of both families, the seed, and the stop reasons that are not the edge."""
+    """The traced curves of both families, their indices along the rail or middle curve, and stops not at the edge."""
 
     curves: list[np.ndarray]
     families: list[str]
     indices: list[int]
-    seed: np.ndarray
     stops: list[str] = field(default_factory=list)
 
 
-def rail_layout(surface: SmoothMesh, seed: np.ndarray, spacing: float, step: float, source: str,
+def rail_layout(surface: TracingSurface, seed: np.ndarray, spacing: float, step: float, source: str,
                 seed_curves: tuple[np.ndarray, ...] = ()) -> Layout:
     """Rail through the seed, the other family's curves at equal spacing along it, then the first family at equal
     spacing along the middle one of those (the one through the seed).
@@ -83,7 +85,7 @@ def rail_layout(surface: SmoothMesh, seed: np.ndarray, spacing: float, step: flo
         across = _transverse_family(surface, rail_points)
     else:
         rail = trace_family(surface, seed[None], "A", step, reach)[0]
-        rail_points, rail_seed = _dense(surface, rail, step)
+        rail_points, rail_seed = _dense(rail, step)
         across = "B"
     along = "A" if across == "B" else "B"
     starts, index_across = _spaced(rail_points, rail_seed, spacing, along, source)
@@ -91,16 +93,16 @@ def rail_layout(surface: SmoothMesh, seed: np.ndarray, spacing: float, step: flo
     if len(seed_curves) > 1:
         middle_points, middle_seed = _given(surface, seed_curves[1], seed, step, f"{source}: seed curve 2")
     else:
-        middle_points, middle_seed = _dense(surface, curves_across[index_across.tolist().index(0)], step)
+        middle_points, middle_seed = _dense(curves_across[index_across.tolist().index(0)], step)
     starts, index_along = _spaced(middle_points, middle_seed, spacing, across, source)
     reuse = index_along == 0 if rail is not None else np.zeros(len(index_along), dtype=bool)
     traced_along = dict(zip(index_along[~reuse].tolist(), trace_family(surface, starts[~reuse], along, step, reach)))
     if reuse.any():
         traced_along[0] = rail
-    layout = Layout([], [], [], rail_points[rail_seed])
+    layout = Layout([], [], [])
     for family, traced in ((along, sorted(traced_along.items())), (across, list(zip(index_across.tolist(), curves_across)))):
         for index, curve in traced:
-            layout.curves.append(_dense(surface, curve, step)[0])
+            layout.curves.append(_dense(curve, step)[0])
             layout.families.append(family)
             layout.indices.append(index)
             layout.stops += [f"{family} curve {index}: stops where K >= 0 near ({_xyz(curve.points[end])})"
@@ -108,15 +110,15 @@ def rail_layout(surface: SmoothMesh, seed: np.ndarray, spacing: float, step: flo
     return layout
 
 
-def _given(surface: SmoothMesh, points: np.ndarray, seed: np.ndarray, step: float, where: str) -> tuple[np.ndarray, int]:
+def _given(surface: TracingSurface, points: np.ndarray, seed: np.ndarray, step: float, where: str) -> tuple[np.ndarray, int]:
     """A designer's seed curve on the surface, resampled like a traced one, and its point nearest the seed."""
     check_on_surface(surface, points, where)
     on = surface.project(points).xyz
     nearest = int(np.argmin(np.linalg.norm(on - seed, axis=1)))
-    return _dense(surface, TracedCurve(on, ("given", "given"), nearest), step)
+    return _dense(TracedCurve(on, ("given", "given"), nearest), step)
 
 
-def check_on_surface(surface: SmoothMesh, points: np.ndarray, where: str) -> None:
+def check_on_surface(surface: TracingSurface, points: np.ndarray, where: str) -> None:
     """Refuse a seed curve with a point farther from the surface than two mesh edges, naming the point."""
     _, _, squared = surface.closest(points)
     far = np.flatnonzero(np.sqrt(squared) > 2.0 * surface.edge_length)
@@ -125,7 +127,7 @@ def check_on_surface(surface: SmoothMesh, points: np.ndarray, where: str) -> Non
                            "the surface; a seed curve must lie on it")
 
 
-def _transverse_family(surface: SmoothMesh, points: np.ndarray) -> str:
+def _transverse_family(surface: TracingSurface, points: np.ndarray) -> str:
     """The asymptotic family that crosses a curve more squarely on average: the one to start along it."""
     tangents = np.gradient(points, axis=0)
     tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
@@ -136,7 +138,7 @@ def _transverse_family(surface: SmoothMesh, points: np.ndarray) -> str:
     return "B" if along_a >= along_b else "A"
 
 
-def _dense(surface: SmoothMesh, curve: TracedCurve, step: float) -> tuple[np.ndarray, int]:
+def _dense(curve: TracedCurve, step: float) -> tuple[np.ndarray, int]:
     """The traced polyline resampled on a cubic spline (SAMPLES_PER_STEP per step); the seed's index.
 
     The spline through the projected tracing points stays on the surface within micrometres and is
@@ -161,18 +163,18 @@ def _dense(surface: SmoothMesh, curve: TracedCurve, step: float) -> tuple[np.nda
 
 def _spaced(points: np.ndarray, seed: int, spacing: float, family: str, source: str) -> tuple[np.ndarray, np.ndarray]:
     """Points at arc lengths k * spacing from the seed along a dense polyline, and their signed indices k."""
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]) - 0.0
-    s = s - s[seed]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    s -= s[seed]
     ks = np.arange(int(np.ceil(s[0] / spacing - 1e-9)), int(np.floor(s[-1] / spacing + 1e-9)) + 1)
     ks = ks[(ks * spacing > s[0] + 1e-9 * spacing) & (ks * spacing < s[-1] - 1e-9 * spacing) | (ks == 0)]
     if len(ks) < 2:
         raise FablineError(f"{source}: spacing {spacing:g} is larger than the surface: the family {family} curve "
                            f"through the seed is {s[-1] - s[0]:.3g} long (lower --spacing)")
-    starts = np.c_[[np.interp(ks * spacing, s, points[:, i]) for i in range(3)]].T
+    starts = np.stack([np.interp(ks * spacing, s, points[:, i]) for i in range(3)], axis=1)
     return starts, ks
 
 
-def build_network(surface: SmoothMesh, layout: Layout, spacing: float, units: str, supports: SupportRule | None,
+def build_network(surface: TracingSurface, layout: Layout, spacing: float, units: str, supports: SupportRule | None,
                   name: str, meta: dict, source: str) -> Network:
     """Nodes at the crossings of the traced curves, lamellas through them to the edge, validated."""
     first = {f: min(i for g, i in zip(layout.families, layout.indices) if g == f) for f in set(layout.families)}
@@ -206,9 +208,13 @@ def build_network(surface: SmoothMesh, layout: Layout, spacing: float, units: st
     return validate(Network(units, nodes, sorted(lamellas, key=lambda lam: (lam.family, lam.id.split("-", 1)[1])), name, meta), source)
 
 
-def _lamella(surface: SmoothMesh, lamella_id: str, family: str, points: np.ndarray, crossings: list[tuple[float, str]],
+def _lamella(surface: TracingSurface, lamella_id: str, family: str, points: np.ndarray, crossings: list[tuple[float, str]],
              nodes: dict[str, Node], spacing: float) -> Lamella:
-    """A lamella through its crossing nodes to both ends of its curve, the nodes inserted as curve samples."""
+    """A lamella through its crossing nodes to both ends of its curve (or cut at a crossing next to an end).
+
+    The centreline is the spline of the traced curve resampled between its ends; the crossing nodes lie on
+    it within micrometres and are not inserted as samples, which would kink the spline the geometry fits.
+    """
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
     arcs = [arc for arc, _ in crossings]
     names = [nid for _, nid in crossings]
@@ -219,7 +225,8 @@ def _lamella(surface: SmoothMesh, lamella_id: str, family: str, points: np.ndarr
             ends.append(None)
             continue
         nid = f"E{lamella_id}-{'se'[side]}"
-        nodes[nid] = Node(nid, points[0 if side == 0 else -1].copy(), surface.at(points[[0 if side == 0 else -1]]).normal[0], "edge-end")
+        end = points[0 if side == 0 else -1]
+        nodes[nid] = Node(nid, end.copy(), surface.at(end[None]).normal[0], "edge-end")
         ends.append((arc_end, nid))
     lo = arcs[0] if ends[0] is None else 0.0
     hi = arcs[-1] if ends[1] is None else s[-1]
@@ -234,13 +241,13 @@ def _lamella(surface: SmoothMesh, lamella_id: str, family: str, points: np.ndarr
     return Lamella(lamella_id, family, [nid for _, nid in stations], curve, surface.at(curve).normal)
 
 
-def default_seed(surface: SmoothMesh) -> np.ndarray:
+def default_seed(surface: TracingSurface) -> np.ndarray:
     """The surface point closest to the mesh's area-weighted centroid."""
     return surface.project(surface.mesh.center_mass[None] if surface.mesh.is_watertight else
                            np.average(surface.mesh.triangles_center, axis=0, weights=surface.mesh.area_faces)[None]).xyz[0]
 
 
-def check_seed(surface: SmoothMesh, seed: np.ndarray, source: str) -> np.ndarray:
+def check_seed(surface: TracingSurface, seed: np.ndarray, source: str) -> np.ndarray:
     """The seed on the surface; refused when it lies off the surface, beyond its edge, or where K >= 0."""
     _, foot, squared = surface.closest(seed[None])
     distance = float(np.sqrt(squared[0]))
