@@ -92,16 +92,19 @@ def test_families_are_labelled_consistently_over_the_whole_surface(enneper_mesh)
     assert np.all(gauss < 0)
 
 
-@pytest.mark.parametrize("name", ["enneper", "catenoid", "helicoid"])
-def test_traced_network_matches_the_closed_form_rail_grid(tmp_path, name):
+@pytest.mark.parametrize("name, units", [("enneper", "m"), ("catenoid", "m"), ("helicoid", "m"), ("catenoid", "mm")])
+def test_traced_network_matches_the_closed_form_rail_grid(tmp_path, name, units):
     case = closed_form_cases()[name]
     path = tmp_path / f"{name}.ply"
-    case.mesh(COARSE_TRIANGLES, seed=2).export(path)
-    design = design_asymptotic(path, 0.35, seed=case.seed_point())
+    per_metre = {"m": 1.0, "mm": 1000.0}[units]
+    mesh = case.mesh(COARSE_TRIANGLES, seed=2)
+    trimesh.Trimesh(mesh.vertices * per_metre, mesh.faces).export(path)
+    design = design_asymptotic(path, 0.35 * per_metre, seed=case.seed_point() * per_metre, units=units)
     network = design.network
+    assert network.units == units
     crossings = np.array([node.xyz for nid, node in network.nodes.items() if len(network.lamellas_at()[nid]) >= 2])
-    truth = rail_grid(case.surface, case.seed, 0.35, case.inside)
-    distance = cKDTree(crossings).query(truth)[0]
+    truth = rail_grid(case.surface, case.seed, 0.35, case.inside) * per_metre
+    distance = cKDTree(crossings).query(truth)[0] / per_metre
     assert len(crossings) == len(truth)
     assert distance.mean() < 0.002 and distance.max() < 0.010
     quality = network.meta["quality"]
