@@ -92,7 +92,8 @@ class SmoothMesh:
         """
         noise = float(np.median(residual))
         lifted = self.lift(*self._vertex_feet())
-        k1, k2, _, _ = principal(lifted.normal, lifted.shape)
+        self._curvatures = principal(lifted.normal, lifted.shape)
+        k1, k2, _, _ = self._curvatures
         weak = float(np.percentile(np.maximum(np.abs(k1), np.abs(k2)), 10))
         radius = np.sqrt(SIGNAL_TO_NOISE * noise / max(weak, 1e-12))
         if radius <= JET_REACH * self.edge_length:
@@ -139,7 +140,9 @@ class SmoothMesh:
         return on_boundary & (sideways > 1e-9 * self.edge_length)
 
     def vertex_curvatures(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Principal curvatures k1 >= k2 and their directions at every vertex, from its jet at the vertex."""
+        """Principal curvatures k1 >= k2 and their directions at every vertex, from its (smoothed) form there."""
+        if self.vertex_shape is None:
+            return self._curvatures
         lifted = self.lift(*self._vertex_feet())
         return principal(lifted.normal, lifted.shape)
 
