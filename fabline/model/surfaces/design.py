@@ -10,10 +10,10 @@ import trimesh
 
 from fabline.errors import FablineError
 from fabline.model.importers.surface import mesh_from_arrays, read_mesh_arrays
-from fabline.model.network import Network
+from fabline.model.network import UNIT_TO_MM, Network
 from fabline.model.surfaces.curves import declared_or_given
 from fabline.model.surfaces.field import Region, special_regions
-from fabline.model.surfaces.layout import (SupportRule, build_network, check_on_surface, check_seed, default_seed,
+from fabline.model.surfaces.layout import (CROSSING_TOLERANCE_MM, SupportRule, build_network, check_on_surface, check_seed, default_seed,
                                           rail_layout)
 from fabline.model.surfaces.mesh import SmoothMesh
 from fabline.model.surfaces.nurbs import NurbsPatch, read_nurbs
@@ -114,7 +114,7 @@ def design_asymptotic(path: str | Path, spacing: float, seed: np.ndarray | None 
         seed = _middle(curves[0]) if curves else default_seed(surface)
     seed = check_seed(surface, np.asarray(seed, dtype=float), source)
     step = step or min(spacing / 4.0, 0.05 * float(np.linalg.norm(np.ptp(surface.vertices, axis=0))))
-    layout = rail_layout(surface, seed, spacing, step, source, curves)
+    layout = rail_layout(surface, seed, spacing, step, CROSSING_TOLERANCE_MM / UNIT_TO_MM[units], source, curves)
     meta = {"design": "asymptotic", "surface": Path(source).name, "spacing": spacing, "seed": seed.round(9).tolist(),
             "seed_curves": len(curves),
             "step": step, "supports": str(rule) if rule else None}

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.spatial import cKDTree
 
 from fabline.errors import FablineError
 from fabline.model.importers.crossings import find_crossings
@@ -30,6 +31,7 @@ TracingSurface = SmoothMesh | NurbsPatch
 CROSSING_TOLERANCE_MM = 1.0  # traced curves of the two families that pass this close cross
 SAMPLES_PER_STEP = 4  # output samples per tracing step (cubic spline through the traced points, projected)
 END_MERGE_FRACTION = 0.1  # a crossing this fraction of the spacing from a lamella's end becomes that end
+MAX_EXTENSIONS = 200  # passes of `_extend` at most (each continues one family along one curve)
 
 
 @dataclass
@@ -68,9 +70,17 @@ class Layout:
     families: list[str]
     indices: list[int]
     stops: list[str] = field(default_factory=list)
+    closed_runs: set[tuple[int, int]] = field(default_factory=set)
+
+    def add(self, family: str, index: int, curve: TracedCurve, step: float) -> None:
+        self.curves.append(_dense(curve, step)[0])
+        self.families.append(family)
+        self.indices.append(index)
+        self.stops += [f"{family} curve {index}: stops where K >= 0 near ({_xyz(curve.points[end])})"
+                       for end, why in zip((0, -1), curve.stops) if why == "K>=0"]
 
 
-def rail_layout(surface: TracingSurface, seed: np.ndarray, spacing: float, step: float, source: str,
+def rail_layout(surface: TracingSurface, seed: np.ndarray, spacing: float, step: float, tolerance: float, source: str,
                 seed_curves: tuple[np.ndarray, ...] = ()) -> Layout:
     """Rail through the seed, the other family's curves at equal spacing along it, then the first family at equal
     spacing along the middle one of those (the one through the seed).
@@ -102,12 +112,85 @@ def rail_layout(surface: TracingSurface, seed: np.ndarray, spacing: float, step:
     layout = Layout([], [], [])
     for family, traced in ((along, sorted(traced_along.items())), (across, list(zip(index_across.tolist(), curves_across)))):
         for index, curve in traced:
-            layout.curves.append(_dense(curve, step)[0])
-            layout.families.append(family)
-            layout.indices.append(index)
-            layout.stops += [f"{family} curve {index}: stops where K >= 0 near ({_xyz(curve.points[end])})"
-                             for end, why in zip((0, -1), curve.stops) if why == "K>=0"]
+            layout.add(family, index, curve, step)
+    _extend(surface, layout, spacing, step, reach, tolerance, source)
     return layout
+
+
+def _extend(surface: TracingSurface, layout: Layout, spacing: float, step: float, reach: float, tolerance: float,
+            source: str) -> None:
+    """And so on: where a curve runs on past the last crossing curve of the other family by more than a spacing,
+    that family continues along it at the same spacing; repeated (longest open run first) until none is left.
+
+    Covers what the two curves through the seed do not reach (a boundary that is not convex in the
+    asymptotic directions, a surface that closes around).
+    """
+    for _ in range(MAX_EXTENSIONS):
+        ids = [f"{f}{i}" for f, i in zip(layout.families, layout.indices)]
+        crossings = find_crossings(layout.curves, layout.families, ids, tolerance, source)
+        on_curve: list[list[tuple[float, int]]] = [[] for _ in layout.curves]
+        for members in crossings.members:
+            for c, arc in members:
+                on_curve[c] += [(arc, layout.indices[o]) for o, _ in members if o != c]
+        best = None
+        for c, found in enumerate(on_curve):
+            if not found:
+                continue
+            found.sort()
+            family = "B" if layout.families[c] == "A" else "A"
+            taken = {i for f, i in zip(layout.families, layout.indices) if f == family}
+            trend = _trend(found)
+            length = float(np.linalg.norm(np.diff(layout.curves[c], axis=0), axis=1).sum())
+            for side, (arc, index), open_run in ((-1, found[0], found[0][0]), (1, found[-1], length - found[-1][0])):
+                beyond = index + side * trend
+                if (c, side) in layout.closed_runs or beyond in taken:
+                    continue  # the family's next curve exists: a wide cell, not an uncovered region
+                if open_run > 1.5 * spacing and (best is None or open_run > best[0]):
+                    best = (open_run, c, side, arc, index, trend)
+        if best is None:
+            return
+        open_run, host, side, arc, index, trend = best
+        family = "B" if layout.families[host] == "A" else "A"
+        steps = np.arange(1, int(open_run / spacing - 0.5) + 1)
+        points = layout.curves[host]
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        starts = np.stack([np.interp(arc + side * steps * spacing, s, points[:, i]) for i in range(3)], axis=1)
+        taken = {i for f, i in zip(layout.families, layout.indices) if f == family}
+        kin = cKDTree(np.vstack([c for c, f in zip(layout.curves, layout.families) if f == family]))
+        added = False
+        for start_index, curve in zip(index + side * trend * steps, trace_family(surface, starts, family, step, reach)):
+            piece = _apart(curve, kin, 0.5 * spacing)
+            if piece is None:
+                continue
+            number = int(start_index) if start_index not in taken else max(taken) + 1
+            taken.add(number)
+            layout.add(family, number, piece, step)
+            added = True
+        if not added:
+            layout.closed_runs.add((host, side))
+
+
+def _trend(found: list[tuple[float, int]]) -> int:
+    """+1 or -1: whether the other family's indices grow along a curve, from its crossings (+1 if undecided)."""
+    step = found[-1][1] - found[0][1] if len(found) > 1 else 0
+    return -1 if step < 0 else 1
+
+
+def _apart(curve: TracedCurve, kin: cKDTree, clearance: float) -> TracedCurve | None:
+    """The piece of a new curve around its start that keeps `clearance` from the curves of its family already there."""
+    clear = kin.query(curve.points)[0] > clearance
+    start = curve.seed_index
+    if not clear[start]:
+        return None
+    lo, hi = start, start
+    while lo > 0 and clear[lo - 1]:
+        lo -= 1
+    while hi < len(clear) - 1 and clear[hi + 1]:
+        hi += 1
+    if hi - lo < 2:
+        return None
+    stops = (curve.stops[0] if lo == 0 else "near", curve.stops[1] if hi == len(clear) - 1 else "near")
+    return TracedCurve(curve.points[lo:hi + 1], stops, start - lo)
 
 
 def _given(surface: TracingSurface, points: np.ndarray, seed: np.ndarray, step: float, where: str) -> tuple[np.ndarray, int]:
