@@ -15,9 +15,10 @@ from fabline.model.surfaces.curves import declared_or_given
 from fabline.model.surfaces.field import Region, special_regions
 from fabline.model.surfaces.layout import (CROSSING_TOLERANCE_MM, SupportRule, build_network, check_on_surface, check_seed, default_seed,
                                           rail_layout)
-from fabline.model.surfaces.mesh import SmoothMesh
+from fabline.model.surfaces.mesh import SmoothMesh, xyz_text
 from fabline.model.surfaces.nurbs import NurbsPatch, read_nurbs
 from fabline.model.surfaces.quality import quality_report
+from fabline.unroll.materials import get_material, parse_profile
 
 DEGENERATE_AREA = 1e-10  # a face smaller than this fraction of the mean edge length squared has no area
 
@@ -67,7 +68,7 @@ def check_mesh(vertices: np.ndarray, faces: np.ndarray, source: str) -> trimesh.
     edge = float(np.mean(raw.edges_unique_length)) if len(raw.edges_unique) else 0.0
     tiny = np.flatnonzero(raw.area_faces <= DEGENERATE_AREA * edge * edge)
     if tiny.size:
-        raise FablineError(f"{source}: face {tiny[0]} at ({_xyz(raw.triangles_center[tiny[0]])}) is degenerate "
+        raise FablineError(f"{source}: face {tiny[0]} at ({xyz_text(raw.triangles_center[tiny[0]])}) is degenerate "
                            f"(area {raw.area_faces[tiny[0]]:.3g}); {tiny.size} such faces: remove or repair them")
     mesh = mesh_from_arrays(vertices, faces, source)
     edges = mesh.edges_sorted
@@ -75,7 +76,7 @@ def check_mesh(vertices: np.ndarray, faces: np.ndarray, source: str) -> trimesh.
     crowded = [group for group in shared if len(group) > 2]
     if crowded:
         a, b = mesh.vertices[edges[crowded[0][0]]]
-        raise FablineError(f"{source}: non-manifold edge from ({_xyz(a)}) to ({_xyz(b)}) is shared by "
+        raise FablineError(f"{source}: non-manifold edge from ({xyz_text(a)}) to ({xyz_text(b)}) is shared by "
                            f"{len(crowded[0])} faces; {len(crowded)} such edges: the surface must be a manifold")
     labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
     pieces = np.bincount(labels)
@@ -83,7 +84,7 @@ def check_mesh(vertices: np.ndarray, faces: np.ndarray, source: str) -> trimesh.
         small = int(np.argsort(pieces)[0])
         where = mesh.triangles_center[labels == small].mean(axis=0)
         raise FablineError(f"{source}: the mesh has {len(pieces)} separate pieces (one of {pieces[small]} faces around "
-                           f"({_xyz(where)})): give one connected surface")
+                           f"({xyz_text(where)})): give one connected surface")
     return mesh
 
 
@@ -100,12 +101,13 @@ def design_asymptotic(path: str | Path, spacing: float, seed: np.ndarray | None 
     if not (0 < spacing < np.inf):
         raise FablineError(f"--spacing must be a positive number, got {spacing:g}")
     rule = SupportRule.parse(supports) if supports else None
+    get_material(material), parse_profile(profile)  # a mistake there is refused before the work, not after
     surface, units, notes = load_surface(path, units)
     k1, k2, _, _ = surface.vertex_curvatures()
     if not np.any((k1 > 0) & (k2 < 0)):
         worst = int(np.argmin(k1 * k2))
         raise FablineError(f"{source}: K >= 0 everywhere (synclastic or flat, no asymptotic directions; the most "
-                           f"anticlastic point ({_xyz(surface.vertices[worst])}) has K = {k1[worst] * k2[worst]:.3g})")
+                           f"anticlastic point ({xyz_text(surface.vertices[worst])}) has K = {k1[worst] * k2[worst]:.3g})")
     regions = special_regions(surface.vertices, surface.faces, k1, k2)
     curves = tuple(np.asarray(c, dtype=float) for c in seed_curves or ())
     for k, curve in enumerate(curves):
@@ -131,6 +133,3 @@ def _middle(curve: np.ndarray) -> np.ndarray:
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
     return np.array([np.interp(s[-1] / 2, s, curve[:, i]) for i in range(3)])
 
-
-def _xyz(point: np.ndarray) -> str:
-    return ", ".join(f"{v:.4g}" for v in point)

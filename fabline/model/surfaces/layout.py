@@ -22,7 +22,7 @@ from fabline.errors import FablineError
 from fabline.model.importers.crossings import find_crossings
 from fabline.model.network import UNIT_TO_MM, Lamella, Network, Node, validate
 from fabline.model.surfaces.field import asymptotic_directions
-from fabline.model.surfaces.mesh import SmoothMesh
+from fabline.model.surfaces.mesh import SmoothMesh, xyz_text
 from fabline.model.surfaces.nurbs import NurbsPatch
 from fabline.model.surfaces.trace import TracedCurve, trace_family
 
@@ -76,7 +76,7 @@ class Layout:
         self.curves.append(_dense(curve, step)[0])
         self.families.append(family)
         self.indices.append(index)
-        self.stops += [f"{family} curve {index}: stops where K >= 0 near ({_xyz(curve.points[end])})"
+        self.stops += [f"{family} curve {index}: stops where K >= 0 near ({xyz_text(curve.points[end])})"
                        for end, why in zip((0, -1), curve.stops) if why == "K>=0"]
 
 
@@ -206,7 +206,7 @@ def check_on_surface(surface: TracingSurface, points: np.ndarray, where: str) ->
     _, _, squared = surface.closest(points)
     far = np.flatnonzero(np.sqrt(squared) > 2.0 * surface.edge_length)
     if far.size:
-        raise FablineError(f"{where}: point {far[0]} ({_xyz(points[far[0]])}) lies {np.sqrt(squared[far[0]]):.4g} off "
+        raise FablineError(f"{where}: point {far[0]} ({xyz_text(points[far[0]])}) lies {np.sqrt(squared[far[0]]):.4g} off "
                            "the surface; a seed curve must lie on it")
 
 
@@ -335,15 +335,12 @@ def check_seed(surface: TracingSurface, seed: np.ndarray, source: str) -> np.nda
     _, foot, squared = surface.closest(seed[None])
     distance = float(np.sqrt(squared[0]))
     if distance > max(2.0 * surface.edge_length, 1e-6) or surface.outside(seed[None])[0]:
-        raise FablineError(f"{source}: seed ({_xyz(seed)}) lies {distance:.4g} off the surface (closest surface point "
-                           f"({_xyz(foot[0])})); give a point on the surface")
+        raise FablineError(f"{source}: seed ({xyz_text(seed)}) lies {distance:.4g} off the surface (closest surface point "
+                           f"({xyz_text(foot[0])})); give a point on the surface")
     on = surface.project(seed[None])
     a, _, gauss = asymptotic_directions(on.normal, on.shape)
     if not np.isfinite(a).all():
-        raise FablineError(f"{source}: seed ({_xyz(seed)}) lies where K = {gauss[0]:.3g} >= 0 (no asymptotic directions); "
+        raise FablineError(f"{source}: seed ({xyz_text(seed)}) lies where K = {gauss[0]:.3g} >= 0 (no asymptotic directions); "
                            "choose a seed where the surface is anticlastic")
     return on.xyz[0]
 
-
-def _xyz(point: np.ndarray) -> str:
-    return ", ".join(f"{v:.4g}" for v in point)

@@ -192,7 +192,7 @@ def fit_jets(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> tu
     jets = np.linalg.solve(normal_matrix, rhs[..., None])[..., 0]
     thin = np.flatnonzero(sizes < JET_TERMS)
     if thin.size:
-        raise FablineError(f"vertex {thin[0]} at {_xyz(vertices[thin[0]])} has only {sizes[thin[0]] - 1} neighbours "
+        raise FablineError(f"vertex {thin[0]} at ({xyz_text(vertices[thin[0]])}) has only {sizes[thin[0]] - 1} neighbours "
                            "within three rings: too few to fit the surface there (a loose triangle?)")
     misfit = (np.einsum("vki,vi->vk", design, jets) - z) * mask
     residual = np.sqrt((misfit ** 2).sum(axis=1) / np.maximum(sizes - JET_TERMS, 1)) * scale
@@ -288,5 +288,6 @@ def _boundary_sides(faces: np.ndarray) -> np.ndarray:
     return (counts[inverse.ravel()] == 1).reshape(-1, 3)
 
 
-def _xyz(point: np.ndarray) -> str:
-    return "(" + ", ".join(f"{v:.4g}" for v in point) + ")"
+def xyz_text(point: np.ndarray) -> str:
+    """A point for messages: x, y, z to four significant digits."""
+    return ", ".join(f"{v:.4g}" for v in point)

@@ -25,6 +25,7 @@ from shapely.geometry import Point, Polygon
 from fabline.errors import FablineError
 from fabline.fileio import atomic_output
 from fabline.model.surfaces.curves import read_curves
+from fabline.model.surfaces.mesh import xyz_text
 
 MAX_ITERATIONS = 400
 RELAX_SWEEPS = 2
@@ -46,7 +47,7 @@ def _closed(points: np.ndarray, where: str) -> np.ndarray:
     length = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
     gap = float(np.linalg.norm(points[-1] - points[0]))
     if length == 0 or gap > CLOSED_FRACTION * length:
-        raise FablineError(f"{where}: open curve (its ends ({_xyz(points[0])}) and ({_xyz(points[-1])}) are {gap:.4g} apart): "
+        raise FablineError(f"{where}: open curve (its ends ({xyz_text(points[0])}) and ({xyz_text(points[-1])}) are {gap:.4g} apart): "
                            "a boundary must be closed")
     return points[:-1]
 
@@ -175,6 +176,3 @@ def catenoid_waist(radius: float, separation: float) -> float:
         raise FablineError(f"circles of radius {radius:g} are too far apart ({separation:g}) for a catenoid between them")
     return float(brentq(lambda a: a * np.cosh(half / a) - radius, half / x_min, radius))
 
-
-def _xyz(point: np.ndarray) -> str:
-    return ", ".join(f"{v:.4g}" for v in point)
