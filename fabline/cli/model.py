@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 
+from fabline.cli import positive
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
 from fabline.geometry import analyse, lamella_table
-from fabline.model import load_network, save_network
+from fabline.model import UNIT_TO_MM, load_network, save_network
 from fabline.model.designs import BOUNDARIES, DESIGNS
 
 
@@ -33,11 +34,89 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     for sub in (enneper, catenoid, helicoid):
         sub.add_argument("-o", "--output", required=True, help="network JSON to write")
         sub.set_defaults(func=run_design)
+    _register_surface_designs(kinds)
 
     inspect = subparsers.add_parser("inspect", help="table of lamellas, lengths, curvatures and crossing angles")
     inspect.add_argument("model", help="a fabline.network/1 JSON file")
     inspect.add_argument("--json", action="store_true", help="print the table as JSON")
     inspect.set_defaults(func=run_inspect)
+
+
+def _register_surface_designs(kinds: argparse._SubParsersAction) -> None:
+    """`design asymptotic` (trace a network on a designer's surface) and `design minimal` (a surface from its edges)."""
+    traced = kinds.add_parser("asymptotic", help="trace an asymptotic network on an anticlastic mesh or .3dm surface")
+    traced.add_argument("--surface", required=True, help="surface: OBJ, STL, PLY (trimesh) or .3dm (rhino3dm)")
+    traced.add_argument("--spacing", type=positive(float), required=True, help="node spacing along the curves, model units")
+    traced.add_argument("--seed", type=_point, help="x,y,z of the point the rails start from (default: the surface's centre)")
+    traced.add_argument("--supports", help="nodes matching this rule are supports, e.g. z<0.05")
+    traced.add_argument("--seed-curves", help="one or two curves on the surface (.dxf or .json) to use as the rail and "
+                        "the middle curve")
+    traced.add_argument("--units", choices=sorted(UNIT_TO_MM), help="units of a mesh file that declares none (default m)")
+    traced.add_argument("--step", type=positive(float), help="tracing step, model units (default spacing/4)")
+    traced.add_argument("--material", default="steel-s235", help="lamella material for the limits (default steel-s235)")
+    traced.add_argument("--profile", default="100x1.5", help="lamella profile HxT in mm for the limits (default 100x1.5)")
+    traced.add_argument("--json", action="store_true", help="print the quality report as JSON")
+    traced.add_argument("-o", "--output", required=True, help="network JSON to write")
+    traced.set_defaults(func=run_asymptotic)
+    minimal = kinds.add_parser("minimal", help="discrete minimal surface spanning one or two closed boundary curves")
+    minimal.add_argument("--boundary", required=True, help="closed curves: .dxf (polylines, circles, splines) or .json")
+    minimal.add_argument("--mesh-size", type=positive(float), required=True, help="triangle size, model units")
+    minimal.add_argument("--units", choices=sorted(UNIT_TO_MM), help="units of a file that declares none (default m)")
+    minimal.add_argument("-o", "--output", required=True, help="surface mesh to write (.obj, .stl, .ply, .off)")
+    minimal.set_defaults(func=run_minimal)
+
+
+def _point(text: str) -> tuple[float, float, float]:
+    try:
+        x, y, z = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a point must look like 0.2,1.5,0, got {text!r}") from None
+    return x, y, z
+
+
+def run_asymptotic(args: argparse.Namespace) -> int:
+    """Trace the network, write it, print what was found and the quality report."""
+    from fabline.model.surfaces import design_asymptotic, summary_lines
+    from fabline.model.surfaces.curves import read_curves
+
+    curves = None
+    if args.seed_curves:
+        found, _ = read_curves(args.seed_curves, args.units)
+        if len(found) > 2:
+            raise FablineError(f"{args.seed_curves}: {len(found)} curves; give one (the rail) or two (rail and middle curve)")
+        curves = [points for points, _ in found]
+    design = design_asymptotic(args.surface, args.spacing, args.seed, args.supports, args.units, args.step,
+                               args.material, args.profile, curves)
+    network = design.network
+    save_network(network, args.output)
+    report = network.meta["quality"]
+    if args.json:
+        print(json.dumps({"output": args.output, "notes": design.notes, "regions": network.meta["regions"],
+                          "stops": design.stops, "quality": report}, indent=1))
+        return 0
+    for note in design.notes:
+        print(f"note: {note}")
+    print(f"{args.output}: asymptotic network on {args.surface}, {len(network.nodes)} nodes, {len(network.lamellas)} lamellas "
+          f"(units {network.units})")
+    for region in design.regions:
+        print(f"found: {region.describe()}")
+    for stop in design.stops:
+        print(f"found: {stop}")
+    for line in summary_lines(report, network.units):
+        print(f"  {line}")
+    return 0
+
+
+def run_minimal(args: argparse.Namespace) -> int:
+    """Compute the minimal surface and write it as a mesh."""
+    from fabline.model.surfaces.minimal import minimal_surface, read_boundaries, write_mesh
+
+    curves, units = read_boundaries(args.boundary, args.units)
+    mesh = minimal_surface(curves, args.mesh_size, args.boundary)
+    write_mesh(mesh, args.output)
+    print(f"{args.output}: minimal surface spanning {len(curves)} boundary curve{'s' * (len(curves) > 1)}, "
+          f"{len(mesh.faces)} triangles, area {mesh.area:.4g} {units}2 (units {units})")
+    return 0
 
 
 def _size(text: str) -> tuple[float, float]:
@@ -66,7 +145,8 @@ def run_inspect(args: argparse.Namespace) -> int:
     except FablineError as exc:
         raise FablineError(f"{args.model}: {exc}") from None
     if args.json:
-        print(json.dumps({"model": args.model, "units": network.units, "lamellas": rows}, indent=1))
+        print(json.dumps({"model": args.model, "units": network.units, "lamellas": rows,
+                          **({"quality": network.meta["quality"]} if "quality" in network.meta else {})}, indent=1))
         return 0
     print(f"{'lamella':<10}{'fam':>4}{'nodes':>6}{'length m':>10}{'max k_g':>9}{'max tau_g':>10}{'max k_n':>9}{'angle min..max':>16}")
     for r in rows:
@@ -78,4 +158,10 @@ def run_inspect(args: argparse.Namespace) -> int:
           f"max k_g {max(r['max_k_g'] for r in rows):.3f} 1/m, max tau_g {max(r['max_tau_g'] for r in rows):.3f} 1/m, "
           f"max k_n {max(r['max_k_n'] for r in rows):.2e} 1/m; crossing angles "
           + (f"{min(angles):.2f}..{max(angles):.2f} deg" if angles else "none"))
+    if "quality" in network.meta:
+        from fabline.model.surfaces import summary_lines
+
+        print(f"\ntraced on the surface {network.meta.get('surface', '')} (fabline design asymptotic):")
+        for line in summary_lines(network.meta["quality"], network.units):
+            print(f"  {line}")
     return 0

@@ -44,6 +44,11 @@ def mesh_from_arrays(vertices: np.ndarray, faces: np.ndarray, source: str) -> tr
 
 def load_mesh_file(path: str | Path) -> trimesh.Trimesh:
     """Read a mesh file that trimesh understands (OBJ, STL, PLY, OFF, GLB...)."""
+    return mesh_from_arrays(*read_mesh_arrays(path), str(path))
+
+
+def read_mesh_arrays(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh file's vertices and triangles as written (not welded, degenerate faces kept)."""
     try:
         loaded = trimesh.load(str(path), force="mesh", process=False)
     except FileNotFoundError:
@@ -54,7 +59,7 @@ def load_mesh_file(path: str | Path) -> trimesh.Trimesh:
         raise FablineError(f"{path}: cannot read as a mesh: {exc}".splitlines()[0]) from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise FablineError(f"{path}: no mesh faces found")
-    return mesh_from_arrays(loaded.vertices, loaded.faces, str(path))
+    return loaded.vertices, loaded.faces
 
 class SurfaceNormals:
     """Closest points (libigl's AABB tree, exact) and interpolated vertex normals on one mesh."""

@@ -1,0 +1,101 @@
+"""Design from surfaces: traced asymptotic networks against the closed forms, tracing speed, minimal-surface speed.
+
+Usage: python benchmarks/design_bench.py [--sizes 5000,20000,80000] [--big 100000] [--minimal 20000] [--dir DIR]
+Table 1: for the pavilion's Enneper patch (9 x 12 m, k_max 1.1 1/m), a catenoid patch (waist 1 m) and a
+helicoid (pitch 6 m), each meshed irregularly at every size, the traced network (spacing 0.35 m, seed
+as the closed form's) against the closed-form rail grid: node count, mean and max node distance, max
+k_n along the curves, smallest crossing angle. Table 2: the whole `design_asymptotic` on a
+`--big`-triangle Enneper mesh (goal < 10 s). Table 3: `minimal_surface` from two coaxial circles
+(radius 1 m, 1 m apart) at about `--minimal` triangles (goal < 30 s) and its distance to the catenoid.
+Wall time depends on what else runs on the machine, so this process's CPU time is printed too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from fabline.model.surfaces import design_asymptotic  # noqa: E402
+from fabline.model.surfaces.samples import closed_form_cases, rail_grid  # noqa: E402
+
+SPACING = 0.35
+TRACE_GOAL_SECONDS = 10.0
+MINIMAL_GOAL_SECONDS = 30.0
+
+
+def timed(function, *args, **kwargs):
+    wall, cpu = time.perf_counter(), time.process_time()
+    result = function(*args, **kwargs)
+    return result, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def accuracy_table(sizes: list[int], folder: Path) -> None:
+    print(f"{'surface':<10}{'triangles':>10}{'nodes':>7}{'ref':>6}{'mean mm':>9}{'max mm':>8}{'max k_n':>9}{'min angle':>10}{'wall s':>8}{'cpu s':>7}")
+    for name, case in closed_form_cases().items():
+        truth = rail_grid(case.surface, case.seed, SPACING, case.inside)
+        for size in sizes:
+            path = folder / f"{name}-{size}.ply"
+            mesh = case.mesh(size, seed=1)
+            mesh.export(path)
+            design, wall, cpu = timed(design_asymptotic, path, SPACING, seed=case.seed_point())
+            network = design.network
+            at = network.lamellas_at()
+            crossings = np.array([n.xyz for nid, n in network.nodes.items() if len(at[nid]) >= 2])
+            distance = cKDTree(crossings).query(truth)[0] * 1000
+            quality = network.meta["quality"]
+            print(f"{name:<10}{len(mesh.faces):>10}{len(crossings):>7}{len(truth):>6}{distance.mean():>9.2f}{distance.max():>8.2f}"
+                  f"{quality['k_n']['max']:>9.4f}{quality['crossing_angles']['min']:>10.2f}{wall:>8.2f}{cpu:>7.2f}")
+
+
+def speed_table(triangles: int, folder: Path) -> None:
+    case = closed_form_cases()["enneper"]
+    path = folder / f"enneper-{triangles}.ply"
+    mesh = case.mesh(triangles, seed=3)
+    mesh.export(path)
+    design, wall, cpu = timed(design_asymptotic, path, SPACING, seed=case.seed_point())
+    print(f"\ntrace a full network on a {len(mesh.faces):,}-triangle mesh: {len(design.network.lamellas)} lamellas, "
+          f"{len(design.network.nodes)} nodes in {wall:.2f} s wall, {cpu:.2f} s cpu (goal < {TRACE_GOAL_SECONDS:g} s, "
+          "read, fit, trace, validate and quality report)")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", default="5000,20000,80000", help="triangle counts for the accuracy table")
+    parser.add_argument("--big", type=int, default=100_000, help="triangles of the speed run")
+    parser.add_argument("--minimal", type=int, default=20_000, help="triangles of the minimal surface run (0: skip)")
+    parser.add_argument("--dir", help="folder for the meshes (default: a temporary one)")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as scratch:
+        folder = Path(args.dir or scratch)
+        folder.mkdir(parents=True, exist_ok=True)
+        accuracy_table([int(s) for s in args.sizes.split(",")], folder)
+        speed_table(args.big, folder)
+        if args.minimal:
+            minimal_table(args.minimal, folder)
+
+
+def minimal_table(triangles: int, folder: Path) -> None:
+    from fabline.model.surfaces.minimal import catenoid_waist, coaxial_circles, minimal_surface
+
+    circles = coaxial_circles(1.0, 1.0)
+    area = 2 * np.pi * 1.0 * 1.0
+    size = float(np.sqrt(4 * area / (np.sqrt(3) * triangles)))
+    mesh, wall, cpu = timed(minimal_surface, circles, size)
+    waist = catenoid_waist(1.0, 1.0)
+    radius = np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 1])
+    error = np.abs(radius - waist * np.cosh(mesh.vertices[:, 2] / waist)) / np.sqrt(1 + np.sinh(mesh.vertices[:, 2] / waist) ** 2)
+    print(f"\nminimal surface between two circles (r 1 m, 1 m apart), mesh size {size * 1000:.1f} mm: {len(mesh.faces):,} triangles "
+          f"in {wall:.2f} s wall, {cpu:.2f} s cpu (goal < {MINIMAL_GOAL_SECONDS:g} s); distance to the catenoid "
+          f"(waist {waist:.6f} m): {error.mean() * 1000:.3f} mm mean, {error.max() * 1000:.3f} mm max")
+
+
+if __name__ == "__main__":
+    main()

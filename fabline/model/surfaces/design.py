@@ -1,0 +1,135 @@
+"""`design asymptotic`: from a designer's surface file to a validated asymptotic network and its quality report."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from fabline.errors import FablineError
+from fabline.model.importers.surface import mesh_from_arrays, read_mesh_arrays
+from fabline.model.network import UNIT_TO_MM, Network
+from fabline.model.surfaces.curves import declared_or_given
+from fabline.model.surfaces.field import Region, special_regions
+from fabline.model.surfaces.layout import (CROSSING_TOLERANCE_MM, SupportRule, build_network, check_on_surface, check_seed, default_seed,
+                                          rail_layout)
+from fabline.model.surfaces.mesh import SmoothMesh, xyz_text
+from fabline.model.surfaces.nurbs import NurbsPatch, read_nurbs
+from fabline.model.surfaces.quality import quality_report
+from fabline.unroll.materials import get_material, parse_profile
+
+DEGENERATE_AREA = 1e-10  # a face smaller than this fraction of the mean edge length squared has no area
+
+
+@dataclass
+class AsymptoticDesign:
+    """A traced network with what was found on the way: regions without asymptotic lines, early stops."""
+
+    network: Network
+    regions: list[Region]
+    stops: list[str]
+    surface: SmoothMesh | NurbsPatch
+    notes: list[str] = field(default_factory=list)
+
+
+def read_surface(path: str | Path, units: str | None = None) -> tuple[trimesh.Trimesh, str, list[str]]:
+    """A surface file as one checked triangle mesh, its units, and notes (assumed units)."""
+    path = str(path)
+    notes = []
+    if Path(path).suffix.lower() == ".3dm":
+        from fabline.model.importers.rhino import read_3dm_surface
+        mesh, declared = read_3dm_surface(path)
+        vertices, faces = mesh.vertices, mesh.faces
+    else:
+        (vertices, faces), declared = read_mesh_arrays(path), None
+    if units is None and declared is None:
+        notes.append(f"{path}: the file declares no units; taken as m (give --units)")
+    units = declared_or_given(path, declared, units)
+    return check_mesh(np.asarray(vertices, dtype=float), np.asarray(faces, dtype=np.int64), path), units, notes
+
+
+def load_surface(path: str | Path, units: str | None = None) -> tuple[SmoothMesh | NurbsPatch, str, list[str]]:
+    """The surface to trace on: a .3dm file's one NURBS surface exactly, else any surface file as a smooth mesh."""
+    if Path(path).suffix.lower() == ".3dm":
+        patch, declared = read_nurbs(str(path))
+        if patch is not None:
+            return patch, declared_or_given(path, declared, units), []
+    mesh, units, notes = read_surface(path, units)
+    return SmoothMesh(mesh), units, notes
+
+
+def check_mesh(vertices: np.ndarray, faces: np.ndarray, source: str) -> trimesh.Trimesh:
+    """Refuse degenerate triangles, non-manifold edges and disconnected pieces, naming where; weld and orient."""
+    raw = trimesh.Trimesh(vertices, faces, process=False)
+    if not np.all(np.isfinite(vertices)):
+        raise FablineError(f"{source}: the surface has NaN or infinite vertex coordinates")
+    edge = float(np.mean(raw.edges_unique_length)) if len(raw.edges_unique) else 0.0
+    tiny = np.flatnonzero(raw.area_faces <= DEGENERATE_AREA * edge * edge)
+    if tiny.size:
+        raise FablineError(f"{source}: face {tiny[0]} at ({xyz_text(raw.triangles_center[tiny[0]])}) is degenerate "
+                           f"(area {raw.area_faces[tiny[0]]:.3g}); {tiny.size} such faces: remove or repair them")
+    mesh = mesh_from_arrays(vertices, faces, source)
+    edges = mesh.edges_sorted
+    shared = trimesh.grouping.group_rows(edges, require_count=None)
+    crowded = [group for group in shared if len(group) > 2]
+    if crowded:
+        a, b = mesh.vertices[edges[crowded[0][0]]]
+        raise FablineError(f"{source}: non-manifold edge from ({xyz_text(a)}) to ({xyz_text(b)}) is shared by "
+                           f"{len(crowded[0])} faces; {len(crowded)} such edges: the surface must be a manifold")
+    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
+    pieces = np.bincount(labels)
+    if len(pieces) > 1:
+        small = int(np.argsort(pieces)[0])
+        where = mesh.triangles_center[labels == small].mean(axis=0)
+        raise FablineError(f"{source}: the mesh has {len(pieces)} separate pieces (one of {pieces[small]} faces around "
+                           f"({xyz_text(where)})): give one connected surface")
+    return mesh
+
+
+def design_asymptotic(path: str | Path, spacing: float, seed: np.ndarray | None = None, supports: str | None = None,
+                      units: str | None = None, step: float | None = None, material: str = "steel-s235",
+                      profile: str = "100x1.5", seed_curves: list[np.ndarray] | None = None) -> AsymptoticDesign:
+    """Trace an asymptotic network at `spacing` (model units) on the surface in `path`; seed defaults to the centre.
+
+    `seed_curves` (one or two polylines on the surface, model units) replace the rail and the middle curve;
+    the seed then defaults to the middle of the first.
+    The quality report (quality_report) and the regions without asymptotic lines go into the network's meta.
+    """
+    source = str(path)
+    if not (0 < spacing < np.inf):
+        raise FablineError(f"--spacing must be a positive number, got {spacing:g}")
+    rule = SupportRule.parse(supports) if supports else None
+    get_material(material), parse_profile(profile)  # a mistake there is refused before the work, not after
+    surface, units, notes = load_surface(path, units)
+    k1, k2, _, _ = surface.vertex_curvatures()
+    if not np.any((k1 > 0) & (k2 < 0)):
+        worst = int(np.argmin(k1 * k2))
+        raise FablineError(f"{source}: K >= 0 everywhere (synclastic or flat, no asymptotic directions; the most "
+                           f"anticlastic point ({xyz_text(surface.vertices[worst])}) has K = {k1[worst] * k2[worst]:.3g})")
+    regions = special_regions(surface.vertices, surface.faces, k1, k2)
+    curves = tuple(np.asarray(c, dtype=float) for c in seed_curves or ())
+    for k, curve in enumerate(curves):
+        check_on_surface(surface, curve, f"{source}: seed curve {k + 1}")
+    if seed is None:
+        seed = _middle(curves[0]) if curves else default_seed(surface)
+    seed = check_seed(surface, np.asarray(seed, dtype=float), source)
+    step = step or min(spacing / 4.0, 0.05 * float(np.linalg.norm(np.ptp(surface.vertices, axis=0))))
+    layout = rail_layout(surface, seed, spacing, step, CROSSING_TOLERANCE_MM / UNIT_TO_MM[units], source, curves)
+    meta = {"design": "asymptotic", "surface": Path(source).name, "spacing": spacing, "seed": seed.round(9).tolist(),
+            "seed_curves": len(curves),
+            "step": step, "supports": str(rule) if rule else None}
+    network = build_network(surface, layout, spacing, units, rule, Path(source).stem.split(".")[0], meta, source)
+    network.meta["regions"] = [{"kind": r.kind, "centre": r.centre.round(6).tolist(), "vertices": r.vertices,
+                                "extent": r.extent} for r in regions]
+    network.meta["stops"] = layout.stops
+    network.meta["quality"] = quality_report(network, surface, spacing, material, profile)
+    return AsymptoticDesign(network, regions, layout.stops, surface, notes)
+
+
+def _middle(curve: np.ndarray) -> np.ndarray:
+    """The point halfway along a polyline."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
+    return np.array([np.interp(s[-1] / 2, s, curve[:, i]) for i in range(3)])
+

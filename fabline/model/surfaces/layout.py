@@ -1,0 +1,346 @@
+"""Lay out an asymptotic network at a requested spacing and turn the traced curves into a `Network`.
+
+The rail strategy: the family A curve through the seed point is the rail; family B curves start on it
+at equal arc-length spacing from the seed; then family A curves start at equal spacing along the middle
+B curve (the one through the seed). On a surface whose asymptotic lines are coordinate lines (Enneper:
+u, v) this reproduces the closed-form network with nodes at equal arc length along the two axes. The
+crossings (found as the importer finds them) become nodes with the surface normal; lamella ends at the
+edge become `edge-end` nodes, nodes matching the supports rule `support`.
+"""
+
+from __future__ import annotations
+
+import operator
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.spatial import cKDTree
+
+from fabline.errors import FablineError
+from fabline.model.importers.crossings import find_crossings
+from fabline.model.network import UNIT_TO_MM, Lamella, Network, Node, validate
+from fabline.model.surfaces.field import asymptotic_directions
+from fabline.model.surfaces.mesh import SmoothMesh, xyz_text
+from fabline.model.surfaces.nurbs import NurbsPatch
+from fabline.model.surfaces.trace import TracedCurve, trace_family
+
+TracingSurface = SmoothMesh | NurbsPatch
+
+CROSSING_TOLERANCE_MM = 1.0  # traced curves of the two families that pass this close cross
+SAMPLES_PER_STEP = 4  # output samples per tracing step (cubic spline through the traced points, projected)
+END_MERGE_FRACTION = 0.1  # a crossing this fraction of the spacing from a lamella's end becomes that end
+MAX_EXTENSIONS = 200  # passes of `_extend` at most (each continues one family along one curve)
+
+
+@dataclass
+class SupportRule:
+    """Nodes whose coordinate `axis` compares with `value` by `op` (e.g. z < 0.05) are supports."""
+
+    axis: int
+    op: str
+    value: float
+
+    OPS = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
+
+    @classmethod
+    def parse(cls, text: str) -> "SupportRule":
+        match = re.fullmatch(r"\s*([xyzXYZ])\s*(<=|>=|<|>)\s*([-+0-9.eE]+)\s*", text)
+        if not match:
+            raise FablineError(f"--supports {text!r}: write it as AXIS OP VALUE, e.g. z<0.05 (axis x, y or z; op <, <=, >, >=)")
+        try:
+            value = float(match.group(3))
+        except ValueError:
+            raise FablineError(f"--supports {text!r}: {match.group(3)!r} is not a number") from None
+        return cls("xyz".index(match.group(1).lower()), match.group(2), value)
+
+    def holds(self, xyz: np.ndarray) -> bool:
+        return bool(self.OPS[self.op](xyz[self.axis], self.value))
+
+    def __str__(self) -> str:
+        return f"{'xyz'[self.axis]}{self.op}{self.value:g}"
+
+
+@dataclass
+class Layout:
+    """The traced curves of both families, their indices along the rail or middle curve, and stops not at the edge."""
+
+    curves: list[np.ndarray]
+    families: list[str]
+    indices: list[int]
+    stops: list[str] = field(default_factory=list)
+    closed_runs: set[tuple[int, int]] = field(default_factory=set)
+
+    def add(self, family: str, index: int, curve: TracedCurve, step: float) -> None:
+        self.curves.append(_dense(curve, step)[0])
+        self.families.append(family)
+        self.indices.append(index)
+        self.stops += [f"{family} curve {index}: stops where K >= 0 near ({xyz_text(curve.points[end])})"
+                       for end, why in zip((0, -1), curve.stops) if why == "K>=0"]
+
+
+def rail_layout(surface: TracingSurface, seed: np.ndarray, spacing: float, step: float, tolerance: float, source: str,
+                seed_curves: tuple[np.ndarray, ...] = ()) -> Layout:
+    """Rail through the seed, the other family's curves at equal spacing along it, then the first family at equal
+    spacing along the middle one of those (the one through the seed).
+
+    `seed_curves` replace the traced rail (first) and the middle curve (second): curves of any shape on the
+    surface, along which the family more transverse to the first starts, then the other one.
+    """
+    reach = 4.0 * float(np.linalg.norm(np.ptp(surface.vertices, axis=0)))
+    rail = None
+    if seed_curves:
+        rail_points, rail_seed = _given(surface, seed_curves[0], seed, step, f"{source}: seed curve 1")
+        across = _transverse_family(surface, rail_points)
+    else:
+        rail = trace_family(surface, seed[None], "A", step, reach)[0]
+        rail_points, rail_seed = _dense(rail, step)
+        across = "B"
+    along = "A" if across == "B" else "B"
+    starts, index_across = _spaced(rail_points, rail_seed, spacing, along, source)
+    curves_across = trace_family(surface, starts, across, step, reach)
+    if len(seed_curves) > 1:
+        middle_points, middle_seed = _given(surface, seed_curves[1], seed, step, f"{source}: seed curve 2")
+    else:
+        middle_points, middle_seed = _dense(curves_across[index_across.tolist().index(0)], step)
+    starts, index_along = _spaced(middle_points, middle_seed, spacing, across, source)
+    reuse = index_along == 0 if rail is not None else np.zeros(len(index_along), dtype=bool)
+    traced_along = dict(zip(index_along[~reuse].tolist(), trace_family(surface, starts[~reuse], along, step, reach)))
+    if reuse.any():
+        traced_along[0] = rail
+    layout = Layout([], [], [])
+    for family, traced in ((along, sorted(traced_along.items())), (across, list(zip(index_across.tolist(), curves_across)))):
+        for index, curve in traced:
+            layout.add(family, index, curve, step)
+    _extend(surface, layout, spacing, step, reach, tolerance, source)
+    return layout
+
+
+def _extend(surface: TracingSurface, layout: Layout, spacing: float, step: float, reach: float, tolerance: float,
+            source: str) -> None:
+    """And so on: where a curve runs on past the last crossing curve of the other family by more than a spacing,
+    that family continues along it at the same spacing; repeated (longest open run first) until none is left.
+
+    Covers what the two curves through the seed do not reach (a boundary that is not convex in the
+    asymptotic directions, a surface that closes around).
+    """
+    for _ in range(MAX_EXTENSIONS):
+        ids = [f"{f}{i}" for f, i in zip(layout.families, layout.indices)]
+        crossings = find_crossings(layout.curves, layout.families, ids, tolerance, source)
+        on_curve: list[list[tuple[float, int]]] = [[] for _ in layout.curves]
+        for members in crossings.members:
+            for c, arc in members:
+                on_curve[c] += [(arc, layout.indices[o]) for o, _ in members if o != c]
+        best = None
+        for c, found in enumerate(on_curve):
+            if not found:
+                continue
+            found.sort()
+            family = "B" if layout.families[c] == "A" else "A"
+            taken = {i for f, i in zip(layout.families, layout.indices) if f == family}
+            trend = _trend(found)
+            length = float(np.linalg.norm(np.diff(layout.curves[c], axis=0), axis=1).sum())
+            for side, (arc, index), open_run in ((-1, found[0], found[0][0]), (1, found[-1], length - found[-1][0])):
+                beyond = index + side * trend
+                if (c, side) in layout.closed_runs or beyond in taken:
+                    continue  # the family's next curve exists: a wide cell, not an uncovered region
+                if open_run > 1.5 * spacing and (best is None or open_run > best[0]):
+                    best = (open_run, c, side, arc, index, trend)
+        if best is None:
+            return
+        open_run, host, side, arc, index, trend = best
+        family = "B" if layout.families[host] == "A" else "A"
+        steps = np.arange(1, int(open_run / spacing - 0.5) + 1)
+        points = layout.curves[host]
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        starts = np.stack([np.interp(arc + side * steps * spacing, s, points[:, i]) for i in range(3)], axis=1)
+        taken = {i for f, i in zip(layout.families, layout.indices) if f == family}
+        kin = cKDTree(np.vstack([c for c, f in zip(layout.curves, layout.families) if f == family]))
+        added = False
+        for start_index, curve in zip(index + side * trend * steps, trace_family(surface, starts, family, step, reach)):
+            piece = _apart(curve, kin, 0.5 * spacing)
+            if piece is None:
+                continue
+            number = int(start_index) if start_index not in taken else max(taken) + 1
+            taken.add(number)
+            layout.add(family, number, piece, step)
+            added = True
+        if not added:
+            layout.closed_runs.add((host, side))
+
+
+def _trend(found: list[tuple[float, int]]) -> int:
+    """+1 or -1: whether the other family's indices grow along a curve, from its crossings (+1 if undecided)."""
+    step = found[-1][1] - found[0][1] if len(found) > 1 else 0
+    return -1 if step < 0 else 1
+
+
+def _apart(curve: TracedCurve, kin: cKDTree, clearance: float) -> TracedCurve | None:
+    """The piece of a new curve around its start that keeps `clearance` from the curves of its family already there."""
+    clear = kin.query(curve.points)[0] > clearance
+    start = curve.seed_index
+    if not clear[start]:
+        return None
+    lo, hi = start, start
+    while lo > 0 and clear[lo - 1]:
+        lo -= 1
+    while hi < len(clear) - 1 and clear[hi + 1]:
+        hi += 1
+    if hi - lo < 2:
+        return None
+    stops = (curve.stops[0] if lo == 0 else "near", curve.stops[1] if hi == len(clear) - 1 else "near")
+    return TracedCurve(curve.points[lo:hi + 1], stops, start - lo)
+
+
+def _given(surface: TracingSurface, points: np.ndarray, seed: np.ndarray, step: float, where: str) -> tuple[np.ndarray, int]:
+    """A designer's seed curve on the surface, resampled like a traced one, and its point nearest the seed."""
+    check_on_surface(surface, points, where)
+    on = surface.project(points).xyz
+    nearest = int(np.argmin(np.linalg.norm(on - seed, axis=1)))
+    return _dense(TracedCurve(on, ("given", "given"), nearest), step)
+
+
+def check_on_surface(surface: TracingSurface, points: np.ndarray, where: str) -> None:
+    """Refuse a seed curve with a point farther from the surface than two mesh edges, naming the point."""
+    _, _, squared = surface.closest(points)
+    far = np.flatnonzero(np.sqrt(squared) > 2.0 * surface.edge_length)
+    if far.size:
+        raise FablineError(f"{where}: point {far[0]} ({xyz_text(points[far[0]])}) lies {np.sqrt(squared[far[0]]):.4g} off "
+                           "the surface; a seed curve must lie on it")
+
+
+def _transverse_family(surface: TracingSurface, points: np.ndarray) -> str:
+    """The asymptotic family that crosses a curve more squarely on average: the one to start along it."""
+    tangents = np.gradient(points, axis=0)
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    lifted = surface.at(points)
+    a, b, _ = asymptotic_directions(lifted.normal, lifted.shape)
+    along_a = np.nanmean(np.abs(np.einsum("ij,ij->i", tangents, a)))
+    along_b = np.nanmean(np.abs(np.einsum("ij,ij->i", tangents, b)))
+    return "B" if along_a >= along_b else "A"
+
+
+def _dense(curve: TracedCurve, step: float) -> tuple[np.ndarray, int]:
+    """The traced polyline resampled on a cubic spline (SAMPLES_PER_STEP per step); the seed's index.
+
+    The spline through the projected tracing points stays on the surface within micrometres and is
+    smoother than projecting every sample again would be (the blended surface is only C1 across edges).
+    """
+    points = curve.points
+    chord = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    keep = np.r_[True, np.diff(chord) > 1e-9 * step]
+    points, chord = points[keep], chord[keep]
+    seed_chord = chord[min(curve.seed_index, len(chord) - 1)]
+    if len(points) < 2:
+        return points, 0
+    before = np.linspace(0.0, seed_chord, max(1, int(np.ceil(seed_chord * SAMPLES_PER_STEP / step))) + 1)
+    after = np.linspace(seed_chord, chord[-1], max(1, int(np.ceil((chord[-1] - seed_chord) * SAMPLES_PER_STEP / step))) + 1)
+    t = np.unique(np.r_[before, after])
+    if len(points) > 2:
+        dense = CubicSpline(chord, points)(t)
+    else:
+        dense = points[0] + np.outer(t / chord[-1], points[-1] - points[0])
+    return dense, int(np.searchsorted(t, seed_chord))
+
+
+def _spaced(points: np.ndarray, seed: int, spacing: float, family: str, source: str) -> tuple[np.ndarray, np.ndarray]:
+    """Points at arc lengths k * spacing from the seed along a dense polyline, and their signed indices k."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    s -= s[seed]
+    ks = np.arange(int(np.ceil(s[0] / spacing - 1e-9)), int(np.floor(s[-1] / spacing + 1e-9)) + 1)
+    ks = ks[(ks * spacing > s[0] + 1e-9 * spacing) & (ks * spacing < s[-1] - 1e-9 * spacing) | (ks == 0)]
+    if len(ks) < 2:
+        raise FablineError(f"{source}: spacing {spacing:g} is larger than the surface: the family {family} curve "
+                           f"through the seed is {s[-1] - s[0]:.3g} long (lower --spacing)")
+    starts = np.stack([np.interp(ks * spacing, s, points[:, i]) for i in range(3)], axis=1)
+    return starts, ks
+
+
+def build_network(surface: TracingSurface, layout: Layout, spacing: float, units: str, supports: SupportRule | None,
+                  name: str, meta: dict, source: str) -> Network:
+    """Nodes at the crossings of the traced curves, lamellas through them to the edge, validated."""
+    first = {f: min(i for g, i in zip(layout.families, layout.indices) if g == f) for f in set(layout.families)}
+    number = [i - first[f] for f, i in zip(layout.families, layout.indices)]
+    ids = [f"{f}-{n:03d}" for f, n in zip(layout.families, number)]
+    tolerance = CROSSING_TOLERANCE_MM / UNIT_TO_MM[units]
+    crossings = find_crossings(layout.curves, layout.families, ids, tolerance, source)
+    if len(crossings.xyz) == 0:
+        raise FablineError(f"{source}: the traced curves do not cross (spacing {spacing:g} too large for the surface?)")
+    normals = surface.project(crossings.xyz).normal
+    nodes: dict[str, Node] = {}
+    per_curve: list[list[tuple[float, str]]] = [[] for _ in layout.curves]
+    for k, members in enumerate(crossings.members):
+        by_family = {layout.families[c]: number[c] for c, _ in members}
+        nid = f"N{by_family['B']:03d}-{by_family['A']:03d}"
+        nid = nid if nid not in nodes else f"{nid}-{k}"
+        nodes[nid] = Node(nid, crossings.xyz[k], normals[k], "grid" if len(members) == 2 else "singularity")
+        for c, arc in members:
+            per_curve[c].append((arc, nid))
+    lamellas = []
+    for c, points in enumerate(layout.curves):
+        if not per_curve[c]:
+            continue
+        lamellas.append(_lamella(surface, ids[c], layout.families[c], points, sorted(per_curve[c]), nodes, spacing))
+    if supports is not None:
+        for node in nodes.values():
+            if supports.holds(node.xyz):
+                node.kind = "support"
+    used = {nid for lam in lamellas for nid in lam.nodes}
+    nodes = {nid: node for nid, node in sorted(nodes.items()) if nid in used}
+    return validate(Network(units, nodes, sorted(lamellas, key=lambda lam: (lam.family, lam.id.split("-", 1)[1])), name, meta), source)
+
+
+def _lamella(surface: TracingSurface, lamella_id: str, family: str, points: np.ndarray, crossings: list[tuple[float, str]],
+             nodes: dict[str, Node], spacing: float) -> Lamella:
+    """A lamella through its crossing nodes to both ends of its curve (or cut at a crossing next to an end).
+
+    The centreline is the spline of the traced curve resampled between its ends; the crossing nodes lie on
+    it within micrometres and are not inserted as samples, which would kink the spline the geometry fits.
+    """
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    arcs = [arc for arc, _ in crossings]
+    names = [nid for _, nid in crossings]
+    merge = END_MERGE_FRACTION * spacing
+    ends = []
+    for side, (arc_end, nearest) in enumerate(((0.0, arcs[0]), (s[-1], arcs[-1]))):
+        if abs(arc_end - nearest) <= merge and len(arcs) > 1:
+            ends.append(None)
+            continue
+        nid = f"E{lamella_id}-{'se'[side]}"
+        end = points[0 if side == 0 else -1]
+        nodes[nid] = Node(nid, end.copy(), surface.at(end[None]).normal[0], "edge-end")
+        ends.append((arc_end, nid))
+    lo = arcs[0] if ends[0] is None else 0.0
+    hi = arcs[-1] if ends[1] is None else s[-1]
+    if ends[0] is None:
+        nodes[names[0]].kind = "edge-end"
+    if ends[1] is None:
+        nodes[names[-1]].kind = "edge-end"
+    stations = [e for e in ends[:1] if e] + list(zip(arcs, names)) + [e for e in ends[1:] if e]
+    gap = 0.5 * (s[1] - s[0])
+    inner = s[(s > lo + gap) & (s < hi - gap)]
+    curve = CubicSpline(s, points)(np.r_[lo, inner, hi])
+    return Lamella(lamella_id, family, [nid for _, nid in stations], curve, surface.at(curve).normal)
+
+
+def default_seed(surface: TracingSurface) -> np.ndarray:
+    """The surface point closest to the mesh's area-weighted centroid."""
+    return surface.project(surface.mesh.center_mass[None] if surface.mesh.is_watertight else
+                           np.average(surface.mesh.triangles_center, axis=0, weights=surface.mesh.area_faces)[None]).xyz[0]
+
+
+def check_seed(surface: TracingSurface, seed: np.ndarray, source: str) -> np.ndarray:
+    """The seed on the surface; refused when it lies off the surface, beyond its edge, or where K >= 0."""
+    _, foot, squared = surface.closest(seed[None])
+    distance = float(np.sqrt(squared[0]))
+    if distance > max(2.0 * surface.edge_length, 1e-6) or surface.outside(seed[None])[0]:
+        raise FablineError(f"{source}: seed ({xyz_text(seed)}) lies {distance:.4g} off the surface (closest surface point "
+                           f"({xyz_text(foot[0])})); give a point on the surface")
+    on = surface.project(seed[None])
+    a, _, gauss = asymptotic_directions(on.normal, on.shape)
+    if not np.isfinite(a).all():
+        raise FablineError(f"{source}: seed ({xyz_text(seed)}) lies where K = {gauss[0]:.3g} >= 0 (no asymptotic directions); "
+                           "choose a seed where the surface is anticlastic")
+    return on.xyz[0]
+

@@ -1,0 +1,92 @@
+"""Quality of a traced network: how asymptotic its curves are, how they cross, how even the spacing is, and the strain.
+
+Curvatures come from the geometry stage (splines through the written curves and normals), so the
+report measures the network file as the later stages will see it. Twist (tau_g) and weak-axis bending
+(k_g) are checked against the profile's limits from the unroll stage's structural formulas.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fabline.geometry import analyse
+from fabline.model.network import Network
+from fabline.unroll.materials import get_material, parse_profile
+from fabline.unroll.structure import limits
+
+MM_PER_M = 1000.0
+
+
+def quality_report(network: Network, surface=None, spacing: float | None = None, material: str = "steel-s235",
+                   profile: str = "100x1.5") -> dict:
+    """k_n along every curve, crossing angles, node spacing, distance to the surface, twist and bending against the limits.
+
+    Lengths in the model's units, curvatures in 1/m, distances in mm, angles in degrees.
+    """
+    geometry = analyse(network)
+    per_metre = MM_PER_M  # geometry works in mm and 1/mm
+    unit_mm = network.mm_per_unit
+    curves = {}
+    for lam_id, geo in geometry.lamellas.items():
+        curves[lam_id] = {"max_k_n": float(np.abs(geo.k_n).max() * per_metre),
+                          "max_k_g": float(np.abs(geo.k_g).max() * per_metre),
+                          "max_tau_g": float(np.abs(geo.tau_g).max() * per_metre)}
+    angles = np.array(list(geometry.crossing_angles.values()))
+    crossing = {nid for nid, lams in network.lamellas_at().items() if len(lams) >= 2}
+    gaps = np.array([b - a for geo in geometry.lamellas.values()
+                     for (na, a), (nb, b) in zip(zip(geo.node_ids, geo.node_s), zip(geo.node_ids[1:], geo.node_s[1:]))
+                     if na in crossing and nb in crossing]) / unit_mm
+    material_data, profile_data = get_material(material), parse_profile(profile)
+    limit = limits(material_data, profile_data)
+    worst_twist = max(curves, key=lambda k: curves[k]["max_tau_g"])
+    worst_bend = max(curves, key=lambda k: curves[k]["max_k_g"])
+    twist = curves[worst_twist]["max_tau_g"]
+    bend = curves[worst_bend]["max_k_g"]
+    report = {
+        "lamellas": len(network.lamellas), "nodes": len(network.nodes),
+        "k_n": {"max": max(c["max_k_n"] for c in curves.values()),
+                "mean_of_max": float(np.mean([c["max_k_n"] for c in curves.values()])), "worst": max(curves, key=lambda k: curves[k]["max_k_n"])},
+        "crossing_angles": _stats(angles),
+        "spacing": {"requested": spacing, **_stats(gaps)},
+        "twist": {"max_tau_g": twist, "lamella": worst_twist, "limit": limit["max_twist_rad_per_m"],
+                  "utilisation": twist / limit["max_twist_rad_per_m"]},
+        "bending": {"max_k_g": bend, "lamella": worst_bend, "min_radius_mm": (MM_PER_M / bend) if bend else None,
+                    "limit_radius_mm": limit["min_bending_radius_mm"],
+                    "utilisation": bend * limit["min_bending_radius_mm"] / MM_PER_M},
+        "material": material, "profile": profile, "curves": curves,
+    }
+    if surface is not None:
+        points = np.vstack([lam.curve for lam in network.lamellas])
+        distance = np.linalg.norm(surface.project(points).xyz - points, axis=1) * unit_mm
+        report["distance_to_surface_mm"] = {"mean": float(distance.mean()), "max": float(distance.max())}
+    return report
+
+
+def _stats(values: np.ndarray) -> dict:
+    if len(values) == 0:
+        return {"count": 0}
+    return {"count": int(len(values)), "mean": float(values.mean()), "min": float(values.min()), "max": float(values.max()),
+            "std": float(values.std())}
+
+
+def summary_lines(report: dict, units: str) -> list[str]:
+    """The report in a few printed lines."""
+    angles, gaps = report["crossing_angles"], report["spacing"]
+    lines = [f"k_n along the curves: max {report['k_n']['max']:.2g} 1/m (lamella {report['k_n']['worst']}), "
+             f"mean of the maxima {report['k_n']['mean_of_max']:.2g} 1/m"]
+    if angles["count"]:
+        lines.append(f"crossing angles: {angles['min']:.2f}..{angles['max']:.2f} deg (mean {angles['mean']:.2f}) at {angles['count']} nodes")
+    if gaps["count"]:
+        asked = f", asked {gaps['requested']:g}" if gaps.get("requested") else ""
+        lines.append(f"node spacing along the curves: {gaps['mean']:.4g} {units} mean, {gaps['min']:.4g}..{gaps['max']:.4g} "
+                     f"(std {gaps['std']:.3g}{asked})")
+    if "distance_to_surface_mm" in report:
+        d = report["distance_to_surface_mm"]
+        lines.append(f"curves off the surface: {d['mean']:.3f} mm mean, {d['max']:.3f} mm max")
+    t, b = report["twist"], report["bending"]
+    lines.append(f"largest twist {t['max_tau_g']:.3f} rad/m on {t['lamella']} ({100 * t['utilisation']:.0f} % of "
+                 f"{t['limit']:.3f} rad/m for {report['profile']} {report['material']})")
+    radius = f"radius {b['min_radius_mm']:.0f} mm" if b["min_radius_mm"] else "no bending"
+    lines.append(f"largest weak-axis bending k_g {b['max_k_g']:.3f} 1/m on {b['lamella']} ({radius}, "
+                 f"{100 * b['utilisation']:.0f} % of the {b['limit_radius_mm']:.0f} mm limit)")
+    return lines
