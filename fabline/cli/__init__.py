@@ -11,6 +11,7 @@ import argparse
 import importlib
 import math
 import sys
+import warnings
 from contextlib import nullcontext
 from typing import Callable
 
@@ -102,7 +103,10 @@ def main(argv: list[str] | None = None) -> int:
     module = next((name for name, commands in STAGE_COMMANDS.items() if command in commands), None)
     args = build_parser((module,) if module else tuple(STAGE_COMMANDS)).parse_args(argv)
     try:
-        with nullcontext() if args.command in KEEPS_PARTIAL_OUTPUTS else OutputSet():
+        with nullcontext() if args.command in KEEPS_PARTIAL_OUTPUTS else OutputSet(), warnings.catch_warnings():
+            # numpy's overflow and invalid-value notes on a user's absurd numbers are not messages for the user:
+            # the stages check their inputs and say what is wrong in one line
+            warnings.filterwarnings("ignore", category=RuntimeWarning, module="numpy")
             return int(args.func(args) or 0)
     except FablineError as exc:
         print(f"fabline {args.command}: error: {exc}", file=sys.stderr)

@@ -6,6 +6,8 @@ millimetre copy that fabrication stages work in.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -101,8 +103,9 @@ def validate(network: Network, source: str = "model") -> Network:
         _check_vector(node.normal, f"{where}: normal")
         if np.abs(node.xyz).max() > MAX_MM / network.mm_per_unit:
             raise FablineError(f"{where}: xyz {node.xyz.tolist()} lies more than {MAX_MM / 1e6:g} km from the origin")
-        if abs(np.linalg.norm(node.normal) - 1.0) > 1e-3:
-            raise FablineError(f"{where}: normal is not a unit vector (length {np.linalg.norm(node.normal):.4g})")
+        length = math.hypot(*node.normal)  # no overflow (and no numpy warning) for huge components
+        if abs(length - 1.0) > 1e-3:
+            raise FablineError(f"{where}: normal is not a unit vector (length {length:.4g})")
         if node.kind not in NODE_KINDS:
             raise FablineError(f"{where}: unknown kind {node.kind!r} (use one of {', '.join(NODE_KINDS)})")
     seen: set[str] = set()
@@ -229,7 +232,7 @@ def _check_curve(lam: Lamella, where: str, mm_per_unit: float) -> None:
     if reversal.size:
         raise FablineError(f"{where}: curve doubles back on itself at point {reversal[0] + 1}")
     _check_no_self_overlap(curve, lengths, where, NODE_OFF_CURVE_MM / mm_per_unit)
-    norms = np.linalg.norm(normals, axis=1)
+    norms = np.hypot(np.hypot(normals[:, 0], normals[:, 1]), normals[:, 2])  # no overflow for huge components
     bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
     if bad.size:
         raise FablineError(f"{where}: normal {bad[0]} is not a unit vector (length {norms[bad[0]]:.4g})")
