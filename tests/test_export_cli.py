@@ -302,3 +302,13 @@ def test_comments_never_carry_realtime_characters(cli, job):
     assert "shop laser__ _" in program and not set("?!~") & set(program)
     code, out, _ = cli("gcode-check", folder / "out" / "nesting_S1.gcode", "--machine", folder / "shop.toml")
     assert code == 0, out
+
+
+def test_export_without_an_output_option_writes_beside_the_nesting(cli, job):
+    """No --dxf and no --gcode: everything goes to `<nesting stem>-export/` beside the nesting file, named last."""
+    folder, _, _ = job
+    code, out, err = cli("export", folder / "nesting.json")
+    assert code == 0, err
+    written = _outputs(folder / "nesting-export")
+    assert {"nesting_S1.dxf", "nesting_S1.gcode", "nesting_all-sheets.dxf"} <= set(written)
+    assert out.strip().splitlines()[-1] == f"{len(written)} files in {folder / 'nesting-export'}"
