@@ -32,7 +32,8 @@ def test_export_then_check_agrees_with_independent_truth(cli, job):
     code, out, err = cli("export", folder / "nesting.json", "--dxf", folder / "out", "--gcode", folder / "out",
                          "--machine", "grbl-laser", "--kerf", "0")
     assert code == 0, err
-    assert _outputs(folder / "out") == ["nesting_S1.dxf", "nesting_S1.gcode", "nesting_all-sheets.dxf"]
+    assert _outputs(folder / "out") == ["cutlist.csv", "nesting_S1.dxf", "nesting_S1.gcode", "nesting_S1.order.svg",
+                                        "nesting_all-sheets.dxf"]
     assert re.search(r"^total\s+6\s", out, re.M)
     code, out, err = cli("gcode-check", folder / "out" / "nesting_S1.gcode", "--machine", "grbl-laser")
     assert code == 0, out

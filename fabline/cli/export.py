@@ -27,6 +27,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     export.add_argument("--lead-in", type=float, default=0.0, metavar="MM", help="lead-in length for closed cuts")
     export.add_argument("--tabs", type=int, default=0, help="uncut bridges per outer contour (micro-joints)")
     export.add_argument("--tab-width", type=float, default=1.0, metavar="MM", help="width of each tab")
+    export.add_argument("--no-preview", action="store_true",
+                        help="skip the cut-order preview SVG beside each G-code program (about 1 s of CPU per sheet)")
     export.add_argument("--no-optimise", action="store_true", help="keep the nesting's part order (no travel optimisation)")
     export.set_defaults(func=run_export)
 
@@ -57,7 +59,7 @@ def run_export(args: argparse.Namespace) -> int:
     if dxf_dir is None and gcode_dir is None:
         dxf_dir = gcode_dir = default_export_folder(args.nesting)
     check_outputs(folders=(dxf_dir, gcode_dir))
-    result = export_nesting(args.nesting, profile, options, dxf_dir, gcode_dir)
+    result = export_nesting(args.nesting, profile, options, dxf_dir, gcode_dir, previews=not args.no_preview)
     print(f"machine {result.machine}, kerf {result.kerf:.3f} mm")
     print(f"{'sheet':<12}{'parts':>6}{'cut m':>10}{'mark m':>10}{'travel m':>10}{'time':>10}")
     for sheet in result.sheets + [None]:

@@ -30,6 +30,8 @@ class Material:
     f_y: float
     density: float
     description: str = ""
+    price_per_kg: float | None = None     # optional: what a kg of sheet costs, in `currency` (the bill of materials)
+    currency: str = ""
 
     @property
     def tau_y(self) -> float:
@@ -103,5 +105,10 @@ def _read_table(path: Path) -> dict[str, Material]:
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value <= 0:
                 raise FablineError(f"{path}: material {name}: {key} must be a positive number, got {value!r}")
             values[key] = float(value)
-        materials[name] = Material(name, description=str(raw.get("description", "")), **values)
+        price = raw.get("price_per_kg")
+        if price is not None and (not isinstance(price, (int, float)) or isinstance(price, bool) or price < 0):
+            raise FablineError(f"{path}: material {name}: price_per_kg must be a number, at least 0, got {price!r}")
+        materials[name] = Material(name, description=str(raw.get("description", "")), **values,
+                                   price_per_kg=None if price is None else float(price),
+                                   currency=str(raw.get("currency", "EUR" if price is not None else "")))
     return materials
