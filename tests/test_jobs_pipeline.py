@@ -135,10 +135,45 @@ def test_pictures_come_first_and_the_page_is_self_contained(run):
     page = Tags()
     page.feed(html)
     nesting = load_nesting(run["dir"] / "nesting.json")
-    assert page.tags.count("svg") == 1 + len(nesting.sheets)
-    assert page.tags.index("svg") < page.tags.index("table"), "pictures before tables"
+    assert page.tags.count("svg") == 1 + 2 * len(nesting.sheets)      # the model; each sheet and its cut order
+    assert page.tags.index("table") < page.tags.index("svg") < page.tags.index("table", page.tags.index("table") + 1), \
+        "the summary, then the pictures, then the other tables"
     assert not re.search(r'(src|href)="(?!#|data:)', html), "no external resources"
     assert "<script" not in html
+
+
+def test_report_starts_with_a_summary_and_lists_materials_hardware_and_cut_order(run):
+    """The summary's machine time is the export's, its mass the sheets' volume times the material's density
+    (worked out here from nesting.json and parts.json); every sheet has its cut-order preview; the streaming
+    table gives short port names and the time at machine speed (wall seconds times the simulator's time scale)."""
+    import csv
+
+    html = (run["dir"] / "report.html").read_text()
+    data = json.loads((run["dir"] / "report.json").read_text())
+    nesting = load_nesting(run["dir"] / "nesting.json")
+    parts = load_parts(run["dir"] / "parts.json")
+    summary = html[html.index("<table id=summary"):html.index("</table>", html.index("<table id=summary"))]
+    assert html.index("<table id=summary") < html.index("<svg")
+    total = sum(json.loads((run["dir"] / "report.json").read_text())["nesting"]["sheets"][k]["time_s"]
+                for k in range(len(nesting.sheets)))
+    assert data["machine_time_s"] == pytest.approx(total)
+    minutes, seconds = divmod(round(total), 60)
+    assert f"{minutes // 60}:{minutes % 60:02d}:{seconds:02d}" in summary
+    density = get_material(parts.material).density
+    mass = sum(s.width * s.height for s in nesting.sheets) * parts.profile["t"] * density * 1e-9
+    assert data["bill_of_materials"]["totals"]["mass_kg"] == pytest.approx(mass, abs=0.05 * len(nesting.sheets))
+    assert f"{mass / 1000:.2f} t" in summary and "every lamella passes" in summary and "survey" in summary
+    assert "<table id=bom>" in html and "<table id=hardware>" in html
+    assert html.count("<details class=preview") == len(nesting.sheets)
+    stream = html[html.index("<table id=stream>"):]
+    for sheet in data["stream"]["sheets"]:
+        assert "?" in sheet["port"] and f"<td>{sheet['port'].split('?')[0]}</td>" in stream
+        minutes, seconds = divmod(round(sheet["seconds"] * 1000.0), 60)
+        assert f"<td>{minutes // 60}:{minutes % 60:02d}:{seconds:02d}</td>" in stream
+    assert ">sim://pipeline-1?" not in stream
+    with open(run["dir"] / "cutlist.csv", newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert [r["part"] for r in rows] == [p.part for s in nesting.sheets for p in s.placements]
 
 
 def test_structural_check_matches_the_closed_form(run):

@@ -44,9 +44,9 @@ def _arc_command(segment: Segment, height: float) -> str:
     flag = 1 if segment.clockwise else 0        # y flipped: the machine's clockwise is SVG's positive sweep
     if sweep < 1e-9:                            # start = end: a whole circle
         mid = segment.point_at(0.5)
-        return (f"A {radius:.4f} {radius:.4f} 0 0 {flag} {mid[0]:.4f},{height - mid[1]:.4f} "
-                f"A {radius:.4f} {radius:.4f} 0 0 {flag} {x1:.4f},{height - y1:.4f}")
-    return f"A {radius:.4f} {radius:.4f} 0 {int(sweep > math.pi)} {flag} {x1:.4f},{height - y1:.4f}"
+        return (f"A {radius:.3f} {radius:.3f} 0 0 {flag} {mid[0]:.3f},{height - mid[1]:.3f} "
+                f"A {radius:.3f} {radius:.3f} 0 0 {flag} {x1:.3f},{height - y1:.3f}")
+    return f"A {radius:.3f} {radius:.3f} 0 {int(sweep > math.pi)} {flag} {x1:.3f},{height - y1:.3f}"
 
 
 def cut_order_svg(data: bytes, name: str, width: float, height: float, title: str = "") -> str:
@@ -73,24 +73,25 @@ def cut_order_svg(data: bytes, name: str, width: float, height: float, title: st
             continue
         if current is None:
             current = {"operation": operation, "start": segment.start,
-                       "d": [f"M {segment.start[0]:.4f},{height - segment.start[1]:.4f}"]}
+                       "d": [f"M {segment.start[0]:.3f},{height - segment.start[1]:.3f}"]}
             contours.append(current)
         current["d"].append(_arc_command(segment, height) if segment.center is not None
-                            else f"L {segment.end[0]:.4f},{height - segment.end[1]:.4f}")
+                            else f"L {segment.end[0]:.3f},{height - segment.end[1]:.3f}")
     last = max(len(contours) - 1, 1)
     paths, numbers, cut = [], [], 0
     for k, contour in enumerate(contours):
         (kind, part), colour = contour["operation"], order_colour(k / last)
         engrave = kind.startswith("engrave")
+        label = "" if engrave else f"<title>{k + 1}: {html.escape(kind or 'move')} {html.escape(part)}</title>"
         paths.append(f'<path d="{" ".join(contour["d"])}" fill="none" stroke="{colour}" '
                      f'stroke-width="{0.4 if engrave else 0.8}" class="{"engrave" if engrave else "cut"}" '
-                     f'data-order="{k + 1}"><title>{k + 1}: {html.escape(kind or "move")} {html.escape(part)}</title></path>')
+                     f'data-order="{k + 1}">{label}</path>')
         if not engrave:
             cut += 1
             x, y = contour["start"][0], height - contour["start"][1]
             numbers.append(f'<text x="{x:.1f}" y="{y:.1f}" fill="{colour}">{cut}</text>')
-    lines = "".join(f'<line x1="{s.start[0]:.4f}" y1="{height - s.start[1]:.4f}" x2="{s.end[0]:.4f}" '
-                    f'y2="{height - s.end[1]:.4f}"/>' for s in travel)
+    lines = "".join(f'<line x1="{s.start[0]:.3f}" y1="{height - s.start[1]:.3f}" x2="{s.end[0]:.3f}" '
+                    f'y2="{height - s.end[1]:.3f}"/>' for s in travel)
     caption = html.escape(title or name)
     return (f'<svg xmlns="http://www.w3.org/2000/svg" class="cut-order" width="{width:g}mm" height="{height:g}mm" '
             f'viewBox="0 0 {width:g} {height:g}" font-family="sans-serif">'
