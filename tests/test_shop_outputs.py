@@ -163,3 +163,44 @@ def test_cut_order_preview_draws_the_programs_moves_in_order(cli, tmp_path):
     assert numbers == [str(k) for k in range(1, len(cuts) + 1)]
     travel_group = next(g for g in root.iter(f"{ns}g") if g.get("class") == "travel")
     assert travel_group.get("stroke-dasharray") and travel_group.get("stroke") != paths[0].get("stroke")
+
+
+def test_preview_arcs_turn_the_way_the_machine_turns():
+    """G2 from (0,0) to (20,0) about (10,0) is the upper half circle on the machine (y up): through (10, 10), which
+    in the picture (y down, 100 mm sheet) is (10, 90); G3 back about the same centre turns the other way round, so
+    it too passes the top (a flipped sweep flag would draw both through (10, 110))."""
+    import svgelements
+
+    from fabline.export.preview import cut_order_svg
+
+    svg = cut_order_svg(b"G21\nG90\nG0 X0 Y0\nG2 X20 Y0 I10 J0 F1000\nG3 X0 Y0 I-10 J0\n",
+                        "arcs.gcode", 100.0, 100.0)
+    d = re.search(r'<path d="([^"]+)"', svg).group(1)
+    path = svgelements.Path(d)
+    arcs = [s for s in path if isinstance(s, svgelements.Arc)]
+    assert len(arcs) == 2
+    assert (arcs[0].point(0.5).x, arcs[0].point(0.5).y) == pytest.approx((10.0, 90.0), abs=0.01)
+    assert (arcs[1].point(0.5).x, arcs[1].point(0.5).y) == pytest.approx((10.0, 90.0), abs=0.01)
+
+
+def test_sheet_picture_labels_stay_on_the_sheet():
+    """A long id on a small part at the sheet's right edge: its label, measured in DejaVu Sans (what the report's
+    sans-serif is here) at its font size, ends inside the picture."""
+    import xml.etree.ElementTree as ET
+
+    from PIL import ImageFont
+
+    from fabline.jobs.pictures import sheet_svg
+
+    part = Part("W-N031-013-T-long-name", "washer", _rectangle(60.0, 60.0))
+    sheet = Sheet("S1", 4000.0, 2000.0, [Placement(part.id, 3935.0, 1000.0), Placement(part.id, 5.0, 500.0)])
+    root = ET.fromstring(sheet_svg(sheet, {part.id: part}))
+    width = float(root.get("width"))
+    labels = [t for t in root.iter("{http://www.w3.org/2000/svg}text")]
+    assert len(labels) == 2
+    for label in labels:
+        size = float(label.get("font-size"))
+        font = ImageFont.truetype("/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf", 100)
+        length = font.getlength(label.text) * size / 100
+        x = float(label.get("x"))
+        assert 0 <= x - length / 2 and x + length / 2 <= width, (x, length, width)
