@@ -133,7 +133,7 @@ def _lengths_by_a_second_parser(text):
 def test_cut_order_preview_draws_the_programs_moves_in_order(cli, tmp_path):
     """The preview beside each program, read with svgelements: its contours are as long as the program's tool moves
     and its dashed lines as its travel, both by gcodeparser; cut contours are numbered in order, coloured from
-    blue (first) to red (last)."""
+    blue (first) to red (last), engraving in green."""
     import xml.etree.ElementTree as ET
 
     import svgelements
@@ -156,8 +156,10 @@ def test_cut_order_preview_draws_the_programs_moves_in_order(cli, tmp_path):
     assert re.search(r"^G2 ", program, re.M) and re.search(r"^G3 ", program, re.M)     # arcs both ways
     assert drawn_tool == pytest.approx(tool, rel=1e-5) and drawn_travel == pytest.approx(travel, rel=1e-6)
     assert [int(p.get("data-order")) for p in paths] == list(range(1, len(paths) + 1))
-    assert paths[0].get("stroke") == "#2166AC" and paths[-1].get("stroke") == "#D7191C"
     cuts = [p for p in paths if p.get("class") == "cut"]
+    assert cuts[0].get("stroke") == "#2166AC" and cuts[-1].get("stroke") == "#D7191C"
+    assert len({p.get("stroke") for p in cuts}) > len(cuts) / 2                  # a gradient along the order
+    assert {p.get("stroke") for p in paths if p.get("class") == "engrave"} == {"#4DAF4A"}
     assert len(cuts) == program.count("; cut-") and len(paths) == program.count("; cut-") + program.count("; engrave-")
     numbers = [t.text for t in root.iter(f"{ns}text")]
     assert numbers == [str(k) for k in range(1, len(cuts) + 1)]

@@ -1,9 +1,9 @@
 """The cut-order preview of one sheet: an SVG at 1:1 drawn from the G-code program itself (read back with the
 controller's own parser, `fabline.link`), so it shows what the machine will do rather than what fabline meant.
 
-Every contour is drawn in a colour running from blue (cut first) through purple to red (cut last), the cut
-contours numbered in order at their start point, engraving thinner, and every travel move (G0) as a dashed grey
-line. Arcs stay SVG arcs, so the lengths of the drawn paths are those of the program's moves.
+The cut contours are drawn in a colour running from blue (cut first) through purple to red (cut last) and
+numbered in order at their start point, the engraving (which comes first) thinner in green, and every travel
+move (G0) as a dashed grey line. Arcs stay SVG arcs, so the lengths of the drawn paths are those of the program's moves.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from fabline.link.program import strip_line
 OPERATION = re.compile(r"^\s*;\s*((?:engrave|cut)-[a-z]+)\b\s*(\S*)")   # the writer's `; <operation> <part>` lines
 ORDER_COLOURS = ((0x21, 0x66, 0xAC), (0x7B, 0x32, 0x94), (0xD7, 0x19, 0x1C))   # first, middle, last
 TRAVEL_COLOUR = "#8C8C8C"
+ENGRAVE_COLOUR = "#4DAF4A"     # engraving (marks and labels, cut before anything else) in one green
 PREVIEW_SUFFIX = ".order.svg"  # beside the program: <program stem>.order.svg
 NUMBER_SIZE = 8.0       # mm: legible when zoomed in, small beside a 100 mm strip
 
@@ -77,14 +78,14 @@ def cut_order_svg(data: bytes, name: str, width: float, height: float, title: st
             contours.append(current)
         current["d"].append(_arc_command(segment, height) if segment.center is not None
                             else f"L {segment.end[0]:.3f},{height - segment.end[1]:.3f}")
-    last = max(len(contours) - 1, 1)
+    cuts = max(sum(not c["operation"][0].startswith("engrave") for c in contours) - 1, 1)
     paths, numbers, cut = [], [], 0
     for k, contour in enumerate(contours):
-        (kind, part), colour = contour["operation"], order_colour(k / last)
+        kind, part = contour["operation"]
         engrave = kind.startswith("engrave")
-        label = "" if engrave else f"<title>{k + 1}: {html.escape(kind or 'move')} {html.escape(part)}</title>"
-        paths.append(f'<path d="{" ".join(contour["d"])}" fill="none" stroke="{colour}" '
-                     f'stroke-width="{0.4 if engrave else 0.8}" class="{"engrave" if engrave else "cut"}" '
+        colour = ENGRAVE_COLOUR if engrave else order_colour(cut / cuts)
+        label = "" if engrave else f"<title>{cut + 1}: {html.escape(kind or 'move')} {html.escape(part)}</title>"
+        paths.append(f'<path d="{" ".join(contour["d"])}" stroke="{colour}" class="{"engrave" if engrave else "cut"}" '
                      f'data-order="{k + 1}">{label}</path>')
         if not engrave:
             cut += 1
@@ -95,10 +96,11 @@ def cut_order_svg(data: bytes, name: str, width: float, height: float, title: st
     caption = html.escape(title or name)
     return (f'<svg xmlns="http://www.w3.org/2000/svg" class="cut-order" width="{width:g}mm" height="{height:g}mm" '
             f'viewBox="0 0 {width:g} {height:g}" font-family="sans-serif">'
-            f"<title>{caption}: cut order from blue (first) to red (last), {cut} cut contours numbered; "
-            f"dashed grey: travel</title>"
+            f"<title>{caption}: engraving green (first), then the {cut} cut contours numbered and coloured from blue "
+            f"(first) to red (last); dashed grey: travel</title>"
             f'<rect x="0" y="0" width="{width:g}" height="{height:g}" fill="#fbfbf8" stroke="{LAYERS["SHEET"].rgb}" '
             f'stroke-width="1"/>'
             f'<g class="travel" stroke="{TRAVEL_COLOUR}" stroke-width="0.5" stroke-dasharray="6 4">{lines}</g>'
-            f'<g class="contours">{"".join(paths)}</g>'
+            '<style>.contours .cut{stroke-width:.8}.contours .engrave{stroke-width:.4}</style>'
+            f'<g class="contours" fill="none">{"".join(paths)}</g>'
             f'<g class="numbers" font-size="{NUMBER_SIZE:g}" text-anchor="start">{"".join(numbers)}</g></svg>\n')
