@@ -272,11 +272,12 @@ def test_report_page_shows_the_survey_map_first_then_its_figures(run):
                               f'src="data:image/png;base64,{base64.b64encode(png).decode()}"')
     data = json.loads((run["dir"] / "report.json").read_text())["survey"]
     s, truth = data["summary"], data["truth"]
-    assert f"<tr><td>RMS deviation mm</td><td>{s['rms_deviation_mm']}</td></tr>" in section
-    assert f"<tr><td>max deviation mm</td><td>{s['max_deviation_mm']}</td></tr>" in section
+    assert f"<tr><td>RMS deviation mm</td><td>{s['rms_deviation_mm']:.1f}</td></tr>" in section   # mm to 0.1
+    assert f"<tr><td>max deviation mm</td><td>{s['max_deviation_mm']:.1f}</td></tr>" in section
     assert f"<tr><td>worst nodes</td><td>{', '.join(s['worst'])}</td></tr>" in section
     assert f"({s['passed']} pass, {s['failed']} fail against 10 mm); {s['not_seen']} not seen" in section
-    assert f"<tr><td>RMS of measured minus true deviation mm</td><td>{truth['rms_error_mm']}</td></tr>" in section
+    assert f"<tr><td>RMS of measured minus true deviation mm</td><td>{truth['rms_error_mm']:.1f}</td></tr>" in section
+    assert not re.search(r"<td>\d+\.\d{3,}", section), "no survey figure with more than 2 decimals"
     assert section.index("id=deviation-map") < section.index("id=survey>") < section.index("id=survey-truth")
     stages = json.loads((run["dir"] / "report.json").read_text())["job"]["stages"]
     assert stages == ["unroll", "nest", "export", "stream", "survey", "report"]
@@ -300,7 +301,7 @@ def test_report_shows_an_existing_survey_result_with_its_deviation_map(run, tmp_
     html = (tmp_path / "out" / "report.html").read_text()
     png = (tmp_path / "measured" / "deviation_map.png").read_bytes()
     assert f'src="data:image/png;base64,{base64.b64encode(png).decode()}"' in html
-    assert f"<tr><td>RMS deviation mm</td><td>{record['summary']['rms_deviation_mm']}</td></tr>" in html
+    assert f"<tr><td>RMS deviation mm</td><td>{record['summary']['rms_deviation_mm']:.1f}</td></tr>" in html
 
 
 def test_a_survey_result_that_is_not_a_survey_is_one_line_exit_2_nothing_written(tmp_path, cli):

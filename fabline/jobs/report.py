@@ -18,6 +18,7 @@ from typing import Any
 
 from fabline.jobs import report_shop
 from fabline.jobs.pictures import model_svg
+from fabline.jobs.report_shop import mm
 
 REPORT_SCHEMA = "fabline.report/1"
 _STYLE = """
@@ -144,11 +145,11 @@ def _survey_section(survey: dict[str, Any] | None) -> str:
                  f"{s['not_seen']} not seen. From {e(survey['file'])}.</p>")
     rows = [("nodes measured", f"{s['measured']} of {s['nodes']}"), ("pass", s["passed"]),
             ("fail", s["failed"]), ("tolerance mm", f"{survey['tolerance_mm']:g}"),
-            ("RMS deviation mm", s["rms_deviation_mm"]), ("max deviation mm", s["max_deviation_mm"]),
+            ("RMS deviation mm", mm(s["rms_deviation_mm"])), ("max deviation mm", mm(s["max_deviation_mm"])),
             ("worst nodes", ", ".join(s["worst"])), ("not seen", s["not_seen"]),
-            ("reprojection RMS px", s["reprojection_rms_px"]), ("scale from", _scale_source(survey.get("scale"))),
+            ("reprojection RMS px", f"{s['reprojection_rms_px']:.2f}"), ("scale from", _scale_source(survey.get("scale"))),
             ("registration", f"rigid on {survey['reference'] if isinstance(survey['reference'], str) else 'chosen'} "
-                             f"nodes, RMS {survey['registration_rms_mm']} mm")]
+                             f"nodes, RMS {mm(survey['registration_rms_mm'])} mm")]
     parts.append("<table id=survey>" + "".join(f"<tr><td>{e(k)}</td><td>{e(str(v))}</td></tr>" for k, v in rows)
                  + "</table>")
     if survey["truth"]:
@@ -174,10 +175,10 @@ def _scale_source(scale: dict[str, Any] | None) -> str:
 def _truth_table(truth: dict[str, Any], simulated: dict[str, Any], summary: dict[str, Any]) -> str:
     """A simulated survey against the deviations the simulator injected."""
     injected = truth["injected"]
-    rows = [("RMS of measured minus true deviation mm", truth["rms_error_mm"]),
-            ("max of measured minus true deviation mm", f"{truth['max_error_mm']} (node {truth['worst_node']})"),
-            ("RMS deviation mm, measured / true", f"{summary['rms_deviation_mm']} / {truth['true_rms_deviation_mm']}"),
-            ("max deviation mm, measured / true", f"{summary['max_deviation_mm']} / {truth['true_max_deviation_mm']}"),
+    rows = [("RMS of measured minus true deviation mm", mm(truth["rms_error_mm"])),
+            ("max of measured minus true deviation mm", f"{mm(truth['max_error_mm'])} (node {truth['worst_node']})"),
+            ("RMS deviation mm, measured / true", f"{mm(summary['rms_deviation_mm'])} / {mm(truth['true_rms_deviation_mm'])}"),
+            ("max deviation mm, measured / true", f"{mm(summary['max_deviation_mm'])} / {mm(truth['true_max_deviation_mm'])}"),
             ("nodes failing, measured / true", f"{summary['failed']} / {truth['true_failed']}"),
             ("pass/fail as the truth", f"{truth['pass_fail_agreement']} of {truth['nodes_compared']} nodes")]
     body = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(v))}</td></tr>" for k, v in rows)

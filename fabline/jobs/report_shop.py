@@ -24,6 +24,11 @@ def zoomable(svg: str, key: str) -> str:
     return f'<input type=checkbox id="{box}"><label for="{box}">{svg}</label>'
 
 
+def mm(value: float | None) -> str:
+    """A length in mm as the report shows it: to 0.1 mm (a survey's 10.3431 is 10.3), '-' for none."""
+    return "-" if value is None else f"{value:.1f}"
+
+
 def duration(seconds: float) -> str:
     """h:mm:ss."""
     minutes, secs = divmod(round(seconds), 60)
