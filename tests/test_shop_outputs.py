@@ -206,3 +206,10 @@ def test_sheet_picture_labels_stay_on_the_sheet():
         length = font.getlength(label.text) * size / 100
         x = float(label.get("x"))
         assert 0 <= x - length / 2 and x + length / 2 <= width, (x, length, width)
+
+
+def test_report_numbers_have_a_sensible_precision():
+    from fabline.jobs.report_shop import duration, mass, mm
+
+    assert (mm(10.3431), mm(None), mass(1611.6), mass(85.34), duration(161206)) == ("10.3", "-", "1.61 t", "85.3 kg",
+                                                                                   "44:46:46")

@@ -83,7 +83,7 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
     for entry in data["nesting"]["sheets"] if data["nesting"] else []:
         svg = Path(entry["svg"]).read_text(encoding="utf-8") if entry.get("svg") else ""
         parts.append(f"<figure class=\"sheet-figure zoom\" data-sheet=\"{e(entry['id'])}\">"
-                     f"{report_shop.zoomable(report_shop.padded(svg, 12), 'sheet-' + entry['id'])}"
+                     f"{report_shop.zoomable(svg, 'sheet-' + entry['id'])}"
                      f"<figcaption>Sheet {e(entry['id'])}: {entry['width_mm']:g} x {entry['height_mm']:g} mm, "
                      f"{len(entry['parts'])} parts"
                      + (f", cut {entry['cut_length_mm'] / 1000:.1f} m, machine time {report_shop.duration(entry['time_s'])}"

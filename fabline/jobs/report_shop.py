@@ -7,7 +7,6 @@ Kept apart from `report.py` (which lays out the page) so each section is one fun
 from __future__ import annotations
 
 import html
-import re
 from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
@@ -27,6 +26,11 @@ def zoomable(svg: str, key: str) -> str:
 def mm(value: float | None) -> str:
     """A length in mm as the report shows it: to 0.1 mm (a survey's 10.3431 is 10.3), '-' for none."""
     return "-" if value is None else f"{value:.1f}"
+
+
+def mass(kg: float) -> str:
+    """A mass as the report shows it: tonnes to 0.01 from a tonne up, kilograms to 0.1 below."""
+    return f"{kg / 1000:.2f} t" if kg >= 1000 else f"{kg:.1f} kg"
 
 
 def duration(seconds: float) -> str:
@@ -63,7 +67,7 @@ def summary_block(data: dict[str, Any]) -> str:
     if bom:
         totals = bom["totals"]
         cost = f", cost {totals['cost']:,.2f} {totals['currency']}" if totals["cost"] is not None else ""
-        rows.append(("mass", f"{totals['mass_kg'] / 1000:.2f} t of sheet, {totals['parts_mass_kg'] / 1000:.2f} t in parts "
+        rows.append(("mass", f"{mass(totals['mass_kg'])} of sheet, {mass(totals['parts_mass_kg'])} in parts "
                              f"({100 * totals['scrap_share']:.1f} % scrap){cost}"))
     structure = data["structure"]
     if structure["lamellas"]:
@@ -109,7 +113,7 @@ def bom_section(bom: dict | None) -> str:
     hardware = "".join(f"<tr><td>{e(h['item'])}</td><td>{h['count']}</td><td>{e(h['per'])}</td></tr>"
                        for h in bom["hardware"])
     return (f"<h2>Bill of materials</h2><p>{bom['thickness_mm']:g} mm {e(bom['material'])} at "
-            f"{bom['density_kg_m3']:g} kg/m3: {totals['mass_kg'] / 1000:.2f} t of sheet.{cost} The cut list with every "
+            f"{bom['density_kg_m3']:g} kg/m3: {mass(totals['mass_kg'])} of sheet.{cost} The cut list with every "
             f"part's sheet and position is cutlist.csv beside this report.</p><table id=bom>{head}{rows}</table>"
             f"<p></p><table id=hardware><tr><th>hardware</th><th>count</th><th>per</th></tr>{hardware}</table>")
 
@@ -121,7 +125,8 @@ def preview_figure(entry: dict[str, Any]) -> str:
         return ""
     svg = Path(path).read_text(encoding="utf-8")
     return (f"<details class=preview data-sheet=\"{html.escape(entry['id'])}\"><summary>Sheet {html.escape(entry['id'])}: "
-            "cut order (from the G-code: blue first, red last, cut contours numbered, dashed grey travel; click to zoom)"
+            "cut order (from the G-code: engraving green, then cuts from blue to red, numbered; dashed grey travel; "
+            "click to zoom)"
             f"</summary><figure class=zoom>{zoomable(svg, 'order-' + entry['id'])}</figure></details>")
 
 
@@ -156,13 +161,3 @@ def stream_table(stream: dict[str, Any], estimates: dict[str, float]) -> str:
             "time scale." if scaled else "")
     return (f"<h2>Streaming</h2><p>{stream['executed']} of {stream['lines']} lines executed"
             f"{' - every sheet finished' if stream['finished'] else ''}.{note}</p><table id=stream>{head}{body}</table>")
-
-
-def padded(svg: str, pad: float) -> str:
-    """The SVG with its viewBox grown by `pad` units on every side, so text at the edge is not cut off."""
-    match = re.search(r'viewBox="([-\d.e]+) ([-\d.e]+) ([-\d.e]+) ([-\d.e]+)"', svg)
-    if not match:
-        return svg
-    x, y, w, h = (float(v) for v in match.groups())
-    box = f'viewBox="{x - pad:g} {y - pad:g} {w + 2 * pad:g} {h + 2 * pad:g}"'
-    return svg[:match.start()] + box + svg[match.end():]
