@@ -142,10 +142,12 @@ def main(argv: list[str] | None = None) -> int:
     print("\nexport time (seconds)")
     print(f"{'what':<34}{'wall':>8}{'CPU':>8}   (CPU: all processes; {os.cpu_count()} cores)")
     with tempfile.TemporaryDirectory() as folder:
-        for label, dxf_dir, gcode_dir in (("toolpaths + G-code", None, Path(folder) / "g"),
-                                          ("toolpaths + G-code + DXF", Path(folder) / "d", Path(folder) / "g2")):
+        for label, dxf_dir, gcode_dir, previews in (
+                ("toolpaths + G-code", None, Path(folder) / "g", False),
+                ("toolpaths + G-code + DXF", Path(folder) / "d", Path(folder) / "g2", False),
+                ("  + cut-order previews", Path(folder) / "d3", Path(folder) / "g3", True)):
             _, wall, cpu = timed(export_job, nesting, parts, profile, ToolpathOptions(kerf=profile.kerf),
-                                 dxf_dir, gcode_dir, "bench")
+                                 dxf_dir, gcode_dir, "bench", previews=previews)
             print(f"{label:<34}{wall:>8.2f}{cpu:>8.2f}")
 
     print("\nwhere the CPU time goes (one process, CPU seconds)")

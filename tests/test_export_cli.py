@@ -33,7 +33,8 @@ def test_export_then_check_agrees_with_independent_truth(cli, job):
     code, out, err = cli("export", folder / "nesting.json", "--dxf", folder / "out", "--gcode", folder / "out",
                          "--machine", "grbl-laser", "--kerf", "0")
     assert code == 0, err
-    assert _outputs(folder / "out") == ["nesting_S1.dxf", "nesting_S1.gcode", "nesting_all-sheets.dxf"]
+    assert _outputs(folder / "out") == ["cutlist.csv", "nesting_S1.dxf", "nesting_S1.gcode", "nesting_S1.order.svg",
+                                        "nesting_all-sheets.dxf"]
     assert re.search(r"^total\s+6\s", out, re.M)
     code, out, err = cli("gcode-check", folder / "out" / "nesting_S1.gcode", "--machine", "grbl-laser")
     assert code == 0, out
@@ -309,3 +310,13 @@ def test_comments_never_carry_realtime_characters(cli, job):
     assert "shop laser__ _" in program and not set("?!~") & set(program)
     code, out, _ = cli("gcode-check", folder / "out" / "nesting_S1.gcode", "--machine", folder / "shop.toml")
     assert code == 0, out
+
+
+def test_export_without_an_output_option_writes_beside_the_nesting(cli, job):
+    """No --dxf and no --gcode: everything goes to `<nesting stem>-export/` beside the nesting file, named last."""
+    folder, _, _ = job
+    code, out, err = cli("export", folder / "nesting.json")
+    assert code == 0, err
+    written = _outputs(folder / "nesting-export")
+    assert {"nesting_S1.dxf", "nesting_S1.gcode", "nesting_all-sheets.dxf"} <= set(written)
+    assert out.strip().splitlines()[-1] == f"{len(written)} files in {folder / 'nesting-export'}"

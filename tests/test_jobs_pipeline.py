@@ -135,10 +135,46 @@ def test_pictures_come_first_and_the_page_is_self_contained(run):
     page = Tags()
     page.feed(html)
     nesting = load_nesting(run["dir"] / "nesting.json")
-    assert page.tags.count("svg") == 1 + len(nesting.sheets)
-    assert page.tags.index("svg") < page.tags.index("table"), "pictures before tables"
+    assert page.tags.count("svg") == 1 + 2 * len(nesting.sheets)      # the model; each sheet and its cut order
+    assert page.tags.index("table") < page.tags.index("svg") < page.tags.index("table", page.tags.index("table") + 1), \
+        "the summary, then the pictures, then the other tables"
     assert not re.search(r'(src|href)="(?!#|data:)', html), "no external resources"
     assert "<script" not in html
+
+
+def test_report_starts_with_a_summary_and_lists_materials_hardware_and_cut_order(run):
+    """The summary's machine time is the export's, its mass the sheets' volume times the material's density
+    (worked out here from nesting.json and parts.json); every sheet has its cut-order preview; the streaming
+    table gives short port names and the time at machine speed (wall seconds times the simulator's time scale)."""
+    import csv
+
+    html = (run["dir"] / "report.html").read_text()
+    data = json.loads((run["dir"] / "report.json").read_text())
+    nesting = load_nesting(run["dir"] / "nesting.json")
+    parts = load_parts(run["dir"] / "parts.json")
+    summary = html[html.index("<table id=summary"):html.index("</table>", html.index("<table id=summary"))]
+    assert html.index("<table id=summary") < html.index("<svg")
+    total = sum(json.loads((run["dir"] / "report.json").read_text())["nesting"]["sheets"][k]["time_s"]
+                for k in range(len(nesting.sheets)))
+    assert data["machine_time_s"] == pytest.approx(total)
+    minutes, seconds = divmod(round(total), 60)
+    assert f"{minutes // 60}:{minutes % 60:02d}:{seconds:02d}" in summary
+    density = get_material(parts.material).density
+    mass = sum(s.width * s.height for s in nesting.sheets) * parts.profile["t"] * density * 1e-9
+    assert data["bill_of_materials"]["totals"]["mass_kg"] == pytest.approx(mass, abs=0.05 * len(nesting.sheets))
+    shown = f"{mass / 1000:.2f} t" if mass >= 1000 else f"{mass:.1f} kg"
+    assert f"{shown} of sheet" in summary and "every lamella passes" in summary and "survey" in summary
+    assert "<table id=bom>" in html and "<table id=hardware>" in html
+    assert html.count("<details class=preview") == len(nesting.sheets)
+    stream = html[html.index("<table id=stream>"):]
+    for sheet in data["stream"]["sheets"]:
+        assert "?" in sheet["port"] and f"<td>{sheet['port'].split('?')[0]}</td>" in stream
+        minutes, seconds = divmod(round(sheet["seconds"] * 1000.0), 60)
+        assert f"<td>{minutes // 60}:{minutes % 60:02d}:{seconds:02d}</td>" in stream
+    assert ">sim://pipeline-1?" not in stream
+    with open(run["dir"] / "cutlist.csv", newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert [r["part"] for r in rows] == [p.part for s in nesting.sheets for p in s.placements]
 
 
 def test_structural_check_matches_the_closed_form(run):
@@ -237,11 +273,12 @@ def test_report_page_shows_the_survey_map_first_then_its_figures(run):
                               f'src="data:image/png;base64,{base64.b64encode(png).decode()}"')
     data = json.loads((run["dir"] / "report.json").read_text())["survey"]
     s, truth = data["summary"], data["truth"]
-    assert f"<tr><td>RMS deviation mm</td><td>{s['rms_deviation_mm']}</td></tr>" in section
-    assert f"<tr><td>max deviation mm</td><td>{s['max_deviation_mm']}</td></tr>" in section
+    assert f"<tr><td>RMS deviation mm</td><td>{s['rms_deviation_mm']:.1f}</td></tr>" in section   # mm to 0.1
+    assert f"<tr><td>max deviation mm</td><td>{s['max_deviation_mm']:.1f}</td></tr>" in section
     assert f"<tr><td>worst nodes</td><td>{', '.join(s['worst'])}</td></tr>" in section
     assert f"({s['passed']} pass, {s['failed']} fail against 10 mm); {s['not_seen']} not seen" in section
-    assert f"<tr><td>RMS of measured minus true deviation mm</td><td>{truth['rms_error_mm']}</td></tr>" in section
+    assert f"<tr><td>RMS of measured minus true deviation mm</td><td>{truth['rms_error_mm']:.1f}</td></tr>" in section
+    assert not re.search(r"<td>\d+\.\d{3,}", section), "no survey figure with more than 2 decimals"
     assert section.index("id=deviation-map") < section.index("id=survey>") < section.index("id=survey-truth")
     stages = json.loads((run["dir"] / "report.json").read_text())["job"]["stages"]
     assert stages == ["unroll", "nest", "export", "stream", "survey", "report"]
@@ -265,7 +302,7 @@ def test_report_shows_an_existing_survey_result_with_its_deviation_map(run, tmp_
     html = (tmp_path / "out" / "report.html").read_text()
     png = (tmp_path / "measured" / "deviation_map.png").read_bytes()
     assert f'src="data:image/png;base64,{base64.b64encode(png).decode()}"' in html
-    assert f"<tr><td>RMS deviation mm</td><td>{record['summary']['rms_deviation_mm']}</td></tr>" in html
+    assert f"<tr><td>RMS deviation mm</td><td>{record['summary']['rms_deviation_mm']:.1f}</td></tr>" in html
 
 
 def test_a_survey_result_that_is_not_a_survey_is_one_line_exit_2_nothing_written(tmp_path, cli):

@@ -148,3 +148,25 @@ def test_small_parts_go_into_large_holes_only_when_allowed(fill_holes, cli, tmp_
     inside = [s.part for j in joints for s in small if np.hypot(s.x - j.x, s.y - j.y) < 70]
     assert (len(inside) == len(joints)) if fill_holes else not inside
     assert validate_nesting(nesting, parts) == []
+
+
+def test_sheet_svgs_are_one_to_one_with_cut_and_engrave_in_their_layer_colours(nested, small_parts):
+    """A 4000 x 2000 mm sheet is a 4000 mm x 2000 mm SVG in mm user units; every placed part is a group with its
+    id; its paths are in the documented layer colours and the reference lines in the tool-layer colour."""
+    from fabline.export.layers import LAYERS
+
+    nesting = load_nesting(nested / "nesting.json")
+    parts = {p.id: p for p in load_parts(small_parts).parts}
+    svg = "{http://www.w3.org/2000/svg}"
+    for sheet in nesting.sheets:
+        root = ET.parse(nested / "sheets" / f"{sheet.id}.svg").getroot()
+        assert (root.get("width"), root.get("height")) == (f"{sheet.width:g}mm", f"{sheet.height:g}mm")
+        assert root.get("viewBox") == f"0 0 {sheet.width:g} {sheet.height:g}"
+        groups = {g.get("id"): g for g in root.iter(f"{svg}g")}
+        assert sorted(groups) == sorted(p.part for p in sheet.placements)
+        for part_id, group in groups.items():
+            paths = {p.get("class"): p for p in group.iter(f"{svg}path")}
+            assert paths["CUT-OUTER"].get("stroke") == LAYERS["CUT-OUTER"].rgb == "#FF0000"
+            assert all(p.get("stroke") == LAYERS[name].rgb and p.get("fill") == "none" for name, p in paths.items())
+            assert ("ENGRAVE-TEXT" in paths) == bool(parts[part_id].text)
+        assert {r.get("stroke") for r in root.iter(f"{svg}rect")} == {LAYERS["SHEET"].rgb}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
@@ -17,14 +18,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    description="Write per sheet a DXF (R2010, mm, one layer per operation) and a "
                                                "G-code program for the machine, plus an all-sheets DXF.")
     export.add_argument("nesting", help="nesting.json (fabline.nesting/1); its parts file is read too")
-    export.add_argument("--dxf", metavar="DIR", help="folder for the DXF files")
-    export.add_argument("--gcode", metavar="DIR", help="folder for the G-code programs")
+    export.add_argument("--dxf", metavar="DIR", help="folder for the DXF files (default, with neither --dxf nor "
+                                                     "--gcode: NESTING-export/ beside the nesting file, for both)")
+    export.add_argument("--gcode", metavar="DIR", help="folder for the G-code programs (default: as for --dxf)")
     export.add_argument("--machine", default="grbl-laser",
                         help="machine profile: a built-in name (grbl-laser, grbl-plotter, rs274-mill) or a .toml path")
     export.add_argument("--kerf", type=float, help="cut width in mm (default: the profile's)")
     export.add_argument("--lead-in", type=float, default=0.0, metavar="MM", help="lead-in length for closed cuts")
     export.add_argument("--tabs", type=int, default=0, help="uncut bridges per outer contour (micro-joints)")
     export.add_argument("--tab-width", type=float, default=1.0, metavar="MM", help="width of each tab")
+    export.add_argument("--no-preview", action="store_true",
+                        help="skip the cut-order preview SVG beside each G-code program (about 1 s of CPU per sheet)")
     export.add_argument("--no-optimise", action="store_true", help="keep the nesting's part order (no travel optimisation)")
     export.set_defaults(func=run_export)
 
@@ -51,8 +55,11 @@ def run_export(args: argparse.Namespace) -> int:
             raise FablineError(f"{name}: must be a finite number, at least {low:g}, got {value}")
     options = ToolpathOptions(kerf=kerf, lead_in=args.lead_in, tabs=args.tabs, tab_width=args.tab_width,
                               optimise=not args.no_optimise)
-    check_outputs(folders=(args.dxf, args.gcode), inputs=(args.nesting, profile.source))
-    result = export_nesting(args.nesting, profile, options, args.dxf, args.gcode)
+    dxf_dir, gcode_dir = args.dxf, args.gcode
+    if dxf_dir is None and gcode_dir is None:
+        dxf_dir = gcode_dir = default_export_folder(args.nesting)
+    check_outputs(folders=(dxf_dir, gcode_dir), inputs=(args.nesting, profile.source))
+    result = export_nesting(args.nesting, profile, options, dxf_dir, gcode_dir, previews=not args.no_preview)
     print(f"machine {result.machine}, kerf {result.kerf:.3f} mm")
     print(f"{'sheet':<12}{'parts':>6}{'cut m':>10}{'mark m':>10}{'travel m':>10}{'time':>10}")
     for sheet in result.sheets + [None]:
@@ -62,7 +69,15 @@ def run_export(args: argparse.Namespace) -> int:
               f"{summary.travel / 1000:>10.2f}{_duration(summary.time):>10}")
     for path in result.files:
         print(f"wrote {path}")
+    if not (args.dxf or args.gcode):
+        print(f"{len(result.files)} files in {dxf_dir}")
     return 0
+
+
+def default_export_folder(nesting: str | Path) -> Path:
+    """Where `export` writes when given no folder: `<nesting stem>-export/` beside the nesting file."""
+    nesting = Path(nesting)
+    return nesting.with_name(f"{nesting.stem}-export")
 
 
 def run_check(args: argparse.Namespace) -> int:

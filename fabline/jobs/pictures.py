@@ -92,6 +92,11 @@ def sheet_svg(sheet: "Sheet", parts: dict[str, "Part"], width: int = 900) -> str
         extent = np.ptp(outline, axis=0) * scale
         along, across = (extent[1], extent[0]) if extent[1] > 2 * extent[0] else (extent[0], extent[1])
         size = max(1.5, min(14.0, along / (0.62 * max(len(part.id), 1)), 0.8 * across))
+        half = 0.35 * size * len(part.id)           # half the label's length, generously: keep it on the sheet
+        if extent[1] > 2 * extent[0]:
+            cy = min(max(cy, half), height - half)
+        else:
+            cx = min(max(cx, half), width - half)
         rotate = f' transform="rotate(-90 {_fmt(cx)} {_fmt(cy)})"' if extent[1] > 2 * extent[0] else ""
         labels.append(f'<text x="{_fmt(cx)}" y="{_fmt(cy)}" font-size="{_fmt(size)}" text-anchor="middle" '
                       f'dominant-baseline="middle" fill="#102a43"{rotate}>{html.escape(part.id)}</text>')

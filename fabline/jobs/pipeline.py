@@ -172,6 +172,7 @@ def _nest(result: JobResult) -> None:
 
 def _export(result: JobResult) -> None:
     from fabline.export import ToolpathOptions, export_job, load_machine
+    from fabline.export.preview import PREVIEW_SUFFIX
     from fabline.jobs.pictures import sheet_svg
 
     spec = result.spec
@@ -179,14 +180,17 @@ def _export(result: JobResult) -> None:
     parts = {p.id: p for p in result.partset.parts}
     result.export = export_job(result.nesting, parts, profile, ToolpathOptions(kerf=profile.kerf),
                                dxf_dir=spec.output("dxf"), gcode_dir=spec.output("gcode"), name=spec.name,
-                               source=str(spec.output("nesting.json")))
+                               source=str(spec.output("nesting.json")), cutlist=spec.output("cutlist.csv"),
+                               previews=True)
     result.sheet_files = []
     for sheet, made in zip(result.nesting.sheets, result.export.sheets):
         gcode = next(f for f in made.files if f.endswith(".gcode") or f.endswith(".nc"))
         svg_path = spec.output(Path("sheets") / f"{Path(gcode).stem}.svg")
         with atomic_output(svg_path) as handle:
             handle.write(sheet_svg(sheet, parts))
+        preview = next((f for f in made.files if f.endswith(PREVIEW_SUFFIX)), None)
         result.sheet_files.append({"sheet": sheet.id, "gcode": gcode, "svg": str(svg_path), "parts": made.parts,
+                                   **({"preview": preview} if preview else {}),
                                    "cut_length_mm": made.summary.cut_length, "time_s": made.summary.time})
 
 

@@ -1,9 +1,10 @@
 """The job report: one self-contained HTML page (pictures first) and its JSON twin with the same figures.
 
-Order on the page: the model in 3D (inline SVG projection), every sheet as an SVG with its parts
-labelled, then the strips table with the structural check, the streaming log summary, the survey when
-there is one (its deviation map first, then its figures and, for a simulated survey, the comparison with
-the injected truth), and the stage timings. No external files, scripts or fonts: the page works offline.
+Order on the page: a summary (`report_shop`), the model in 3D (inline SVG projection), every sheet as an SVG
+with its parts labelled and its cut-order preview, the bill of materials, then the strips table with the
+structural check, the streaming log summary, the survey when there is one (its deviation map first, then its figures and, for a simulated survey, the comparison with
+the injected truth), and the stage timings. No external files, scripts or fonts (a click zooms a picture by a
+CSS checkbox): the page works offline.
 """
 
 from __future__ import annotations
@@ -15,7 +16,9 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from fabline.jobs import report_shop
 from fabline.jobs.pictures import model_svg
+from fabline.jobs.report_shop import mm
 
 REPORT_SCHEMA = "fabline.report/1"
 _STYLE = """
@@ -23,6 +26,7 @@ body{font:14px/1.4 system-ui,sans-serif;margin:24px;color:#1b1b1b;max-width:1400
 h1{margin:0 0 4px}h2{margin:28px 0 8px;border-bottom:1px solid #ccc}
 .pictures{display:flex;flex-wrap:wrap;gap:16px;align-items:flex-start}
 figure{margin:0;border:1px solid #ddd;padding:6px;background:#fff}figure svg{max-width:100%;height:auto}
+figure.sheet-figure{flex:1 1 100%}figure.sheet-figure svg{width:100%}
 figcaption{font-size:12px;color:#444}
 table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ddd;padding:2px 6px;text-align:right}
 th{background:#f0f0ea}td:first-child,th:first-child{text-align:left}
@@ -40,7 +44,7 @@ def report_data(result: Any) -> dict[str, Any]:
         files = files_by_sheet.get(sheet.id, {})
         sheets.append({"id": sheet.id, "width_mm": sheet.width, "height_mm": sheet.height,
                        "parts": [p.part for p in sheet.placements],
-                       **{k: files[k] for k in ("gcode", "svg", "cut_length_mm", "time_s") if k in files}})
+                       **{k: files[k] for k in ("gcode", "svg", "preview", "cut_length_mm", "time_s") if k in files}})
     structure = result.structure
     failing = [row["lamella"] for row in structure if row["utilisation"] > 1.0]
     return {
@@ -54,6 +58,8 @@ def report_data(result: Any) -> dict[str, Any]:
         "structure": {"lamellas": structure, "max_utilisation": max((r["utilisation"] for r in structure), default=None),
                       "failing": failing, "passes": not failing},
         "nesting": ({"sheets": sheets, "summary": result.nesting.summary} if result.nesting else None),
+        "machine_time_s": result.export.totals().time if result.export else None,
+        "bill_of_materials": report_shop.bill_of_materials(result),
         "stream": {"sheets": result.stream,
                    "lines": sum(s["lines"] for s in result.stream),
                    "executed": sum(s["executed"] for s in result.stream),
@@ -68,21 +74,26 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
     spec = result.spec
     e = html.escape
     parts = [f"<!doctype html><html lang=en><head><meta charset=utf-8><title>fabline report: {e(spec.name)}</title>"
-             f"<style>{_STYLE}</style></head><body>",
+             f"<style>{_STYLE}{report_shop.ZOOM_STYLE}</style></head><body>",
              f"<h1>{e(spec.name)}</h1><p class=note>{e(spec.description)} Report made {e(data['created'])} "
-             f"from {e(str(spec.path))}.</p>",
+             f"from {e(str(spec.path))}.</p>", report_shop.summary_block(data),
              "<h2>Model and sheets</h2><div class=pictures>",
              f"<figure id=model>{model_svg(result.network)}<figcaption>The model, lamella families A (blue) and "
              "B (orange); hover a curve for its id.</figcaption></figure>"]
     for entry in data["nesting"]["sheets"] if data["nesting"] else []:
         svg = Path(entry["svg"]).read_text(encoding="utf-8") if entry.get("svg") else ""
-        parts.append(f"<figure class=sheet-figure data-sheet=\"{e(entry['id'])}\">{svg}<figcaption>Sheet {e(entry['id'])}: "
-                     f"{entry['width_mm']:g} x {entry['height_mm']:g} mm, {len(entry['parts'])} parts"
-                     + (f", cut {entry['cut_length_mm'] / 1000:.1f} m, about {entry['time_s'] / 60:.0f} min"
-                        if "cut_length_mm" in entry else "") + "</figcaption></figure>")
+        parts.append(f"<figure class=\"sheet-figure zoom\" data-sheet=\"{e(entry['id'])}\">"
+                     f"{report_shop.zoomable(svg, 'sheet-' + entry['id'])}"
+                     f"<figcaption>Sheet {e(entry['id'])}: {entry['width_mm']:g} x {entry['height_mm']:g} mm, "
+                     f"{len(entry['parts'])} parts"
+                     + (f", cut {entry['cut_length_mm'] / 1000:.1f} m, machine time {report_shop.duration(entry['time_s'])}"
+                        if "cut_length_mm" in entry else "") + " (click to zoom)</figcaption></figure>"
+                     + report_shop.preview_figure(entry))
     parts.append("</div>")
+    parts.append(report_shop.bom_section(data["bill_of_materials"]))
     parts.append(_structure_table(data["structure"]))
-    parts.append(_stream_table(data["stream"]))
+    estimates = {s["id"]: s["time_s"] for s in data["nesting"]["sheets"] if "time_s" in s} if data["nesting"] else {}
+    parts.append(report_shop.stream_table(data["stream"], estimates))
     parts.append(_survey_section(data["survey"]))
     timings = ", ".join(f"{k} {v:.1f} s" for k, v in data["timings_s"].items())
     parts.append(f"<h2>Run</h2><p>Stages: {e(', '.join(spec.stages))}. Time per stage: {e(timings)}.</p>")
@@ -115,17 +126,6 @@ def _structure_table(structure: dict[str, Any]) -> str:
             f"twist {first['max_allowed_twist_rad_per_m']:.3f} rad/m).</p><table id=strips>{head}{''.join(body)}</table>")
 
 
-def _stream_table(stream: dict[str, Any]) -> str:
-    if not stream["sheets"]:
-        return "<h2>Streaming</h2><p>Not streamed in this run.</p>"
-    head = "<tr><th>sheet</th><th>lines</th><th>executed</th><th>outcome</th><th>seconds</th><th>port</th></tr>"
-    body = "".join(f"<tr class={'ok' if s['outcome'] == 'finished' else 'fail'}><td>{html.escape(s['sheet'])}</td>"
-                   f"<td>{s['lines']}</td><td>{s['executed']}</td><td>{html.escape(s['outcome'])}</td>"
-                   f"<td>{s['seconds']:.1f}</td><td>{html.escape(s['port'])}</td></tr>" for s in stream["sheets"])
-    return (f"<h2>Streaming</h2><p>{stream['executed']} of {stream['lines']} lines executed"
-            f"{' - every sheet finished' if stream['finished'] else ''}.</p><table id=stream>{head}{body}</table>")
-
-
 def _survey_section(survey: dict[str, Any] | None) -> str:
     """The deviation map first, then the summary, the comparison with the truth (simulated surveys), the gaps."""
     if not survey:
@@ -145,11 +145,11 @@ def _survey_section(survey: dict[str, Any] | None) -> str:
                  f"{s['not_seen']} not seen. From {e(survey['file'])}.</p>")
     rows = [("nodes measured", f"{s['measured']} of {s['nodes']}"), ("pass", s["passed"]),
             ("fail", s["failed"]), ("tolerance mm", f"{survey['tolerance_mm']:g}"),
-            ("RMS deviation mm", s["rms_deviation_mm"]), ("max deviation mm", s["max_deviation_mm"]),
+            ("RMS deviation mm", mm(s["rms_deviation_mm"])), ("max deviation mm", mm(s["max_deviation_mm"])),
             ("worst nodes", ", ".join(s["worst"])), ("not seen", s["not_seen"]),
-            ("reprojection RMS px", s["reprojection_rms_px"]), ("scale from", _scale_source(survey.get("scale"))),
+            ("reprojection RMS px", f"{s['reprojection_rms_px']:.2f}"), ("scale from", _scale_source(survey.get("scale"))),
             ("registration", f"rigid on {survey['reference'] if isinstance(survey['reference'], str) else 'chosen'} "
-                             f"nodes, RMS {survey['registration_rms_mm']} mm")]
+                             f"nodes, RMS {mm(survey['registration_rms_mm'])} mm")]
     parts.append("<table id=survey>" + "".join(f"<tr><td>{e(k)}</td><td>{e(str(v))}</td></tr>" for k, v in rows)
                  + "</table>")
     if survey["truth"]:
@@ -175,10 +175,10 @@ def _scale_source(scale: dict[str, Any] | None) -> str:
 def _truth_table(truth: dict[str, Any], simulated: dict[str, Any], summary: dict[str, Any]) -> str:
     """A simulated survey against the deviations the simulator injected."""
     injected = truth["injected"]
-    rows = [("RMS of measured minus true deviation mm", truth["rms_error_mm"]),
-            ("max of measured minus true deviation mm", f"{truth['max_error_mm']} (node {truth['worst_node']})"),
-            ("RMS deviation mm, measured / true", f"{summary['rms_deviation_mm']} / {truth['true_rms_deviation_mm']}"),
-            ("max deviation mm, measured / true", f"{summary['max_deviation_mm']} / {truth['true_max_deviation_mm']}"),
+    rows = [("RMS of measured minus true deviation mm", mm(truth["rms_error_mm"])),
+            ("max of measured minus true deviation mm", f"{mm(truth['max_error_mm'])} (node {truth['worst_node']})"),
+            ("RMS deviation mm, measured / true", f"{mm(summary['rms_deviation_mm'])} / {mm(truth['true_rms_deviation_mm'])}"),
+            ("max deviation mm, measured / true", f"{mm(summary['max_deviation_mm'])} / {mm(truth['true_max_deviation_mm'])}"),
             ("nodes failing, measured / true", f"{summary['failed']} / {truth['true_failed']}"),
             ("pass/fail as the truth", f"{truth['pass_fail_agreement']} of {truth['nodes_compared']} nodes")]
     body = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(v))}</td></tr>" for k, v in rows)

@@ -31,6 +31,8 @@ class Material:
     f_y: float
     density: float
     description: str = ""
+    price_per_kg: float | None = None     # optional: what a kg of sheet costs, in `currency` (the bill of materials)
+    currency: str = ""
 
     @property
     def tau_y(self) -> float:
@@ -105,11 +107,16 @@ def _read_table(path: Path) -> dict[str, Material]:
                 raise FablineError(f"{path}: material {name}: {key} must be a positive number of at most "
                                    f"{MAX_MATERIAL_VALUE:g}, got {value!r}")
             values[key] = float(value)
-        unknown = sorted(set(raw) - set(MATERIAL_FIELDS) - {"description"})
+        unknown = sorted(set(raw) - set(MATERIAL_FIELDS) - {"description", "price_per_kg", "currency"})
         if unknown:
             raise FablineError(f"{path}: material {name}: {unknown[0]}: unknown setting (use description, "
-                               f"{', '.join(MATERIAL_FIELDS)})")
-        if not isinstance(raw.get("description", ""), str):
-            raise FablineError(f"{path}: material {name}: description must be text")
-        materials[name] = Material(name, description=raw.get("description", ""), **values)
+                               f"{', '.join(MATERIAL_FIELDS)}, price_per_kg, currency)")
+        if not isinstance(raw.get("description", ""), str) or not isinstance(raw.get("currency", ""), str):
+            raise FablineError(f"{path}: material {name}: description and currency must be text")
+        price = raw.get("price_per_kg")
+        if price is not None and (not isinstance(price, (int, float)) or isinstance(price, bool) or not 0 <= price < 1e9):
+            raise FablineError(f"{path}: material {name}: price_per_kg must be a number, at least 0, got {price!r}")
+        materials[name] = Material(name, description=raw.get("description", ""), **values,
+                                   price_per_kg=None if price is None else float(price),
+                                   currency=raw.get("currency", "EUR" if price is not None else ""))
     return materials

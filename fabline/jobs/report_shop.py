@@ -1,0 +1,163 @@
+"""The shop floor's parts of the job report: the summary at the top, the bill of materials, the cut-order
+previews, sheet pictures that zoom, and the streaming table in machine time with short port names.
+
+Kept apart from `report.py` (which lays out the page) so each section is one function of the report data.
+"""
+
+from __future__ import annotations
+
+import html
+from pathlib import Path
+from typing import Any
+from urllib.parse import parse_qs, urlsplit
+
+ZOOM_STYLE = """
+.zoom{overflow:auto;max-height:85vh}.zoom>label{cursor:zoom-in;display:block}.zoom input{display:none}
+.zoom input:checked+label{cursor:zoom-out}.zoom input:checked+label>svg{width:400%;max-width:none}
+.summary td:first-child{font-weight:600}.summary{margin:8px 0 4px;font-size:14px}.summary td{text-align:left}
+"""
+def zoomable(svg: str, key: str) -> str:
+    """The picture inside a checkbox label (`key` unique on the page), so a click shows it at four times the width
+    (scrolling) and another click back: zoom without a script (the report has none)."""
+    box = html.escape(f"zoom-{key}", quote=True)
+    return f'<input type=checkbox id="{box}"><label for="{box}">{svg}</label>'
+
+
+def mm(value: float | None) -> str:
+    """A length in mm as the report shows it: to 0.1 mm (a survey's 10.3431 is 10.3), '-' for none."""
+    return "-" if value is None else f"{value:.1f}"
+
+
+def mass(kg: float) -> str:
+    """A mass as the report shows it: tonnes to 0.01 from a tonne up, kilograms to 0.1 below."""
+    return f"{kg / 1000:.2f} t" if kg >= 1000 else f"{kg:.1f} kg"
+
+
+def duration(seconds: float) -> str:
+    """h:mm:ss."""
+    minutes, secs = divmod(round(seconds), 60)
+    return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}"
+
+
+def bill_of_materials(result: Any) -> dict | None:
+    """The job's bill of materials (`fabline.jobs.bom`), when it was unrolled and nested."""
+    if not (result.nesting and result.partset):
+        return None
+    from fabline.jobs.bom import bill_of_materials as bom
+    from fabline.unroll.materials import get_material
+
+    lamella = result.spec.lamella
+    return bom(result.nesting, result.partset, get_material(lamella["material"], lamella.get("materials_file")))
+
+
+def summary_block(data: dict[str, Any]) -> str:
+    """What the job is, how many parts and sheets, machine time, mass, and the structural and survey verdicts."""
+    e = html.escape
+    model, nesting, bom = data["model"], data["nesting"], data.get("bill_of_materials")
+    rows = [("what", f"{model['name']}: {model['lamellas']} lamellas, {model['nodes']} nodes")]
+    if data["parts"]:
+        kinds = ", ".join(f"{n} {k}" for k, n in data["parts"]["by_kind"].items())
+        rows.append(("parts", f"{data['parts']['count']} ({kinds})"))
+    if nesting:
+        sizes = sorted({f"{s['width_mm']:g} x {s['height_mm']:g} mm" for s in nesting["sheets"]})
+        material = f", {bom['thickness_mm']:g} mm {bom['material']}" if bom else ""
+        rows.append(("sheets", f"{len(nesting['sheets'])} of {' / '.join(sizes)}{material}"))
+    if data.get("machine_time_s") is not None:
+        rows.append(("machine time", f"{duration(data['machine_time_s'])} (export's estimate, all sheets on one machine)"))
+    if bom:
+        totals = bom["totals"]
+        cost = f", cost {totals['cost']:,.2f} {totals['currency']}" if totals["cost"] is not None else ""
+        rows.append(("mass", f"{mass(totals['mass_kg'])} of sheet, {mass(totals['parts_mass_kg'])} in parts "
+                             f"({100 * totals['scrap_share']:.1f} % scrap){cost}"))
+    structure = data["structure"]
+    if structure["lamellas"]:
+        rows.append(("structure", "every lamella passes" if structure["passes"] else
+                     f"{len(structure['failing'])} lamella(s) exceed yield"))
+        rows[-1] = (rows[-1][0], rows[-1][1] + f" (largest utilisation {100 * structure['max_utilisation']:.0f} %)")
+    else:
+        rows.append(("structure", "not checked (no unroll stage)"))
+    survey = data["survey"]
+    if survey:
+        s = survey["summary"]
+        rows.append(("survey", (f"{s['failed']} of {s['measured']} measured nodes out of tolerance" if s["failed"]
+                                else f"all {s['measured']} measured nodes within tolerance")
+                     + f" ({survey['tolerance_mm']:g} mm; {s['measured']} of {s['nodes']} nodes measured)"))
+    else:
+        rows.append(("survey", "no survey yet"))
+    stream = data["stream"]
+    if stream["sheets"]:
+        done = sum(s["outcome"] == "finished" for s in stream["sheets"])
+        rows.append(("cut", f"{done} of {len(nesting['sheets']) if nesting else len(stream['sheets'])} sheets finished"))
+    verdict = [r for r in rows if r[0] in ("structure", "survey")]
+    css = {k: "fail" if ("exceed" in v or "out of tolerance" in v) else "ok" for k, v in verdict}
+    body = "".join(f"<tr class={css.get(k, '')}><td>{e(k)}</td><td>{e(v)}</td></tr>" for k, v in rows)
+    return f"<table id=summary class=summary>{body}</table>"
+
+
+def bom_section(bom: dict | None) -> str:
+    """The sheets with size, thickness, material, mass and scrap share, their totals and cost, and the hardware."""
+    if not bom:
+        return ""
+    e = html.escape
+    head = ("<tr><th>sheet</th><th>size mm</th><th>thickness mm</th><th>material</th><th>mass kg</th>"
+            "<th>in parts kg</th><th>scrap %</th></tr>")
+    rows = "".join(f"<tr><td>{e(s['id'])}</td><td>{s['width_mm']:g} x {s['height_mm']:g}</td><td>{s['thickness_mm']:g}</td>"
+                   f"<td>{e(s['material'])}</td><td>{s['mass_kg']:.1f}</td><td>{s['parts_mass_kg']:.1f}</td>"
+                   f"<td>{100 * s['scrap_share']:.1f}</td></tr>" for s in bom["sheets"])
+    totals = bom["totals"]
+    rows += (f"<tr><th>{totals['sheets']} sheets</th><th></th><th></th><th></th><th>{totals['mass_kg']:.1f}</th>"
+             f"<th>{totals['parts_mass_kg']:.1f}</th><th>{100 * totals['scrap_share']:.1f}</th></tr>")
+    cost = (f" At {bom['price_per_kg']:g} {e(totals['currency'])}/kg the sheets cost {totals['cost']:,.2f} "
+            f"{e(totals['currency'])}." if totals["cost"] is not None else
+            " No price: add price_per_kg to the material (README, Unrolling: materials) for the cost.")
+    hardware = "".join(f"<tr><td>{e(h['item'])}</td><td>{h['count']}</td><td>{e(h['per'])}</td></tr>"
+                       for h in bom["hardware"])
+    return (f"<h2>Bill of materials</h2><p>{bom['thickness_mm']:g} mm {e(bom['material'])} at "
+            f"{bom['density_kg_m3']:g} kg/m3: {mass(totals['mass_kg'])} of sheet.{cost} The cut list with every "
+            f"part's sheet and position is cutlist.csv beside this report.</p><table id=bom>{head}{rows}</table>"
+            f"<p></p><table id=hardware><tr><th>hardware</th><th>count</th><th>per</th></tr>{hardware}</table>")
+
+
+def preview_figure(entry: dict[str, Any]) -> str:
+    """A sheet's cut-order preview (read from its G-code at export), zoomable, folded away until opened."""
+    path = entry.get("preview")
+    if not path or not Path(path).is_file():
+        return ""
+    svg = Path(path).read_text(encoding="utf-8")
+    return (f"<details class=preview data-sheet=\"{html.escape(entry['id'])}\"><summary>Sheet {html.escape(entry['id'])}: "
+            "cut order (from the G-code: engraving green, then cuts from blue to red, numbered; dashed grey travel; "
+            "click to zoom)"
+            f"</summary><figure class=zoom>{zoomable(svg, 'order-' + entry['id'])}</figure></details>")
+
+
+def short_port(port: str) -> str:
+    """A port without its options (`sim://grbl-1?time_scale=...` -> `sim://grbl-1`)."""
+    return port.split("?", 1)[0]
+
+
+def machine_seconds(entry: dict[str, Any]) -> float:
+    """The time a sheet took at the machine's own speed: a simulator's wall seconds times its time scale."""
+    scale = parse_qs(urlsplit(entry["port"]).query).get("time_scale", ["1"])[0]
+    try:
+        return entry["seconds"] * float(scale)
+    except ValueError:
+        return entry["seconds"]
+
+
+def stream_table(stream: dict[str, Any], estimates: dict[str, float]) -> str:
+    """Per streamed sheet: lines, outcome, the time at machine speed against the export's estimate, the port."""
+    e = html.escape
+    if not stream["sheets"]:
+        return "<h2>Streaming</h2><p>Not streamed in this run.</p>"
+    head = ("<tr><th>sheet</th><th>lines</th><th>executed</th><th>outcome</th><th>machine time</th>"
+            "<th>estimated</th><th>wall s</th><th>port</th></tr>")
+    body = "".join(f"<tr class={'ok' if s['outcome'] == 'finished' else 'fail'}><td>{e(s['sheet'])}</td>"
+                   f"<td>{s['lines']}</td><td>{s['executed']}</td><td>{e(s['outcome'])}</td>"
+                   f"<td>{duration(machine_seconds(s))}</td>"
+                   f"<td>{duration(estimates[s['sheet']]) if s['sheet'] in estimates else ''}</td>"
+                   f"<td>{s['seconds']:.1f}</td><td>{e(short_port(s['port']))}</td></tr>" for s in stream["sheets"])
+    scaled = any("time_scale=" in s["port"] for s in stream["sheets"])
+    note = (" Simulated machines run faster than real ones: machine time is the wall time times the simulator's "
+            "time scale." if scaled else "")
+    return (f"<h2>Streaming</h2><p>{stream['executed']} of {stream['lines']} lines executed"
+            f"{' - every sheet finished' if stream['finished'] else ''}.{note}</p><table id=stream>{head}{body}</table>")
