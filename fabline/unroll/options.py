@@ -75,8 +75,10 @@ class UnrollOptions:
 
     @property
     def usable_length(self) -> float:
-        """Longest strip segment a sheet holds (mm)."""
-        return self.sheet_length - 2.0 * self.sheet_margin
+        """Longest strip segment a sheet holds (mm): the nester's rule (`fabline.nest.stock.usable_extent`)."""
+        from fabline.nest.stock import usable_extent
+
+        return usable_extent(self.sheet_length, self.sheet_margin)
 
     def check(self) -> "UnrollOptions":
         """Raise a FablineError naming the first setting that cannot work."""
