@@ -11,6 +11,7 @@ from fabline.fileio import check_outputs
 from fabline.model import load_network
 from fabline.unroll import SINGULARITY_MODES, UnrollOptions, get_material, limits, parse_profile, save_parts, unroll_network
 from fabline.unroll.preview import write_previews
+from fabline.unroll.structure import percent
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -89,7 +90,7 @@ def run_unroll(args: argparse.Namespace) -> int:
     s = report["summary"]
     kinds = ", ".join(f"{count} {kind}" for kind, count in s["parts_by_kind"].items())
     print(f"\n{args.output}: {s['parts']} parts ({kinds}) from {s['lamellas']} lamellas, {s['strips']} strips, "
-          f"{s['strip_length_m']:.2f} m of strip; max utilisation {100 * s['max_utilisation']:.0f} % "
+          f"{s['strip_length_m']:.2f} m of strip; max utilisation {percent(s['max_utilisation'])} "
           f"({s['governing_check']}, lamella {s['governing_lamella']}); {s['warnings']} warnings")
     return 0
 
@@ -101,7 +102,7 @@ def _print_table(rows: list[dict]) -> None:
         radius = f"{r['min_radius_mm'] / 1000:.2f}" if r["min_radius_mm"] else "inf"
         print(f"{r['lamella']:<10}{r['length_mm'] / 1000:>10.3f}{radius:>9}{r['max_twist_rad_per_m']:>10.3f}"
               f"{r['max_bending_stress']:>9.1f}{r['max_shear_stress']:>8.1f}{r['max_helix_stress']:>9.1f}"
-              f"{100 * r['utilisation']:>8.0f}{r['helix_top_edge_extension_mm']:>9.2f}/{r['helix_bottom_edge_extension_mm']:.2f}")
+              f"{percent(r['utilisation'])[:-2]:>8}{r['helix_top_edge_extension_mm']:>9.2f}/{r['helix_bottom_edge_extension_mm']:.2f}")
 
 
 def run_limits(args: argparse.Namespace) -> int:
@@ -121,12 +122,16 @@ def run_limits(args: argparse.Namespace) -> int:
     if "at_radius" in result:
         r = result["at_radius"]
         print(f"at radius {r['radius_mm']:g} mm: bending stress {r['bending_stress']:.1f} N/mm2, "
-              f"utilisation {100 * r['utilisation']:.0f} %")
+              f"utilisation {percent(r['utilisation'])}")
     if "at_twist" in result:
         t = result["at_twist"]
         print(f"at twist {t['twist_rad_per_m']:g} rad/m: shear {t['shear_stress']:.1f} N/mm2 "
-              f"({100 * t['shear_utilisation']:.0f} %), helix stress {t['helix_stress_min']:.2f} / "
-              f"{t['helix_stress_max']:.2f} N/mm2 ({100 * t['helix_utilisation']:.0f} %), strain "
+              f"({percent(t['shear_utilisation'])}), helix stress {t['helix_stress_min']:.2f} / "
+              f"{t['helix_stress_max']:.2f} N/mm2 ({percent(t['helix_utilisation'])}), strain "
               f"{t['helix_strain_min']:.6f} / {t['helix_strain_max']:.6f}, centre contracts "
               f"{t['centre_contraction_mm_per_m']:.3f} mm/m")
+        with_radius = f" with radius {args.radius:g} mm" if args.radius else ""
+        verdict = "within yield" if t["combined_utilisation"] <= 1.0 else "OVER YIELD"
+        print(f"combined{with_radius} (von Mises at the face centre, bending plus helix at the edge): "
+              f"{percent(t['combined_utilisation'])} of f_y, {verdict} (the verdict's rule, README)")
     return 0
