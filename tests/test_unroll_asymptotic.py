@@ -44,7 +44,7 @@ def _design(request, name):
     return request.getfixturevalue(name)
 
 
-@pytest.mark.parametrize("name", ["catenoid", "enneper"])
+@pytest.mark.parametrize("name", ["catenoid", "enneper", "helicoid"])
 def test_every_asymptotic_lamella_unrolls_to_a_rectangle_of_its_closed_form_length(request, name):
     """Single lamellas (no pair offset), so each strip is the network curve itself: every segment a `strip` whose
     outline is the h-high rectangle (notches aside), the whole strip as long as the closed form plus both ends."""
@@ -69,7 +69,7 @@ def test_every_asymptotic_lamella_unrolls_to_a_rectangle_of_its_closed_form_leng
         assert row["length_mm"] == pytest.approx(expected, abs=0.05e-3 * expected), row["strip"]
 
 
-@pytest.mark.parametrize("name", ["catenoid", "enneper"])
+@pytest.mark.parametrize("name", ["catenoid", "enneper", "helicoid"])
 def test_paired_asymptotic_strips_are_all_straight_and_the_nest_bound_counts_them(request, name):
     """With the default 25 mm pairs every segment is still a rectangle, and the nest's strip lower bound (rows of
     strips on a sheet) is at least the bound recomputed here from the strip lengths alone."""

@@ -28,6 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     unroll.add_argument("--slot-clearance", type=float, default=1.0, metavar="MM", help="slot depth beyond h/2 (default 1)")
     unroll.add_argument("--slot-width", type=float, metavar="MM", help="slot width (default twice the thickness)")
     unroll.add_argument("--overlap", type=float, default=150.0, metavar="MM", help="seam overlap length (default 150)")
+    unroll.add_argument("--min-overlap", type=float, metavar="MM",
+                        help="where no seam fits, overlaps may shorten to this (default two thirds of --overlap)")
     unroll.add_argument("--screw-hole", type=float, default=5.5, metavar="MM", help="seam screw hole diameter (default 5.5)")
     unroll.add_argument("--sheet-length", type=float, default=4000.0, metavar="MM", help="sheet length (default 4000)")
     unroll.add_argument("--sheet-margin", type=float, default=10.0, metavar="MM", help="sheet margin (default 10)")
@@ -68,8 +70,9 @@ def run_unroll(args: argparse.Namespace) -> int:
     options = UnrollOptions(
         profile=parse_profile(args.profile), material=get_material(args.material, args.materials),
         pair_spacing=args.pair_spacing, slot_clearance=args.slot_clearance, slot_width=args.slot_width,
-        overlap=args.overlap, screw_hole=args.screw_hole, sheet_length=args.sheet_length,
-        sheet_margin=args.sheet_margin, end_length=args.end_length, compensate_twist=args.compensate_twist,
+        overlap=args.overlap, min_overlap=args.min_overlap, screw_hole=args.screw_hole,
+        sheet_length=args.sheet_length, sheet_margin=args.sheet_margin, end_length=args.end_length,
+        compensate_twist=args.compensate_twist,
         singularity=args.singularity, hardware=not args.no_hardware, text_height=args.text_height,
         min_crossing_angle=args.min_crossing_angle, strict=args.strict)
     try:

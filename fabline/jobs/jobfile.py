@@ -59,7 +59,8 @@ SCHEMA: dict[str, Any] = {
     # [unroll], [nest] and [export] hold every option of `fabline unroll`, `nest` and `export` under its own name
     # (--pair-spacing is unroll.pair_spacing); a key left out takes the command's default (None here)
     "unroll": {"pair_spacing": Key(float), "slot_clearance": Key(float), "slot_width": Key(float),
-               "overlap": Key(float), "screw_hole": Key(float), "sheet_length": Key(float), "sheet_margin": Key(float),
+               "overlap": Key(float), "min_overlap": Key(float), "screw_hole": Key(float),
+               "sheet_length": Key(float), "sheet_margin": Key(float),
                "end_length": Key(float), "compensate_twist": Key(bool), "singularity": Key(str),
                "hardware": Key(bool), "text_height": Key(float), "min_crossing_angle": Key(float),
                "strict": Key(bool), "previews": Key(bool, default=False)},

@@ -32,6 +32,7 @@ class UnrollOptions:
     slot_width: float | None = None     # default 2 t: lets the joint rotate during assembly
     min_web: float | None = None        # least material between two slots; default the slot width
     overlap: float = 150.0              # length of a seam's overlap
+    min_overlap: float | None = None    # where no seam fits, overlaps shorten down to this; default 2/3 of overlap
     screw_hole: float = 5.5             # diameter of the six seam screw holes
     sheet_length: float = 4000.0
     sheet_margin: float = 10.0          # usable strip length = sheet_length - 2 * sheet_margin
@@ -59,6 +60,11 @@ class UnrollOptions:
     def web(self) -> float:
         """Least material between two neighbouring slots (mm)."""
         return self.min_web if self.min_web is not None else self.slot
+
+    @property
+    def shortest_overlap(self) -> float:
+        """The shortest seam overlap allowed where the full one fits nowhere (mm)."""
+        return self.min_overlap if self.min_overlap is not None else 2.0 * self.overlap / 3.0
 
     @property
     def end(self) -> float:
@@ -104,11 +110,14 @@ class UnrollOptions:
         if self.usable_length <= 2.0 * self.overlap:
             raise FablineError(f"{name('overlap')}: usable sheet length {self.usable_length:g} mm is not longer than "
                                f"two overlaps of {self.overlap:g} mm")
-        largest_hole = min(self.profile.h / 4.0, self.overlap / 6.0)  # half a hole of material around each of the six
+        if not 0 < self.shortest_overlap <= self.overlap:
+            raise FablineError(f"{name('min_overlap')}: must be positive and at most the overlap "
+                               f"{self.overlap:g} mm, got {self.shortest_overlap:g}")
+        largest_hole = min(self.profile.h / 4.0, self.shortest_overlap / 6.0)  # half a hole of material around each
         if self.screw_hole > largest_hole:
             raise FablineError(f"{name('screw_hole')}: {self.screw_hole:g} mm does not fit a seam of the "
-                               f"{self.profile.h:g} mm strip with a {self.overlap:g} mm overlap "
-                               f"(at most min(h/4, overlap/6) = {largest_hole:g} mm)")
+                               f"{self.profile.h:g} mm strip with a {self.shortest_overlap:g} mm overlap "
+                               f"(at most min(h/4, min overlap/6) = {largest_hole:g} mm)")
         if self.singularity not in SINGULARITY_MODES:
             raise FablineError(f"{name('singularity')}: {self.singularity!r}: use one of {', '.join(SINGULARITY_MODES)}")
         if not 0 < self.min_crossing_angle <= 90:

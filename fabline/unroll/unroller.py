@@ -176,7 +176,7 @@ def _options_row(options: UnrollOptions) -> dict:
     """The settings that shaped the parts, for the record in parts.json."""
     return {
         "pair_spacing_mm": options.pair_spacing, "slot_width_mm": options.slot, "slot_depth_mm": options.slot_depth,
-        "overlap_mm": options.overlap, "screw_hole_mm": options.screw_hole, "usable_length_mm": options.usable_length,
+        "overlap_mm": options.overlap, "min_overlap_mm": options.shortest_overlap, "screw_hole_mm": options.screw_hole, "usable_length_mm": options.usable_length,
         "end_length_mm": options.end, "compensate_twist": options.compensate_twist,
         "singularity": options.singularity, "hardware": options.hardware, "text_height_mm": options.engrave_height,
         "min_crossing_angle_deg": options.min_crossing_angle,
