@@ -22,10 +22,54 @@ from shapely.ops import unary_union
 
 from fabline.unroll.flat import circle
 from fabline.unroll.materials import Profile
-from fabline.unroll.parts import Part
+from fabline.unroll.options import TEXT_GAP
+from fabline.unroll.parts import Part, Polylines
+from fabline.unroll.strokes import characters, gather
 
 CLAMP_EXTRA_REACH = 15.0
 CABLE_HOLE = 6.5
+MIN_ID_HEIGHT = 1.5  # an id smaller than this is not engraved: the part has no room for it
+
+
+def engraved_ids(texts: list[str], x_from: float, x_to: float, room: float, height: float,
+                 angle_deg: np.ndarray | float = 0.0) -> list[Polylines]:
+    """Each text engraved along one arm of a hardware part: centred across it, from x_from to at most x_to along the
+    arm at `angle_deg` (per text, or one for all), cap height `height` shrunk to the arm's length and its width
+    `room`; an empty Polylines where the text would be under MIN_ID_HEIGHT. All texts in one `gather`."""
+    if not texts:
+        return []
+    chars = characters(texts)
+    size = np.minimum(np.minimum(height, room), (x_to - x_from) / np.maximum(chars.widths, 1e-9))
+    placed = size >= MIN_ID_HEIGHT
+    owner = np.repeat(np.arange(len(texts)), chars.lengths)
+    keep = placed[owner]
+    glyph, advance, owner = chars.glyph[keep], chars.advance[keep], owner[keep]
+    shift = np.column_stack([np.full(len(owner), x_from), -size[owner] / 2.0])
+    block = gather(chars.table, glyph, size[owner], shift, advance)
+    angle = np.radians(np.broadcast_to(np.asarray(angle_deg, dtype=float), (len(texts),)))
+    point_owner = np.repeat(owner, block.point_counts)
+    c, s = np.cos(angle[point_owner]), np.sin(angle[point_owner])
+    x, y = block.points[:, 0].copy(), block.points[:, 1].copy()
+    points = np.column_stack([c * x - s * y, s * x + c * y])
+    stroke_owner = owner[block.stroke_owner]
+    point_at = np.searchsorted(point_owner, np.arange(len(texts) + 1))
+    stroke_at = np.searchsorted(stroke_owner, np.arange(len(texts) + 1))
+    return [Polylines(points[point_at[k]:point_at[k + 1]], block.starts[stroke_at[k]:stroke_at[k + 1]] - point_at[k])
+            for k in range(len(texts))]
+
+
+def washer_ids(nodes: list[str], sizes: HardwareSizes, height: float) -> list[Polylines]:
+    """The node id engraved on each node's washers, along the arm of its first lamella (angle 0)."""
+    reach = sizes.bolt_square / np.sqrt(2.0) + TEXT_GAP
+    return engraved_ids(nodes, reach, sizes.washer_reach - TEXT_GAP, 2.0 * (sizes.half_width - TEXT_GAP), height)
+
+
+def clamp_ids(nodes: list[str], crossing_deg: list[float], sizes: HardwareSizes, height: float) -> list[Polylines]:
+    """The node id engraved on each clamp, along its first diagonal arm, between the bolt and the cable hole."""
+    angles = np.round(np.asarray(crossing_deg, dtype=float) * 2.0) / 2.0 / 2.0
+    reach = sizes.bolt_square / np.sqrt(2.0) + TEXT_GAP
+    end = sizes.clamp_reach - 1.5 * CABLE_HOLE - TEXT_GAP
+    return engraved_ids(nodes, reach, end, sizes.half_width - 2.0 * TEXT_GAP, height, angles)
 
 
 class HardwareSizes(NamedTuple):
@@ -87,14 +131,15 @@ def washer_keys(angles: np.ndarray, bounds: list[int]) -> list[tuple[float, ...]
     return [tuple(sorted(set(relative[lo:hi]))) for lo, hi in zip(bounds[:-1], bounds[1:])]
 
 
-def washers(node: str, angles: tuple[float, ...], sizes: HardwareSizes) -> list[Part]:
-    """The two star washers (top, bottom) of a node: one arm pair along each lamella pair, at `angles` (`washer_keys`)."""
+def washers(node: str, angles: tuple[float, ...], sizes: HardwareSizes, text: Polylines | list = ()) -> list[Part]:
+    """The two star washers (top, bottom) of a node: one arm pair along each lamella pair, at `angles` (`washer_keys`),
+    with `text` (`washer_ids`) engraved."""
     outline, hole, label = _washer_shape(angles, sizes)
     # all fields by position, both parts written out: tens of thousands of washers, and keywords, defaults or a
     # comprehension's own call add a third to the cost of each
-    return [Part(f"W-{node}-T", "washer", outline, None, [hole], [], [], [], [], label, False,
+    return [Part(f"W-{node}-T", "washer", outline, None, [hole], [], [], text, [], label, False,
                  {"node": node, "arm_angles_deg": list(angles), "side": "T"}),
-            Part(f"W-{node}-B", "washer", outline, None, [hole], [], [], [], [], label, False,
+            Part(f"W-{node}-B", "washer", outline, None, [hole], [], [], text, [], label, False,
                  {"node": node, "arm_angles_deg": list(angles), "side": "B"})]
 
 
@@ -106,11 +151,12 @@ def _washer_shape(angles: tuple[float, ...], sizes: HardwareSizes) -> tuple[np.n
     return outline, hole, "W " + "/".join(f"{a:g}" for a in angles[1:])
 
 
-def clamp(node: str, crossing_deg: float, sizes: HardwareSizes) -> Part:
-    """The cross-shaped cable clamp of a node: arms along the two diagonals, a cable hole near each arm end."""
+def clamp(node: str, crossing_deg: float, sizes: HardwareSizes, text: Polylines | list = ()) -> Part:
+    """The cross-shaped cable clamp of a node: arms along the two diagonals, a cable hole near each arm end, `text`
+    (`clamp_ids`) engraved."""
     angle = round(crossing_deg * 2.0) / 2.0
     outline, holes = _clamp_shape(angle, sizes)
-    return Part(f"C-{node}", "clamp", outline, None, list(holes), [], [], [], [], f"C {angle:g}", False,
+    return Part(f"C-{node}", "clamp", outline, None, list(holes), [], [], text, [], f"C {angle:g}", False,
                 {"node": node, "crossing_deg": angle})  # by position, as for washers
 
 
