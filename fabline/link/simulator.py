@@ -428,10 +428,10 @@ class GrblSimulator:
         accessory_change = block.modal.spindle != self.modal.spindle or block.modal.coolant != self.modal.coolant
         sync = accessory_change or block.dwell > 0 or block.program_end
         self.modal = block.modal
+        if block.segment is not None:  # check mode moves nothing but parses on from the target, as Grbl does
+            self._parse_position = block.segment.end
         if self.state == "Check":
             return 0
-        if block.segment is not None:
-            self._parse_position = block.segment.end
         self._pending = _Pending(line, block, sync, accessory_change=accessory_change)
         return None
 
