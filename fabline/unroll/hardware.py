@@ -5,13 +5,15 @@ Sizing rule (documented in the README, Unrolling: Hardware parts), from the prof
 - washer (kind "washer"): two per crossing node, above and below; one arm along each lamella pair at the
   node's design crossing angle, reaching d + h/4 from the bolt, with a square hole for the carriage bolt's neck;
 - clamp (kind "clamp"): one per crossing node on every second diagonal (one colour of the grid's
-  checkerboard); four arms along the diagonals reaching 15 mm past the washer, each with a cable hole;
+  checkerboard); four arms along the diagonals reaching 15 mm past the washer, each with a cable hole in a tip
+  that is bent up 90 degrees at a fold line (engraved) 1 mm past the washer, so the cable runs through it;
 - joint (kind "joint"): two hexagonal star plates per singularity node when it gets a separate joint; six
   arms along the three lamellas, reaching h/2 past the pair ends, each with a bolt hole between the pair.
 """
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 from typing import NamedTuple
 
@@ -28,6 +30,7 @@ from fabline.unroll.strokes import characters, gather
 
 CLAMP_EXTRA_REACH = 15.0
 CABLE_HOLE = 6.5
+FOLD_CLEARANCE = 1.0  # a clamp arm folds up this far past the washer it lies on
 MIN_ID_HEIGHT = 1.5  # an id smaller than this is not engraved: the part has no room for it
 
 
@@ -58,18 +61,24 @@ def engraved_ids(texts: list[str], x_from: float, x_to: float, room: float, heig
             for k in range(len(texts))]
 
 
+def short_id(node: str) -> str:
+    """A node id as engraved on hardware: without the N and the leading zeros of its numbers (N012-007 -> 12-7)."""
+    return re.sub(r"(?<![0-9])0+(?=[0-9])", "", node[1:] if re.match(r"N[0-9]", node) else node)
+
+
 def washer_ids(nodes: list[str], sizes: HardwareSizes, height: float) -> list[Polylines]:
-    """The node id engraved on each node's washers, along the arm of its first lamella (angle 0)."""
+    """The node's short id engraved on each node's washers, along the arm of its first lamella (angle 0)."""
     reach = sizes.bolt_square / np.sqrt(2.0) + TEXT_GAP
-    return engraved_ids(nodes, reach, sizes.washer_reach - TEXT_GAP, 2.0 * (sizes.half_width - TEXT_GAP), height)
+    return engraved_ids([short_id(n) for n in nodes], reach, sizes.washer_reach - TEXT_GAP,
+                        2.0 * (sizes.half_width - TEXT_GAP), height)
 
 
 def clamp_ids(nodes: list[str], crossing_deg: list[float], sizes: HardwareSizes, height: float) -> list[Polylines]:
-    """The node id engraved on each clamp, along its first diagonal arm, between the bolt and the cable hole."""
+    """The node's short id engraved on each clamp, along its first diagonal arm, between the bolt and its fold line."""
     angles = np.round(np.asarray(crossing_deg, dtype=float) * 2.0) / 2.0 / 2.0
     reach = sizes.bolt_square / np.sqrt(2.0) + TEXT_GAP
-    end = sizes.clamp_reach - 1.5 * CABLE_HOLE - TEXT_GAP
-    return engraved_ids(nodes, reach, end, sizes.half_width - 2.0 * TEXT_GAP, height, angles)
+    end = sizes.washer_reach + FOLD_CLEARANCE - TEXT_GAP  # short of the fold line
+    return engraved_ids([short_id(n) for n in nodes], reach, end, sizes.half_width - 2.0 * TEXT_GAP, height, angles)
 
 
 class HardwareSizes(NamedTuple):
@@ -153,11 +162,28 @@ def _washer_shape(angles: tuple[float, ...], sizes: HardwareSizes) -> tuple[np.n
 
 def clamp(node: str, crossing_deg: float, sizes: HardwareSizes, text: Polylines | list = ()) -> Part:
     """The cross-shaped cable clamp of a node: arms along the two diagonals, a cable hole near each arm end, `text`
-    (`clamp_ids`) engraved."""
+    (`clamp_ids`) engraved, and a fold line across each arm where its tip is bent up (`clamp_folds`)."""
     angle = round(crossing_deg * 2.0) / 2.0
     outline, holes = _clamp_shape(angle, sizes)
-    return Part(f"C-{node}", "clamp", outline, None, list(holes), [], [], text, [], f"C {angle:g}", False,
-                {"node": node, "crossing_deg": angle})  # by position, as for washers
+    folds = clamp_folds(angle, sizes)
+    return Part(f"C-{node}", "clamp", outline, None, list(holes), [], list(folds), text, [], f"C {angle:g}", False,
+                {"node": node, "crossing_deg": angle,
+                 "folds": [{"line": line.tolist(), "angle_deg": 90.0, "up": True} for line in folds]})
+
+
+@lru_cache(maxsize=1024)
+def clamp_folds(angle: float, sizes: HardwareSizes) -> tuple[np.ndarray, ...]:
+    """Fold lines (engraved score lines) across the four clamp arms, FOLD_CLEARANCE past the washer's reach: each
+    arm's tip is bent up 90 degrees, so its cable hole faces along the diagonal and the cable runs through it."""
+    at = sizes.washer_reach + FOLD_CLEARANCE
+    half = sizes.half_width / 2.0 - TEXT_GAP / 3.0
+    lines = []
+    for a in np.radians([angle / 2.0, angle / 2.0 + 90.0, angle / 2.0 + 180.0, angle / 2.0 + 270.0]):
+        along, across = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
+        line = np.array([at * along - half * across, at * along + half * across])
+        line.flags.writeable = False
+        lines.append(line)
+    return tuple(lines)
 
 
 @lru_cache(maxsize=1024)
