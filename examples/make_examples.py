@@ -18,24 +18,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import trimesh
 
-from fabline.model.designs import enneper_network, enneper_surface
+from fabline.model.designs import enneper_mesh, enneper_network
 from fabline.model.writers import write_dxf, write_obj
 from fabline.survey import BoardSpec, Camera, board_image, render_plane_photo
 from fabline.survey.simulate import SyntheticSpec, simulate_survey
 
 HERE = Path(__file__).resolve().parent
-
-
-def surface_mesh(network, count: int = 41) -> trimesh.Trimesh:
-    """The Enneper surface over the design's (u, v) domain and a little beyond, faces wound along X_u x X_v."""
-    surface = enneper_surface(network.meta["scale_m_per_unit"])
-    half_u, half_v = network.meta["domain"]["u"] * 1.05, network.meta["domain"]["v"] * 1.05
-    u, v = np.meshgrid(np.linspace(-half_u, half_u, count), np.linspace(-half_v, half_v, count), indexing="ij")
-    index = np.arange(count * count).reshape(count, count)
-    p, q, r, s = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
-    return trimesh.Trimesh(surface.point(u, v).reshape(-1, 3), np.r_[np.c_[p, q, r], np.c_[p, r, s]], process=False)
 
 
 def write_3dm(network, path: Path) -> None:
@@ -89,7 +78,7 @@ def charuco_photos(folder: Path, count: int = 8) -> None:
 
 def main() -> None:
     network = enneper_network(size=(3.0, 4.0), spacing=0.5)
-    mesh = surface_mesh(network, count=61)
+    mesh = enneper_mesh(network)
     write_3dm(network, HERE / "curves.3dm")
     write_obj(network, HERE / "curves.obj")
     write_dxf(network, HERE / "curves.dxf", mesh=mesh)

@@ -5,7 +5,6 @@ are as long as the domain brief's helix formula says, computed here from the Enn
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +13,7 @@ import pytest
 from fabline.cli import export as export_cli, nest as nest_cli, unroll as unroll_cli
 from fabline.errors import FablineError
 from fabline.jobs.jobfile import SCHEMA, load_job_file
+from test_jobs_jobfile import GOOD
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -29,18 +29,6 @@ ELSEWHERE = {
                "machine": "machine.profile", "no_optimise": "export.optimise"},
 }
 RENAMED = {"stock_out": "stock_out", "svg": "svg", "time_limit": "time_limit"}
-
-GOOD = """
-name = "small"
-[model]
-design = "enneper"
-[model.options]
-size = [2.0, 2.5]
-spacing = 0.5
-[output]
-folder = "out"
-"""
-
 
 def _command_options(module, command: str) -> set[str]:
     parser = argparse.ArgumentParser()

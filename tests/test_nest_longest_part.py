@@ -3,7 +3,6 @@ the unroll makes at that length, straight or bent by a few hundredths of a milli
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest

@@ -7,7 +7,6 @@ from __future__ import annotations
 import math
 import re
 
-import numpy as np
 import pytest
 
 from fabline.unroll import UnrollOptions, get_material, unroll_network
