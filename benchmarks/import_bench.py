@@ -15,13 +15,12 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fabline.model import save_network  # noqa: E402
-from fabline.model.designs import enneper_network, enneper_surface  # noqa: E402
+from fabline.model.designs import enneper_mesh, enneper_network  # noqa: E402
 from fabline.model.importers import import_model  # noqa: E402
 from fabline.model.writers import write_dxf, write_obj  # noqa: E402
 
@@ -30,12 +29,7 @@ GOAL_SECONDS = 5.0
 
 def surface_mesh(network, count: int = 121) -> trimesh.Trimesh:
     """The Enneper surface meshed on a parameter grid slightly larger than the design's domain."""
-    surface = enneper_surface(network.meta["scale_m_per_unit"])
-    half_u, half_v = network.meta["domain"]["u"] * 1.02, network.meta["domain"]["v"] * 1.02
-    u, v = np.meshgrid(np.linspace(-half_u, half_u, count), np.linspace(-half_v, half_v, count), indexing="ij")
-    index = np.arange(count * count).reshape(count, count)
-    a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
-    return trimesh.Trimesh(surface.point(u, v).reshape(-1, 3), np.r_[np.c_[a, b, c], np.c_[a, c, d]], process=False)
+    return enneper_mesh(network, count, margin=1.02)
 
 
 def prepare(folder: Path, spacing: float) -> None:

@@ -9,7 +9,7 @@ import trimesh
 from fabline.errors import FablineError
 from fabline.model.importers import import_model
 from test_import_cad import HEIGHTS, RADIUS, assert_semicircle_nodes, plane_mesh
-from test_import_roundtrip import assert_same_network, hypar_mesh, hypar_network
+from test_import_roundtrip import assert_same_crossings, hypar_mesh, hypar_network
 
 rhino3dm = pytest.importorskip("rhino3dm", reason="rhino3dm (optional extra 'rhino') is not installed")
 
@@ -79,7 +79,7 @@ def test_3dm_hypar_round_trip_in_millimetres_with_a_separate_surface(tmp_path):
     surface.Write(str(tmp_path / "surface.3dm"), 7)
     imported, report = import_model(tmp_path / "curves.3dm", surface=tmp_path / "surface.3dm")
     assert imported.units == "mm"
-    assert_same_network(network, imported)
+    assert_same_crossings(network, imported)
 
 
 def test_3dm_surface_in_other_units_is_refused(tmp_path):

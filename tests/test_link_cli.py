@@ -201,3 +201,14 @@ def test_grbl_sim_options_make_another_build_and_settings():
         server.wait()
     lines = answer.decode().split("\r\n")
     assert "[OPT:VN,31,256]" in lines and "$32=1" in lines and "$10=1" in lines
+
+
+def test_check_mode_parses_arcs_from_the_previous_target(cli, simulator, tmp_path):
+    """Grbl's check mode moves nothing but parses each line from the last one's target: an arc after a move is
+    checked against that move's end (the simulator used to check it from the start point and answer error:33)."""
+    program = tmp_path / "arc.gcode"
+    program.write_text("G21\nG90\nG0 X100.000 Y100.000\nG3 X103.150 Y96.850 I3.150 J0.000 F600\n"
+                       "G3 X106.300 Y100.000 I0.000 J3.150\nM5\n", encoding="ascii")
+    url, _ = simulator
+    code, out, err = cli("stream", program, "--port", url(), "--check")
+    assert code == 0, err

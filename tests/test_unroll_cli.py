@@ -97,9 +97,9 @@ def test_profile_too_thick_for_the_curvature_warns_or_fails(cli, tmp_path):
 @pytest.mark.parametrize("args, message", [
     (("--profile", "1.5x100"), "not smaller than height"),
     (("--material", "wood"), "'wood' is not known"),
-    (("--pair-spacing", "2"), "pair spacing 2 mm leaves no room"),
-    (("--overlap", "0"), "overlap must be positive"),
-    (("--screw-hole", "500"), "screw hole 500 mm does not fit a seam of the 100 mm strip with a 150 mm overlap"),
+    (("--pair-spacing", "2"), "--pair-spacing: 2 mm leaves no room"),
+    (("--overlap", "0"), "--overlap: must be positive"),
+    (("--screw-hole", "500"), "--screw-hole: 500 mm does not fit a seam of the 100 mm strip with a 100 mm overlap"),
 ])
 def test_bad_options(cli, tmp_path, polar_model, args, message):
     out = tmp_path / "parts.json"

@@ -252,19 +252,20 @@ def test_straightness_follows_the_integrated_centreline_not_the_largest_curvatur
     assert stays_straight(padded[0][None], padded[1][None], 0.01)[0]
 
 
-def test_a_model_read_from_a_file_unrolls_its_asymptotic_strips_straight_in_one_batch(enneper, tmp_path):
-    """Coordinates written at 1e-9 m leave k_n noise of ~1e-8 /mm: every asymptotic segment must still be found
-    straight by the batch test, agreeing with the one-by-one construction."""
+def test_a_model_read_from_a_file_unrolls_its_asymptotic_strips_straight_in_one_batch(enneper):
+    """Coordinates and normals rounded to 1e-6 (1 um, as CAD writes them) leave k_n noise the quick bound calls curved:
+    every asymptotic segment must still be found straight by the batch test, agreeing with the one-by-one construction."""
     from fabline.geometry import analyse
-    from fabline.model import load_network, save_network
+    from fabline.model.network import Lamella, Network
     from fabline.unroll.batch import straight_flags
     from fabline.unroll.pieces import segment_part
     from fabline.unroll.seams import split_strip
     from fabline.unroll.stations import strip_stations
 
-    save_network(enneper, tmp_path / "network.json")
+    rounded = [Lamella(lam.id, lam.family, lam.nodes, np.round(lam.curve, 6), np.round(lam.normals, 6))
+               for lam in enneper.lamellas]
     opts = UnrollOptions()
-    segments = [s for strip in strip_stations(analyse(load_network(tmp_path / "network.json")), opts)
+    segments = [s for strip in strip_stations(analyse(Network("m", enneper.nodes, rounded)), opts)
                 for s in split_strip(strip, opts, 20.0)]
     noisy = max(np.abs(s.strip.geometry.k_n).max() * (s.end - s.start) ** 2 / 8.0 for s in segments)
     assert noisy > opts.straight_tolerance             # the quick bound fails on the read-back model

@@ -23,6 +23,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="units of a file that declares none (OBJ); default m, with a note")
     parser.add_argument("--tolerance", type=float, default=1.0,
                         help="two lamellas closer than this (mm) cross at a node (default 1)")
+    parser.add_argument("--supports", metavar="RULE",
+                        help="support nodes: 'z<0.05' (below a level), 'x,y x,y x,y ...' (inside a plan polygon), both "
+                             "in model units, or the layer/group/object name of points at the supports")
     parser.add_argument("-o", "--output", required=True, help="network JSON to write")
     parser.set_defaults(func=run_import)
 
@@ -30,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_import(args: argparse.Namespace) -> int:
     """Import, print the summary (counts, near-misses, notes), write the model."""
     check_outputs(files=(args.output,), inputs=(args.file, args.surface))
-    network, report = import_model(args.file, args.surface, args.units, args.tolerance)
+    network, report = import_model(args.file, args.surface, args.units, args.tolerance, args.supports)
     save_network(network, args.output)
     for line in report.summary():
         print(line)

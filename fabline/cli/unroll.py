@@ -11,6 +11,7 @@ from fabline.fileio import check_outputs
 from fabline.model import load_network
 from fabline.unroll import SINGULARITY_MODES, UnrollOptions, get_material, limits, parse_profile, save_parts, unroll_network
 from fabline.unroll.preview import write_previews
+from fabline.unroll.structure import percent
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -27,6 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     unroll.add_argument("--slot-clearance", type=float, default=1.0, metavar="MM", help="slot depth beyond h/2 (default 1)")
     unroll.add_argument("--slot-width", type=float, metavar="MM", help="slot width (default twice the thickness)")
     unroll.add_argument("--overlap", type=float, default=150.0, metavar="MM", help="seam overlap length (default 150)")
+    unroll.add_argument("--min-overlap", type=float, metavar="MM",
+                        help="where no seam fits, overlaps may shorten to this (default two thirds of --overlap)")
     unroll.add_argument("--screw-hole", type=float, default=5.5, metavar="MM", help="seam screw hole diameter (default 5.5)")
     unroll.add_argument("--sheet-length", type=float, default=4000.0, metavar="MM", help="sheet length (default 4000)")
     unroll.add_argument("--sheet-margin", type=float, default=10.0, metavar="MM", help="sheet margin (default 10)")
@@ -67,8 +70,9 @@ def run_unroll(args: argparse.Namespace) -> int:
     options = UnrollOptions(
         profile=parse_profile(args.profile), material=get_material(args.material, args.materials),
         pair_spacing=args.pair_spacing, slot_clearance=args.slot_clearance, slot_width=args.slot_width,
-        overlap=args.overlap, screw_hole=args.screw_hole, sheet_length=args.sheet_length,
-        sheet_margin=args.sheet_margin, end_length=args.end_length, compensate_twist=args.compensate_twist,
+        overlap=args.overlap, min_overlap=args.min_overlap, screw_hole=args.screw_hole,
+        sheet_length=args.sheet_length, sheet_margin=args.sheet_margin, end_length=args.end_length,
+        compensate_twist=args.compensate_twist,
         singularity=args.singularity, hardware=not args.no_hardware, text_height=args.text_height,
         min_crossing_angle=args.min_crossing_angle, strict=args.strict)
     try:
@@ -89,7 +93,7 @@ def run_unroll(args: argparse.Namespace) -> int:
     s = report["summary"]
     kinds = ", ".join(f"{count} {kind}" for kind, count in s["parts_by_kind"].items())
     print(f"\n{args.output}: {s['parts']} parts ({kinds}) from {s['lamellas']} lamellas, {s['strips']} strips, "
-          f"{s['strip_length_m']:.2f} m of strip; max utilisation {100 * s['max_utilisation']:.0f} % "
+          f"{s['strip_length_m']:.2f} m of strip; max utilisation {percent(s['max_utilisation'])} "
           f"({s['governing_check']}, lamella {s['governing_lamella']}); {s['warnings']} warnings")
     return 0
 
@@ -101,7 +105,7 @@ def _print_table(rows: list[dict]) -> None:
         radius = f"{r['min_radius_mm'] / 1000:.2f}" if r["min_radius_mm"] else "inf"
         print(f"{r['lamella']:<10}{r['length_mm'] / 1000:>10.3f}{radius:>9}{r['max_twist_rad_per_m']:>10.3f}"
               f"{r['max_bending_stress']:>9.1f}{r['max_shear_stress']:>8.1f}{r['max_helix_stress']:>9.1f}"
-              f"{100 * r['utilisation']:>8.0f}{r['helix_top_edge_extension_mm']:>9.2f}/{r['helix_bottom_edge_extension_mm']:.2f}")
+              f"{percent(r['utilisation'])[:-2]:>8}{r['helix_top_edge_extension_mm']:>9.2f}/{r['helix_bottom_edge_extension_mm']:.2f}")
 
 
 def run_limits(args: argparse.Namespace) -> int:
@@ -121,12 +125,16 @@ def run_limits(args: argparse.Namespace) -> int:
     if "at_radius" in result:
         r = result["at_radius"]
         print(f"at radius {r['radius_mm']:g} mm: bending stress {r['bending_stress']:.1f} N/mm2, "
-              f"utilisation {100 * r['utilisation']:.0f} %")
+              f"utilisation {percent(r['utilisation'])}")
     if "at_twist" in result:
         t = result["at_twist"]
         print(f"at twist {t['twist_rad_per_m']:g} rad/m: shear {t['shear_stress']:.1f} N/mm2 "
-              f"({100 * t['shear_utilisation']:.0f} %), helix stress {t['helix_stress_min']:.2f} / "
-              f"{t['helix_stress_max']:.2f} N/mm2 ({100 * t['helix_utilisation']:.0f} %), strain "
+              f"({percent(t['shear_utilisation'])}), helix stress {t['helix_stress_min']:.2f} / "
+              f"{t['helix_stress_max']:.2f} N/mm2 ({percent(t['helix_utilisation'])}), strain "
               f"{t['helix_strain_min']:.6f} / {t['helix_strain_max']:.6f}, centre contracts "
               f"{t['centre_contraction_mm_per_m']:.3f} mm/m")
+        with_radius = f" with radius {args.radius:g} mm" if args.radius else ""
+        verdict = "within yield" if t["combined_utilisation"] <= 1.0 else "OVER YIELD"
+        print(f"combined{with_radius} (von Mises at the face centre, bending plus helix at the edge): "
+              f"{percent(t['combined_utilisation'])} of f_y, {verdict} (the verdict's rule, README)")
     return 0

@@ -8,6 +8,7 @@ string, got integer`). Paths in a job file are relative to the file's folder; ev
 from __future__ import annotations
 
 import inspect
+import math
 import os
 import re
 from dataclasses import dataclass, field
@@ -23,7 +24,9 @@ from fabline.errors import FablineError
 from fabline.fileio import check_regular_file, read_text
 
 if TYPE_CHECKING:  # the nesting stage pulls in shapely; a job file is read before any stage runs
+    from fabline.export import ToolpathOptions
     from fabline.nest.nester import NestOptions
+    from fabline.unroll.options import UnrollOptions
 
 STAGES = ("unroll", "nest", "export", "stream", "survey", "report")
 """Pipeline stages after the model, in the order they run; a job lists the ones it wants."""
@@ -55,8 +58,21 @@ SCHEMA: dict[str, Any] = {
     "lamella": {"material": Key(str, default="stainless"), "profile": Key(str, default="100x1.5"),
                 "materials_file": Key(str)},
     "stock": {"sheet": Key(str, default="4000x2000"), "count": Key(int), "file": Key(str)},
+    # [unroll], [nest] and [export] hold every option of `fabline unroll`, `nest` and `export` under its own name
+    # (--pair-spacing is unroll.pair_spacing); a key left out takes the command's default (None here)
+    "unroll": {"pair_spacing": Key(float), "slot_clearance": Key(float), "slot_width": Key(float),
+               "overlap": Key(float), "min_overlap": Key(float), "screw_hole": Key(float),
+               "sheet_length": Key(float), "sheet_margin": Key(float),
+               "end_length": Key(float), "compensate_twist": Key(bool), "singularity": Key(str),
+               "hardware": Key(bool), "text_height": Key(float), "min_crossing_angle": Key(float),
+               "strict": Key(bool), "previews": Key(bool, default=False)},
     "nest": {"kerf": Key(float, default=0.2), "gap": Key(float, default=3.0), "margin": Key(float, default=10.0),
-             "rotations": Key(int, default=4), "time_limit": Key(float, default=10.0)},
+             "rotations": Key(int, default=4), "time_limit": Key(float, default=10.0),
+             "common_line": Key(bool, default=False), "fill_holes": Key(bool, default=False),
+             "remnants_first": Key(bool, default=False), "remnant_min": Key(str, default="400x200"),
+             "stock_out": Key(str), "svg": Key(bool, default=False)},
+    "export": {"kerf": Key(float), "lead_in": Key(float, default=0.0), "tabs": Key(int, default=0),
+               "tab_width": Key(float, default=1.0), "optimise": Key(bool, default=True)},
     "machine": {"profile": Key(str, default="grbl-laser"), "port": Key(str), "ports": Key(list),
                 "time_scale": Key(float, default=1.0)},
     "output": {"folder": Key(str, required=True), "report": Key(str, default="report.html")},
@@ -86,6 +102,8 @@ class JobSpec:
     output_folder: Path
     report_name: str
     survey: dict[str, Any] = field(default_factory=dict)
+    unroll: dict[str, Any] = field(default_factory=dict)
+    export: dict[str, Any] = field(default_factory=dict)
 
     def output(self, relative: str | os.PathLike) -> Path:
         """An output path inside the job's output folder; a path that would leave it is a FablineError."""
@@ -94,7 +112,8 @@ class JobSpec:
     def to_dict(self) -> dict[str, Any]:
         """The job as plain data for the report and the runner's database."""
         return {"path": str(self.path), "name": self.name, "description": self.description, "stages": list(self.stages),
-                "model": self.model, "lamella": self.lamella, "stock": self.stock, "nest": self.nest,
+                "model": self.model, "lamella": self.lamella, "stock": self.stock, "unroll": self.unroll,
+                "nest": self.nest, "export": self.export,
                 "machine": self.machine, "output": {"folder": str(self.output_folder), "report": self.report_name},
                 "survey": self.survey}
 
@@ -145,7 +164,10 @@ def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
         raise FablineError(f"{where}: output.folder: {folder} exists and is not a folder")
     spec = JobSpec(path=path.resolve(), name=data["name"], description=data["description"], stages=stages, model=model,
                    lamella=data["lamella"], stock=data["stock"], nest=data["nest"], machine=data["machine"],
-                   output_folder=folder.resolve(), report_name=data["output"]["report"], survey=survey)
+                   output_folder=folder.resolve(), report_name=data["output"]["report"], survey=survey,
+                   unroll=data["unroll"], export=data["export"])
+    if spec.nest["stock_out"] is not None:
+        spec.output(spec.nest["stock_out"])  # refused here if it would leave the output folder
     report = spec.output(spec.report_name)
     if report.suffix != ".html":
         raise FablineError(f"{where}: output.report: {spec.report_name!r} must end in .html")
@@ -295,11 +317,49 @@ def _existing(base: Path, relative: str, where: str) -> Path:
 
 
 def nest_options(nest: dict[str, Any]) -> "NestOptions":
-    """The nesting stage's options from a job's [nest] table."""
+    """The nesting stage's options from a job's [nest] table (remnant_min checked: a FablineError names the key)."""
     from fabline.nest.nester import NestOptions
+    from fabline.nest.stock import parse_sheet_size
 
+    try:
+        remnant_min = parse_sheet_size(nest["remnant_min"])
+    except FablineError as exc:
+        raise FablineError(f"nest.remnant_min: {exc}") from None
     return NestOptions(kerf=nest["kerf"], gap=nest["gap"], margin=nest["margin"], rotation_steps=nest["rotations"],
-                       time_limit=nest["time_limit"])
+                       time_limit=nest["time_limit"], common_line=nest["common_line"], fill_holes=nest["fill_holes"],
+                       remnants_first=nest["remnants_first"], remnant_min=remnant_min)
+
+
+def unroll_options(lamella: dict[str, Any], unroll: dict[str, Any], stock: dict[str, Any],
+                   nest: dict[str, Any]) -> "UnrollOptions":
+    """The unroll stage's options from a job's tables, checked (a FablineError names the key): profile and material
+    from [lamella], the strip length limit from the sheet's longer side and nest.margin unless [unroll] sets them."""
+    from fabline.nest.stock import parse_sheet_size
+    from fabline.unroll.materials import get_material, parse_profile
+    from fabline.unroll.options import UnrollOptions
+
+    given = {key: value for key, value in unroll.items() if value is not None and key != "previews"}
+    if "sheet_length" not in given:
+        if stock["file"]:
+            from fabline.nest.stock import load_stock
+
+            sheets = [item for item in load_stock(stock["file"]) if not item.remnant]
+            given["sheet_length"] = max(sheets[0].width, sheets[0].height) if sheets else 0.0
+        else:
+            given["sheet_length"] = max(parse_sheet_size(stock["sheet"]))
+    given.setdefault("sheet_margin", nest["margin"])
+    options = UnrollOptions(profile=parse_profile(lamella["profile"]),
+                            material=get_material(lamella["material"], lamella["materials_file"]), **given)
+    return options.check(name=lambda key: f"unroll.{key}")
+
+
+def toolpath_options(export: dict[str, Any], machine_kerf: float) -> "ToolpathOptions":
+    """The export stage's options from a job's [export] table; the kerf defaults to the machine profile's."""
+    from fabline.export import ToolpathOptions
+
+    kerf = machine_kerf if export["kerf"] is None else export["kerf"]
+    return ToolpathOptions(kerf=kerf, lead_in=export["lead_in"], tabs=export["tabs"], tab_width=export["tab_width"],
+                           optimise=export["optimise"])
 
 
 def _check_values(data: dict[str, Any], where: str) -> None:
@@ -330,7 +390,12 @@ def _check_values(data: dict[str, Any], where: str) -> None:
             raise FablineError(f"{where}: {key_path}: must be positive, got {value}")
     try:
         nest_options(data["nest"]).check(name=lambda key: f"nest.{key}")
+        unroll_options(data["lamella"], data["unroll"], data["stock"], data["nest"])
     except FablineError as exc:
         raise FablineError(f"{where}: {exc}") from None
+    for key, low in (("kerf", 0.0), ("lead_in", 0.0), ("tabs", 0), ("tab_width", 1e-9)):
+        value = data["export"][key]
+        if value is not None and not low <= value < math.inf:
+            raise FablineError(f"{where}: export.{key}: must be a finite number, at least {low:g}, got {value}")
     for port in data["machine"]["ports"]:
         wrapped("machine.ports", check_port, port)

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from fabline.errors import FablineError
 from fabline.fileio import OutputSet, atomic_output, check_outputs, write_json
-from fabline.jobs.jobfile import JobSpec, load_job_file, nest_options
+from fabline.jobs.jobfile import JobSpec, load_job_file, nest_options, toolpath_options, unroll_options
 
 if TYPE_CHECKING:  # the model stage pulls in scipy; the runner imports this package and must start fast
     from fabline.model import Network
@@ -140,25 +140,22 @@ def _timed(timings: dict[str, float], name: str, work: Callable[[], Any]) -> Any
 
 def _unroll(result: JobResult) -> None:
     from fabline.unroll import save_parts, unroll_network
-    from fabline.unroll.materials import get_material, parse_profile
-    from fabline.unroll.options import UnrollOptions
-    from fabline.nest.stock import parse_sheet_size
+    from fabline.unroll.preview import write_previews
 
     spec = result.spec
-    material = get_material(spec.lamella["material"], spec.lamella["materials_file"])
-    sheet_length = max(parse_sheet_size(spec.stock["sheet"]))
-    options = UnrollOptions(profile=parse_profile(spec.lamella["profile"]), material=material,
-                            sheet_length=sheet_length, sheet_margin=spec.nest["margin"])
+    options = unroll_options(spec.lamella, spec.unroll, spec.stock, spec.nest)
     result.partset = unroll_network(result.network, options)
     save_parts(result.partset, spec.output("parts.json"))
+    if spec.unroll["previews"]:
+        write_previews(result.partset, spec.output("previews"))
     result.structure = [{k: v for k, v in row.items() if k != "intervals"}
                         for row in result.partset.report.get("lamellas", [])]
 
 
 def _nest(result: JobResult) -> None:
-    from fabline.nest import save_nesting
+    from fabline.nest import save_nesting, write_sheet_svgs
     from fabline.nest.nester import nest
-    from fabline.nest.stock import StockItem, load_stock, parse_sheet_size
+    from fabline.nest.stock import StockItem, load_stock, parse_sheet_size, save_stock, stock_after
 
     spec = result.spec
     if spec.stock["file"]:
@@ -168,17 +165,22 @@ def _nest(result: JobResult) -> None:
         stock = [StockItem(spec.stock["sheet"], width, height, spec.stock["count"])]
     result.nesting = nest(result.partset, stock, nest_options(spec.nest), parts_file="parts.json").nesting
     save_nesting(result.nesting, spec.output("nesting.json"))
+    if spec.nest["svg"]:
+        write_sheet_svgs(result.nesting, result.partset, spec.output("nesting-svg"))
+    if spec.nest["stock_out"]:
+        save_stock(stock_after(stock, [s.stock for s in result.nesting.sheets], result.nesting.remnants, "nesting"),
+                   spec.output(spec.nest["stock_out"]))
 
 
 def _export(result: JobResult) -> None:
-    from fabline.export import ToolpathOptions, export_job, load_machine
+    from fabline.export import export_job, load_machine
     from fabline.export.preview import PREVIEW_SUFFIX
     from fabline.jobs.pictures import sheet_svg
 
     spec = result.spec
     profile = load_machine(spec.machine["profile"])
     parts = {p.id: p for p in result.partset.parts}
-    result.export = export_job(result.nesting, parts, profile, ToolpathOptions(kerf=profile.kerf),
+    result.export = export_job(result.nesting, parts, profile, toolpath_options(spec.export, profile.kerf),
                                dxf_dir=spec.output("dxf"), gcode_dir=spec.output("gcode"), name=spec.name,
                                source=str(spec.output("nesting.json")), cutlist=spec.output("cutlist.csv"),
                                previews=True)

@@ -19,6 +19,7 @@ from typing import Any
 from fabline.jobs import report_shop
 from fabline.jobs.pictures import model_svg
 from fabline.jobs.report_shop import mm
+from fabline.unroll.structure import CHECKS, VERDICT_RULE, percent
 
 REPORT_SCHEMA = "fabline.report/1"
 _STYLE = """
@@ -46,7 +47,7 @@ def report_data(result: Any) -> dict[str, Any]:
                        "parts": [p.part for p in sheet.placements],
                        **{k: files[k] for k in ("gcode", "svg", "preview", "cut_length_mm", "time_s") if k in files}})
     structure = result.structure
-    failing = [row["lamella"] for row in structure if row["utilisation"] > 1.0]
+    failing = [row["lamella"] for row in structure if not row["passes"]]
     return {
         "schema": REPORT_SCHEMA,
         "job": spec.to_dict(),
@@ -56,7 +57,7 @@ def report_data(result: Any) -> dict[str, Any]:
         "parts": ({"count": len(result.partset.parts),
                    "by_kind": dict(Counter(p.kind for p in result.partset.parts))} if result.partset else None),
         "structure": {"lamellas": structure, "max_utilisation": max((r["utilisation"] for r in structure), default=None),
-                      "failing": failing, "passes": not failing},
+                      "failing": failing, "passes": not failing, "rule": VERDICT_RULE},
         "nesting": ({"sheets": sheets, "summary": result.nesting.summary} if result.nesting else None),
         "machine_time_s": result.export.totals().time if result.export else None,
         "bill_of_materials": report_shop.bill_of_materials(result),
@@ -108,22 +109,26 @@ def _structure_table(structure: dict[str, Any]) -> str:
     rows = structure["lamellas"]
     if not rows:
         return "<h2>Strips and structural check</h2><p>No unroll stage in this job.</p>"
+    worst = max(rows, key=lambda row: row["utilisation"])
     verdict = ("every lamella passes" if structure["passes"]
                else f"{len(structure['failing'])} lamella(s) exceed yield: {', '.join(structure['failing'])}")
     head = ("<tr><th>lamella</th><th>length m</th><th>min radius mm</th><th>max twist rad/m</th>"
-            "<th>bending %</th><th>shear %</th><th>helix %</th><th>combined %</th><th>governing</th></tr>")
+            "<th>bending %</th><th>shear %</th><th>helix %</th><th>combined %</th><th>governing</th><th>verdict</th></tr>")
     body = []
     for row in rows:
-        css = "fail" if row["utilisation"] > 1.0 else "ok"
+        css = "ok" if row["passes"] else "fail"
         radius = f"{row['min_radius_mm']:.0f}" if row["min_radius_mm"] else "straight"
+        cells = "".join(f"<td class={'fail' if row[f'utilisation_{k}'] > 1.0 else 'ok'}>"
+                        f"{percent(row[f'utilisation_{k}'])[:-2]}</td>" for k in CHECKS)
         body.append(f"<tr class={css}><td>{html.escape(row['lamella'])}</td><td>{row['length_mm'] / 1000:.3f}</td>"
-                    f"<td>{radius}</td><td>{row['max_twist_rad_per_m']:.3f}</td>"
-                    + "".join(f"<td>{100 * row[f'utilisation_{k}']:.0f}</td>" for k in ("bending", "shear", "helix", "combined"))
-                    + f"<td>{row['governing']}</td></tr>")
+                    f"<td>{radius}</td><td>{row['max_twist_rad_per_m']:.3f}</td>{cells}"
+                    f"<td>{row['governing']}</td><td>{'passes' if row['passes'] else 'exceeds yield'}</td></tr>")
     first = rows[0]
-    return (f"<h2>Strips and structural check</h2><p>{html.escape(verdict)}; largest utilisation "
-            f"{100 * structure['max_utilisation']:.0f} % (allowed radius {first['min_allowed_radius_mm']:.0f} mm, "
-            f"twist {first['max_allowed_twist_rad_per_m']:.3f} rad/m).</p><table id=strips>{head}{''.join(body)}</table>")
+    return (f"<h2>Strips and structural check</h2><p id=verdict class={'ok' if structure['passes'] else 'fail'}>"
+            f"{html.escape(verdict)}; largest utilisation {percent(worst['utilisation'])} ({worst['governing']}, "
+            f"lamella {html.escape(worst['lamella'])}; allowed radius {first['min_allowed_radius_mm']:.0f} mm, "
+            f"twist {first['max_allowed_twist_rad_per_m']:.3f} rad/m).</p><p class=note>Rule: "
+            f"{html.escape(structure['rule'])}</p><table id=strips>{head}{''.join(body)}</table>")
 
 
 def _survey_section(survey: dict[str, Any] | None) -> str:

@@ -179,7 +179,7 @@ class SimulatorServer:
         if line_time:
             options["line_time"] = line_time
         if log is not None:
-            options["log"] = str(log)
+            options["log"] = str(Path(log).resolve())  # the process runs in the package root, not here
         self.command = [sys.executable, "-m", "fabline.link.server", "--transport", transport,
                         "--options", urllib.parse.urlencode(options)]
         if baud:

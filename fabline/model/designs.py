@@ -253,6 +253,19 @@ def _fit_domain(surface: AsymptoticSurface, boundary: str, size: tuple[float, fl
     return float(halves[0]), float(halves[1]), float(np.max(np.hypot(halves[0] * su, halves[1] * sv)))
 
 
+def enneper_mesh(network: Network, count: int = 61, margin: float = 1.05):
+    """The reference surface of an `enneper_network` as a trimesh: its (u, v) domain, `margin` times larger, meshed
+    on a count x count grid, faces wound along X_u x X_v (the design's normals), for writers and importers."""
+    import trimesh
+
+    surface = enneper_surface(network.meta["scale_m_per_unit"])
+    half_u, half_v = network.meta["domain"]["u"] * margin, network.meta["domain"]["v"] * margin
+    u, v = np.meshgrid(np.linspace(-half_u, half_u, count), np.linspace(-half_v, half_v, count), indexing="ij")
+    index = np.arange(count * count).reshape(count, count)
+    a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
+    return trimesh.Trimesh(surface.point(u, v).reshape(-1, 3), np.r_[np.c_[a, b, c], np.c_[a, c, d]], process=False)
+
+
 def catenoid_network(waist: float = 1.0, height: float = 3.0, count: int = 16) -> Network:
     """Asymptotic network on a catenoid (axis z, waist circle at z = 0): `count` helical lamellas per family.
 

@@ -1,7 +1,8 @@
 """Write a network's lamella centrelines for CAD: OBJ polylines and DXF 3D polylines, one group/layer per family.
 
-The curves are the model's own samples, which contain every node as a vertex, so importing them again
-(`fabline.model.importers`) finds the same nodes. A reference surface mesh may be written alongside
+The curves are the model's own samples, which contain every node as a vertex, and every node is written as a
+named point (OBJ `p` in group NODES, object "<id> <kind>"; DXF POINT on layer NODES, id and kind in XDATA), so
+importing them again (`fabline.model.importers`) gives the same nodes, ids and kinds, lamella ends included. A reference surface mesh may be written alongside
 (OBJ faces, a DXF MESH entity) so the file carries its own normals.
 """
 
@@ -20,6 +21,8 @@ from fabline.model.network import Network
 
 SURFACE_NAME = "SURFACE"
 """OBJ group and DXF layer of the reference surface; it names no family, so importers never read it as curves."""
+NODES_NAME = "NODES"
+"""OBJ group and DXF layer of the nodes, one named point each (id and kind), so an import gets them all back."""
 
 
 def write_obj(network: Network, path: str | os.PathLike, mesh: trimesh.Trimesh | None = None) -> None:
@@ -34,6 +37,11 @@ def write_obj(network: Network, path: str | os.PathLike, mesh: trimesh.Trimesh |
             out.write(_vertex_block(lam.curve, digits))
             out.write("l " + " ".join(map(str, range(count + 1, count + len(lam.curve) + 1))) + "\n")
             count += len(lam.curve)
+        for node in network.nodes.values():
+            out.write(f"o {node.id} {node.kind}\ng {NODES_NAME}\n")
+            out.write(_vertex_block(np.asarray(node.xyz, dtype=float).reshape(1, 3), digits))
+            count += 1
+            out.write(f"p {count}\n")
         if mesh is not None:
             out.write(f"o {SURFACE_NAME}\ng {SURFACE_NAME}\n")
             out.write(_vertex_block(np.asarray(mesh.vertices), digits))
@@ -49,12 +57,15 @@ def write_dxf(network: Network, path: str | os.PathLike, mesh: trimesh.Trimesh |
     doc = ezdxf.new("R2010", setup=False)
     doc.header["$INSUNITS"] = codes[network.units]
     doc.appids.add(XDATA_APP)
-    for layer, colour in (("A", 1), ("B", 5), (SURFACE_NAME, 8)):
+    for layer, colour in (("A", 1), ("B", 5), (SURFACE_NAME, 8), (NODES_NAME, 3)):
         doc.layers.add(layer, color=colour)
     modelspace = doc.modelspace()
     for lam in network.lamellas:
         polyline = modelspace.add_polyline3d(lam.curve.tolist(), dxfattribs={"layer": lam.family})
         polyline.set_xdata(XDATA_APP, [(1000, lam.id)])
+    for node in network.nodes.values():
+        point = modelspace.add_point(np.asarray(node.xyz, dtype=float).tolist(), dxfattribs={"layer": NODES_NAME})
+        point.set_xdata(XDATA_APP, [(1000, node.id), (1000, node.kind)])
     if mesh is not None:
         surface = modelspace.add_mesh(dxfattribs={"layer": SURFACE_NAME})
         with surface.edit_data() as data:

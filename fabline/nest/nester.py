@@ -24,7 +24,7 @@ from fabline.nest.layout import CommonCut, Nesting, Placement, Sheet
 from fabline.nest.raster import Canvas, Lattice, Template, densest_lattice, make_template, place_copies
 from fabline.nest.remnants import leftover_rectangles
 from fabline.nest.shapes import NestShape, nest_shapes
-from fabline.nest.stock import StockItem
+from fabline.nest.stock import StockItem, usable_extent
 from fabline.nest.validate import validate_nesting
 from fabline.progress import progress
 from fabline.unroll.parts import PartSet
@@ -152,7 +152,7 @@ def _extent(shape: NestShape) -> tuple[float, float]:
 
 
 def _fits(shape: NestShape, item: StockItem, options: NestOptions) -> bool:
-    usable_w, usable_h = item.width - 2 * options.margin, item.height - 2 * options.margin
+    usable_w, usable_h = usable_extent(item.width, options.margin), usable_extent(item.height, options.margin)
     for angle in shape.rotations(options.rotation_steps):
         minx, miny, maxx, maxy = affinity.rotate(shape.solid, angle, origin=(0, 0)).bounds
         if maxx - minx <= usable_w + 1e-9 and maxy - miny <= usable_h + 1e-9:
@@ -171,7 +171,8 @@ def _check_fits(shapes: list[NestShape], stock: list[StockItem], options: NestOp
 
 def _row_fits_some(shape: NestShape, stock: list[StockItem], options: NestOptions) -> bool:
     w, h = _extent(shape)
-    return any(w <= s.width - 2 * options.margin and h <= s.height - 2 * options.margin for s in stock)
+    return any(w <= usable_extent(s.width, options.margin) and h <= usable_extent(s.height, options.margin)
+               for s in stock)
 
 
 def _spacing(options: NestOptions) -> float:
@@ -186,7 +187,7 @@ def _place_strips(strips: list[NestShape], supply: _Supply, sheets: list[_OpenSh
     for item in supply.available():
         if not remaining:
             break
-        usable_w, usable_h = item.width - 2 * options.margin, item.height - 2 * options.margin
+        usable_w, usable_h = usable_extent(item.width, options.margin), usable_extent(item.height, options.margin)
         fitting = [s for s in remaining if _extent(s)[0] <= usable_w and _extent(s)[1] <= usable_h]
         if not fitting:
             continue
@@ -349,8 +350,10 @@ def _place_irregular(shapes: list[NestShape], supply: _Supply, sheets: list[_Ope
             before = len(remaining)
             remaining = _fill(open_sheet, remaining, templates, res, options, lattice)
             if len(remaining) == before:
-                raise FablineError(f"part {representative.id} does not fit on an empty {item.id} sheet with gap "
-                                   f"{options.gap:g} mm and kerf {options.kerf:g} mm")
+                w, h = _extent(representative)
+                raise FablineError(f"part {representative.id} ({w:.0f} x {h:.0f} mm) does not fit on an empty "
+                                   f"{item.width:g} x {item.height:g} mm sheet ({item.id}) with its clearance of gap "
+                                   f"{options.gap:g} + kerf {options.kerf:g} mm")
 
 
 def _lattice(templates: list[Template]) -> Lattice | None:

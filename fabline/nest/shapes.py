@@ -81,12 +81,15 @@ def shape_key(part: Part) -> str:
 
 
 def is_strip_like(polygon: Polygon, kind: str) -> bool:
-    """A straight strip: its outline is its bounding rectangle apart from small notches, so it nests in rows."""
-    if kind != "strip":
+    """A strip, straight or bent in plane so little that its outline is its bounding rectangle apart from small
+    notches and the bend: it nests in rows, by that rectangle."""
+    if kind not in ("strip", "curved-strip"):
         return False
     box = shapely.envelope(polygon.exterior)
     if box.area <= 0 or Polygon(polygon.exterior).area / box.area < 0.9:
         return False
+    if kind == "curved-strip":  # its long edges are arcs inside the box: the area alone says how much a row wastes
+        return True
     xmin, ymin, xmax, ymax = box.bounds
     long_edges = [shapely.LineString([(xmin, ymin), (xmax, ymin)]), shapely.LineString([(xmin, ymax), (xmax, ymax)])]
     return all(polygon.exterior.intersection(edge).length >= 0.5 * edge.length for edge in long_edges)

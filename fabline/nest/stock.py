@@ -36,6 +36,12 @@ class StockItem:
         return self.width * self.height
 
 
+def usable_extent(sheet_side: float, margin: float) -> float:
+    """The longest part (mm) a sheet holds along a side: the side less a margin at both ends. The one rule of both
+    stages: unroll splits strips to it, and nest places every strip up to it (in rows, so no clearance is added)."""
+    return sheet_side - 2.0 * margin
+
+
 def parse_sheet_size(text: str) -> tuple[float, float]:
     """'4000x2000' -> (4000.0, 2000.0); a malformed or non-positive size is a FablineError."""
     try:

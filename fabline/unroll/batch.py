@@ -127,8 +127,10 @@ def straight_parts(segments: list[Segment], options: UnrollOptions) -> list[Part
     start_seam = np.array([is_seam(s.start_join) for s in segments])
     end_seam = np.array([is_seam(s.end_join) for s in segments])
     seg_a, seg_b = a[node_seg], b[node_seg]
-    in_seam = ((start_seam[node_seg] & (seg_a < tip) & (tip < seg_a + options.overlap))
-               | (end_seam[node_seg] & (seg_b - options.overlap < tip) & (tip < seg_b)))
+    start_overlap = np.array([s.start_join.overlap if flag else 0.0 for s, flag in zip(segments, start_seam)])
+    end_overlap = np.array([s.end_join.overlap if flag else 0.0 for s, flag in zip(segments, end_seam)])
+    in_seam = ((start_seam[node_seg] & (seg_a < tip) & (tip < seg_a + start_overlap[node_seg]))
+               | (end_seam[node_seg] & (seg_b - end_overlap[node_seg] < tip) & (tip < seg_b)))
     right = (tip <= seg_b - TEXT_GAP) & ~in_seam
     dx = np.where(right, TEXT_GAP, -TEXT_GAP - widths * height)
     baseline = edge_y - sign * TEXT_GAP - np.where(sign > 0, height, 0.0)
@@ -141,8 +143,8 @@ def straight_parts(segments: list[Segment], options: UnrollOptions) -> list[Part
     label_chars = characters(labels)
     starting, ending = np.flatnonzero(start_seam), np.flatnonzero(end_seam)
     span_seg = np.concatenate([starting, ending, node_seg])
-    span_lo = np.concatenate([a[starting], b[ending] - options.overlap, blocked_lo])
-    span_hi = np.concatenate([a[starting] + options.overlap, b[ending], blocked_hi])
+    span_lo = np.concatenate([a[starting], b[ending] - end_overlap[ending], blocked_lo])
+    span_hi = np.concatenate([a[starting] + start_overlap[starting], b[ending], blocked_hi])
     anchor, size = label_spots(label_chars.widths, a, b, span_seg, span_lo, span_hi, height)
     text, text_starts, text_stroke_at, text_point_at = _engraving(
         id_chars, which, id_shift, node_seg, height, label_chars, anchor, size, a, edge_y, slot_end_y)
@@ -364,16 +366,17 @@ def _spans(first: np.ndarray, counts: np.ndarray) -> np.ndarray:
 def _seam_holes(segments: list[Segment], a: np.ndarray, start_seam: np.ndarray, end_seam: np.ndarray,
                 options: UnrollOptions) -> tuple[list[np.ndarray], list[int]]:
     """The six screw-hole circles at each seam end of every segment (as `pieces` orders them); holes per segment."""
-    seam_x, owner = [], []
+    seam_x, overlap, owner = [], [], []
     for k, segment in enumerate(segments):
         for join, flag in ((segment.start_join, start_seam[k]), (segment.end_join, end_seam[k])):
             if flag:
                 seam_x.append(join.x)
+                overlap.append(join.overlap)
                 owner.append(k)
     if not seam_x:
         return [], [0] * len(segments)
     owner = np.array(owner)
-    columns = np.array(seam_x)[:, None] + SEAM_HOLE_COLUMNS[None, :] * options.overlap   # (seams, 3)
+    columns = np.array(seam_x)[:, None] + SEAM_HOLE_COLUMNS[None, :] * np.array(overlap)[:, None]   # (seams, 3)
     rows = SEAM_HOLE_ROWS * options.profile.h
     # per segment: every column of its seams for the first row, then again for the second row (as pieces does)
     seam = np.repeat(np.arange(len(seam_x)), len(rows) * 3)

@@ -5,13 +5,15 @@ Sizing rule (documented in the README, Unrolling: Hardware parts), from the prof
 - washer (kind "washer"): two per crossing node, above and below; one arm along each lamella pair at the
   node's design crossing angle, reaching d + h/4 from the bolt, with a square hole for the carriage bolt's neck;
 - clamp (kind "clamp"): one per crossing node on every second diagonal (one colour of the grid's
-  checkerboard); four arms along the diagonals reaching 15 mm past the washer, each with a cable hole;
+  checkerboard); four arms along the diagonals reaching 15 mm past the washer, each with a cable hole in a tip
+  that is bent up 90 degrees at a fold line (engraved) 1 mm past the washer, so the cable runs through it;
 - joint (kind "joint"): two hexagonal star plates per singularity node when it gets a separate joint; six
   arms along the three lamellas, reaching h/2 past the pair ends, each with a bolt hole between the pair.
 """
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 from typing import NamedTuple
 
@@ -22,10 +24,61 @@ from shapely.ops import unary_union
 
 from fabline.unroll.flat import circle
 from fabline.unroll.materials import Profile
-from fabline.unroll.parts import Part
+from fabline.unroll.options import TEXT_GAP
+from fabline.unroll.parts import Part, Polylines
+from fabline.unroll.strokes import characters, gather
 
 CLAMP_EXTRA_REACH = 15.0
 CABLE_HOLE = 6.5
+FOLD_CLEARANCE = 1.0  # a clamp arm folds up this far past the washer it lies on
+MIN_ID_HEIGHT = 1.5  # an id smaller than this is not engraved: the part has no room for it
+
+
+def engraved_ids(texts: list[str], x_from: float, x_to: float, room: float, height: float,
+                 angle_deg: np.ndarray | float = 0.0) -> list[Polylines]:
+    """Each text engraved along one arm of a hardware part: centred across it, from x_from to at most x_to along the
+    arm at `angle_deg` (per text, or one for all), cap height `height` shrunk to the arm's length and its width
+    `room`; an empty Polylines where the text would be under MIN_ID_HEIGHT. All texts in one `gather`."""
+    if not texts:
+        return []
+    chars = characters(texts)
+    size = np.minimum(np.minimum(height, room), (x_to - x_from) / np.maximum(chars.widths, 1e-9))
+    placed = size >= MIN_ID_HEIGHT
+    owner = np.repeat(np.arange(len(texts)), chars.lengths)
+    keep = placed[owner]
+    glyph, advance, owner = chars.glyph[keep], chars.advance[keep], owner[keep]
+    shift = np.column_stack([np.full(len(owner), x_from), -size[owner] / 2.0])
+    block = gather(chars.table, glyph, size[owner], shift, advance)
+    angle = np.radians(np.broadcast_to(np.asarray(angle_deg, dtype=float), (len(texts),)))
+    point_owner = np.repeat(owner, block.point_counts)
+    c, s = np.cos(angle[point_owner]), np.sin(angle[point_owner])
+    x, y = block.points[:, 0].copy(), block.points[:, 1].copy()
+    points = np.column_stack([c * x - s * y, s * x + c * y])
+    stroke_owner = owner[block.stroke_owner]
+    point_at = np.searchsorted(point_owner, np.arange(len(texts) + 1))
+    stroke_at = np.searchsorted(stroke_owner, np.arange(len(texts) + 1))
+    return [Polylines(points[point_at[k]:point_at[k + 1]], block.starts[stroke_at[k]:stroke_at[k + 1]] - point_at[k])
+            for k in range(len(texts))]
+
+
+def short_id(node: str) -> str:
+    """A node id as engraved on hardware: without the N and the leading zeros of its numbers (N012-007 -> 12-7)."""
+    return re.sub(r"(?<![0-9])0+(?=[0-9])", "", node[1:] if re.match(r"N[0-9]", node) else node)
+
+
+def washer_ids(nodes: list[str], sizes: HardwareSizes, height: float) -> list[Polylines]:
+    """The node's short id engraved on each node's washers, along the arm of its first lamella (angle 0)."""
+    reach = sizes.bolt_square / np.sqrt(2.0) + TEXT_GAP
+    return engraved_ids([short_id(n) for n in nodes], reach, sizes.washer_reach - TEXT_GAP,
+                        2.0 * (sizes.half_width - TEXT_GAP), height)
+
+
+def clamp_ids(nodes: list[str], crossing_deg: list[float], sizes: HardwareSizes, height: float) -> list[Polylines]:
+    """The node's short id engraved on each clamp, along its first diagonal arm, between the bolt and its fold line."""
+    angles = np.round(np.asarray(crossing_deg, dtype=float) * 2.0) / 2.0 / 2.0
+    reach = sizes.bolt_square / np.sqrt(2.0) + TEXT_GAP
+    end = sizes.washer_reach + FOLD_CLEARANCE - TEXT_GAP  # short of the fold line
+    return engraved_ids([short_id(n) for n in nodes], reach, end, sizes.half_width - 2.0 * TEXT_GAP, height, angles)
 
 
 class HardwareSizes(NamedTuple):
@@ -87,14 +140,15 @@ def washer_keys(angles: np.ndarray, bounds: list[int]) -> list[tuple[float, ...]
     return [tuple(sorted(set(relative[lo:hi]))) for lo, hi in zip(bounds[:-1], bounds[1:])]
 
 
-def washers(node: str, angles: tuple[float, ...], sizes: HardwareSizes) -> list[Part]:
-    """The two star washers (top, bottom) of a node: one arm pair along each lamella pair, at `angles` (`washer_keys`)."""
+def washers(node: str, angles: tuple[float, ...], sizes: HardwareSizes, text: Polylines | list = ()) -> list[Part]:
+    """The two star washers (top, bottom) of a node: one arm pair along each lamella pair, at `angles` (`washer_keys`),
+    with `text` (`washer_ids`) engraved."""
     outline, hole, label = _washer_shape(angles, sizes)
     # all fields by position, both parts written out: tens of thousands of washers, and keywords, defaults or a
     # comprehension's own call add a third to the cost of each
-    return [Part(f"W-{node}-T", "washer", outline, None, [hole], [], [], [], [], label, False,
+    return [Part(f"W-{node}-T", "washer", outline, None, [hole], [], [], text, [], label, False,
                  {"node": node, "arm_angles_deg": list(angles), "side": "T"}),
-            Part(f"W-{node}-B", "washer", outline, None, [hole], [], [], [], [], label, False,
+            Part(f"W-{node}-B", "washer", outline, None, [hole], [], [], text, [], label, False,
                  {"node": node, "arm_angles_deg": list(angles), "side": "B"})]
 
 
@@ -106,12 +160,30 @@ def _washer_shape(angles: tuple[float, ...], sizes: HardwareSizes) -> tuple[np.n
     return outline, hole, "W " + "/".join(f"{a:g}" for a in angles[1:])
 
 
-def clamp(node: str, crossing_deg: float, sizes: HardwareSizes) -> Part:
-    """The cross-shaped cable clamp of a node: arms along the two diagonals, a cable hole near each arm end."""
+def clamp(node: str, crossing_deg: float, sizes: HardwareSizes, text: Polylines | list = ()) -> Part:
+    """The cross-shaped cable clamp of a node: arms along the two diagonals, a cable hole near each arm end, `text`
+    (`clamp_ids`) engraved, and a fold line across each arm where its tip is bent up (`clamp_folds`)."""
     angle = round(crossing_deg * 2.0) / 2.0
     outline, holes = _clamp_shape(angle, sizes)
-    return Part(f"C-{node}", "clamp", outline, None, list(holes), [], [], [], [], f"C {angle:g}", False,
-                {"node": node, "crossing_deg": angle})  # by position, as for washers
+    folds = clamp_folds(angle, sizes)
+    return Part(f"C-{node}", "clamp", outline, None, list(holes), [], list(folds), text, [], f"C {angle:g}", False,
+                {"node": node, "crossing_deg": angle,
+                 "folds": [{"line": line.tolist(), "angle_deg": 90.0, "up": True} for line in folds]})
+
+
+@lru_cache(maxsize=1024)
+def clamp_folds(angle: float, sizes: HardwareSizes) -> tuple[np.ndarray, ...]:
+    """Fold lines (engraved score lines) across the four clamp arms, FOLD_CLEARANCE past the washer's reach: each
+    arm's tip is bent up 90 degrees, so its cable hole faces along the diagonal and the cable runs through it."""
+    at = sizes.washer_reach + FOLD_CLEARANCE
+    half = sizes.half_width / 2.0 - TEXT_GAP / 3.0
+    lines = []
+    for a in np.radians([angle / 2.0, angle / 2.0 + 90.0, angle / 2.0 + 180.0, angle / 2.0 + 270.0]):
+        along, across = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
+        line = np.array([at * along - half * across, at * along + half * across])
+        line.flags.writeable = False
+        lines.append(line)
+    return tuple(lines)
 
 
 @lru_cache(maxsize=1024)

@@ -6,6 +6,8 @@ follow domain.md section 5 unless given explicitly.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from fabline.errors import FablineError
@@ -30,6 +32,7 @@ class UnrollOptions:
     slot_width: float | None = None     # default 2 t: lets the joint rotate during assembly
     min_web: float | None = None        # least material between two slots; default the slot width
     overlap: float = 150.0              # length of a seam's overlap
+    min_overlap: float | None = None    # where no seam fits, overlaps shorten down to this; default 2/3 of overlap
     screw_hole: float = 5.5             # diameter of the six seam screw holes
     sheet_length: float = 4000.0
     sheet_margin: float = 10.0          # usable strip length = sheet_length - 2 * sheet_margin
@@ -59,6 +62,11 @@ class UnrollOptions:
         return self.min_web if self.min_web is not None else self.slot
 
     @property
+    def shortest_overlap(self) -> float:
+        """The shortest seam overlap allowed where the full one fits nowhere (mm)."""
+        return self.min_overlap if self.min_overlap is not None else 2.0 * self.overlap / 3.0
+
+    @property
     def end(self) -> float:
         """Strip length beyond the outermost slot or node (mm)."""
         return self.end_length if self.end_length is not None else self.profile.h / 2.0
@@ -75,33 +83,43 @@ class UnrollOptions:
 
     @property
     def usable_length(self) -> float:
-        """Longest strip segment a sheet holds (mm)."""
-        return self.sheet_length - 2.0 * self.sheet_margin
+        """Longest strip segment a sheet holds (mm): the nester's rule (`fabline.nest.stock.usable_extent`)."""
+        from fabline.nest.stock import usable_extent
 
-    def check(self) -> "UnrollOptions":
-        """Raise a FablineError naming the first setting that cannot work."""
-        positive = {"overlap": self.overlap, "screw hole": self.screw_hole, "sheet length": self.sheet_length,
-                    "text height": self.text_height, "bolt square": self.bolt_square, "slot width": self.slot,
-                    "end length": self.end, "straight tolerance": self.straight_tolerance}
-        for name, value in positive.items():
-            if not value > 0:
-                raise FablineError(f"option {name} must be positive, got {value:g}")
-        if self.pair_spacing < 0 or self.slot_clearance < 0 or self.sheet_margin < 0 or self.web < 0:
-            raise FablineError("options pair spacing, slot clearance, sheet margin and web must not be negative")
+        return usable_extent(self.sheet_length, self.sheet_margin)
+
+    def check(self, name: Callable[[str], str] = lambda key: "--" + key.replace("_", "-")) -> "UnrollOptions":
+        """Raise a FablineError naming, as `name(field)` gives it, the first setting that cannot work (the command
+        line's option by default; a job file names its own keys, which are these fields' names)."""
+        positive = ("overlap", "screw_hole", "sheet_length", "text_height", "bolt_square", "slot_width", "end_length",
+                    "straight_tolerance")
+        for key in positive:
+            value = {"slot_width": self.slot, "end_length": self.end}.get(key, getattr(self, key))
+            if not 0 < value < math.inf:
+                raise FablineError(f"{name(key)}: must be positive, got {value:g}")
+        for key in ("pair_spacing", "slot_clearance", "sheet_margin", "min_web"):
+            value = self.web if key == "min_web" else getattr(self, key)
+            if not 0 <= value < math.inf:
+                raise FablineError(f"{name(key)}: must not be negative, got {value:g}")
         if 0 < self.pair_spacing <= self.profile.t + self.slot:
-            raise FablineError(f"pair spacing {self.pair_spacing:g} mm leaves no room between two {self.profile.t:g} mm "
-                               f"strips with {self.slot:g} mm slots (use 0 for single lamellas)")
+            raise FablineError(f"{name('pair_spacing')}: {self.pair_spacing:g} mm leaves no room between two "
+                               f"{self.profile.t:g} mm strips with {self.slot:g} mm slots (use 0 for single lamellas)")
         if self.slot_depth >= self.profile.h:
-            raise FablineError(f"slot depth {self.slot_depth:g} mm (h/2 + clearance) cuts through the {self.profile.h:g} mm strip")
+            raise FablineError(f"{name('slot_clearance')}: slot depth {self.slot_depth:g} mm (h/2 + clearance) cuts "
+                               f"through the {self.profile.h:g} mm strip")
         if self.usable_length <= 2.0 * self.overlap:
-            raise FablineError(f"usable sheet length {self.usable_length:g} mm is not longer than two overlaps "
-                               f"of {self.overlap:g} mm")
-        largest_hole = min(self.profile.h / 4.0, self.overlap / 6.0)  # half a hole of material around each of the six
+            raise FablineError(f"{name('overlap')}: usable sheet length {self.usable_length:g} mm is not longer than "
+                               f"two overlaps of {self.overlap:g} mm")
+        if not 0 < self.shortest_overlap <= self.overlap:
+            raise FablineError(f"{name('min_overlap')}: must be positive and at most the overlap "
+                               f"{self.overlap:g} mm, got {self.shortest_overlap:g}")
+        largest_hole = min(self.profile.h / 4.0, self.shortest_overlap / 6.0)  # half a hole of material around each
         if self.screw_hole > largest_hole:
-            raise FablineError(f"screw hole {self.screw_hole:g} mm does not fit a seam of the {self.profile.h:g} mm strip "
-                               f"with a {self.overlap:g} mm overlap (at most min(h/4, overlap/6) = {largest_hole:g} mm)")
+            raise FablineError(f"{name('screw_hole')}: {self.screw_hole:g} mm does not fit a seam of the "
+                               f"{self.profile.h:g} mm strip with a {self.shortest_overlap:g} mm overlap "
+                               f"(at most min(h/4, min overlap/6) = {largest_hole:g} mm)")
         if self.singularity not in SINGULARITY_MODES:
-            raise FablineError(f"singularity mode {self.singularity!r}: use one of {', '.join(SINGULARITY_MODES)}")
+            raise FablineError(f"{name('singularity')}: {self.singularity!r}: use one of {', '.join(SINGULARITY_MODES)}")
         if not 0 < self.min_crossing_angle <= 90:
-            raise FablineError(f"minimum crossing angle {self.min_crossing_angle:g} must lie in (0, 90] degrees")
+            raise FablineError(f"{name('min_crossing_angle')}: {self.min_crossing_angle:g} must lie in (0, 90] degrees")
         return self

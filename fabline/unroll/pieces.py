@@ -15,12 +15,10 @@ import numpy as np
 from fabline.unroll.flat import FlatCentreline, Notches, circles, strip_outline
 from fabline.unroll.options import TEXT_GAP, UnrollOptions
 from fabline.unroll.parts import Part, Polylines, Slot
-from fabline.unroll.seams import Segment, node_text_reach
+from fabline.unroll.seams import SEAM_HOLE_COLUMNS, SEAM_HOLE_ROWS, Segment, node_text_reach
 from fabline.unroll.stations import FAMILY_EDGE, OTHER_EDGE
 from fabline.unroll.strokes import arrow, layout, split_rows
 
-SEAM_HOLE_COLUMNS = np.array([-1.0, 0.0, 1.0]) / 3.0  # of the overlap, about the seam
-SEAM_HOLE_ROWS = np.array([-0.25, 0.25])              # of the height, about the centreline
 MIN_LABEL_HEIGHT = 1.5
 ARROW_LENGTH = 3.0  # the label's orientation arrow, in cap heights
 LABEL_TIE_MM = 1e-6  # free stretches this close in width count as equal: the label takes the first
@@ -57,8 +55,8 @@ def segment_part(segment: Segment, options: UnrollOptions) -> Part:
     height = options.engrave_height
     reach = node_text_reach(options, [n for n, _ in in_nodes]) if in_nodes else 0.0
     baseline = edge_y - sign * TEXT_GAP - (height if sign > 0 else 0.0)
-    seams = [(a, a + options.overlap) if is_seam(segment.start_join) else (a, a),
-             (b - options.overlap, b) if is_seam(segment.end_join) else (b, b)]
+    seams = [(a, a + segment.start_join.overlap) if is_seam(segment.start_join) else (a, a),
+             (b - segment.end_join.overlap, b) if is_seam(segment.end_join) else (b, b)]
     items, blocked = [], list(seams)
     for nid, x in in_nodes:
         glyphs = layout(nid)
@@ -140,7 +138,7 @@ def join_meta(segment: Segment, step: int) -> dict | None:
         return None
     if join.kind == "seam":
         return {"kind": "seam", "part": f"{segment.strip.id}.{segment.index + step}", "between": list(join.interval),
-                "seam_mm": round(join.x - segment.start, 3)}
+                "seam_mm": round(join.x - segment.start, 3), "overlap_mm": round(join.overlap, 3)}
     return {"kind": "joint", "node": join.node}
 
 
@@ -219,9 +217,10 @@ def _label(centre: FlatCentreline, label: str, a: float, b: float, blocked: list
 
 def _seam_holes(centre: FlatCentreline, segment: Segment, options: UnrollOptions) -> np.ndarray:
     """Centres (M, 2) of the six screw holes at each seam end of the segment."""
-    seams = [join.x for join in (segment.start_join, segment.end_join) if is_seam(join)]
+    seams = [join for join in (segment.start_join, segment.end_join) if is_seam(join)]
     if not seams:
         return np.zeros((0, 2))
-    x = (np.array(seams)[:, None] + SEAM_HOLE_COLUMNS[None, :] * options.overlap).ravel()
+    x = (np.array([join.x for join in seams])[:, None]
+         + SEAM_HOLE_COLUMNS[None, :] * np.array([join.overlap for join in seams])[:, None]).ravel()
     rows = SEAM_HOLE_ROWS * options.profile.h
     return centre.place(np.tile(x, len(rows)), 0.0, np.repeat(rows, len(x)))

@@ -21,6 +21,10 @@ from fabline.unroll.stations import Strip
 from fabline.unroll.strokes import text_width
 
 
+SEAM_HOLE_COLUMNS = np.array([-1.0, 0.0, 1.0]) / 3.0  # of the overlap, about the seam
+SEAM_HOLE_ROWS = np.array([-0.25, 0.25])              # of the height, about the centreline
+
+
 @dataclass
 class Join:
     """What a segment end meets: a seam (overlap centred at `x`), a singularity joint at node `node`, or nothing."""
@@ -29,6 +33,7 @@ class Join:
     x: float
     node: str = ""
     interval: tuple[str, str] = ("", "")
+    overlap: float = 0.0  # a seam's overlap length (options.overlap, or shorter where that does not fit)
 
 
 @dataclass
@@ -81,45 +86,144 @@ def split_strip(strip: Strip, options: UnrollOptions, setback: float,
 
 def _split_run(strip: Strip, options: UnrollOptions, start: float, end: float, join_start: Join | None,
                join_end: Join | None, avoid: set[tuple[str, str]]) -> list[Segment]:
-    """Greedy seams: each segment as long as the usable sheet length allows, each seam in a free node interval."""
-    usable, half = options.usable_length, options.overlap / 2.0
-    at, intervals = seam_candidates(strip, options, start, end)
-    # the candidates that fit are those with current + half < at - half and at + half <= current + usable: a
-    # range of the sorted candidates, found by bisection; of them the last one free of the partner's seams
-    overlap_start, overlap_end = (at - half).tolist(), (at + half).tolist()
+    """Greedy seams: each segment as long as the usable sheet length allows, each seam in a free node interval.
+
+    First with every seam in the middle of its interval with the full overlap; only a run where that leaves a sheet
+    length without a seam is split again with the seams shifted and shortened as far as allowed (SEAM_SHIFTS,
+    down to `min_overlap`)."""
+    for extended in (False, True):
+        segments = _greedy(strip, options, start, end, join_start, join_end, avoid,
+                           seam_candidates(strip, options, start, end, extended))
+        if segments is not None:
+            return segments
+    usable = options.usable_length
+    current = _greedy(strip, options, start, end, join_start, join_end, avoid,
+                      seam_candidates(strip, options, start, end, True), stuck_at=True)
+    raise FablineError(f"lamella {strip.lamella}, strip {strip.id}: no seam fits between x = {current:.0f} and "
+                       f"{current + usable:.0f} mm (usable sheet length {usable:g} mm): "
+                       + seam_failure(strip, options, current, current + usable, start, end))
+
+
+def _greedy(strip: Strip, options: UnrollOptions, start: float, end: float, join_start: Join | None,
+            join_end: Join | None, avoid: set[tuple[str, str]], candidates: tuple, stuck_at: bool = False):
+    """The segments of a run with seams from `candidates` (centres, half overlaps, intervals; in order along the
+    strip), or None where a sheet length holds no seam (with `stuck_at`: the x where that happens)."""
+    at, halves, intervals = candidates
+    usable = options.usable_length
+    # a seam fits when its overlap starts past the previous seam's centre and ends within a sheet length; with
+    # equal overlaps and no shifts the candidates' overlap ends are sorted, and those that fit are a range found
+    # by bisection; of them the last one free of the partner's seams
+    low, high = at - halves, at + halves
+    in_order = bool(np.all(np.diff(low) >= 0) and np.all(np.diff(high) >= 0))
+    overlap_start, overlap_end = low.tolist(), high.tolist()
     free = [k for k, interval in enumerate(intervals) if interval not in avoid]
-    segments, current, join = [], start, join_start
+    segments, current, join, centre = [], start, join_start, start + options.overlap / 2.0
     while end - current > usable:
-        first, stop = bisect_right(overlap_start, current + half), bisect_right(overlap_end, current + usable)
-        last_free = bisect_left(free, stop) - 1
-        chosen = free[last_free] if last_free >= 0 and free[last_free] >= first else stop - 1
-        if chosen < first:
-            raise FablineError(
-                f"lamella {strip.lamella}, strip {strip.id}: no seam fits between x = {current:.0f} and "
-                f"{current + usable:.0f} mm: no node interval there leaves {options.overlap:g} mm of overlap clear "
-                f"of slots and marks (usable sheet length {usable:g} mm)")
-        seam = Join("seam", float(at[chosen]), interval=intervals[chosen])
-        segments.append(Segment(strip, current, seam.x + half, start_join=join, end_join=seam))
-        current, join = seam.x - half, seam
+        if in_order:
+            first, stop = bisect_right(overlap_start, centre), bisect_right(overlap_end, current + usable)
+            last_free = bisect_left(free, stop) - 1
+            chosen = free[last_free] if last_free >= 0 and free[last_free] >= first else stop - 1
+            found = chosen >= first
+        else:
+            fitting = np.flatnonzero((low > centre) & (high <= current + usable)).tolist()
+            free_fitting = [k for k in fitting if intervals[k] not in avoid]
+            found = bool(fitting)
+            chosen = (free_fitting or fitting or [-1])[-1]
+        if not found:
+            return current if stuck_at else None
+        seam = Join("seam", float(at[chosen]), interval=intervals[chosen], overlap=2.0 * float(halves[chosen]))
+        segments.append(Segment(strip, current, seam.x + halves[chosen], start_join=join, end_join=seam))
+        current, join, centre = seam.x - halves[chosen], seam, seam.x
     segments.append(Segment(strip, current, end, start_join=join, end_join=join_end))
     return segments
 
 
-def seam_candidates(strip: Strip, options: UnrollOptions, start: float,
-                    end: float) -> tuple[np.ndarray, list[tuple[str, str]]]:
-    """Midpoints of node intervals inside (start, end) whose overlap keeps a web clear of every slot and node mark,
-    and those intervals' node pairs (arrays rather than Join objects: a strip has many candidates, few seams)."""
+SEAM_SHIFTS = (0.0, -0.125, 0.125, -0.25, 0.25)  # where a seam may go: the interval's middle, else shifted this much
+OVERLAP_STEPS = 5  # overlaps tried from `overlap` down to `min_overlap`
+
+
+def seam_candidates(strip: Strip, options: UnrollOptions, start: float, end: float,
+                    extended: bool = False) -> tuple[np.ndarray, np.ndarray, list[tuple[str, str]]]:
+    """Per node interval inside (start, end) where a seam fits: its centre, half its overlap, and the interval's node
+    pair (arrays rather than Join objects: a strip has many candidates, few seams). The seam sits in the middle of
+    the interval with the full overlap; `extended` also tries it shifted by up to a quarter of the interval
+    (SEAM_SHIFTS) and its overlap shortened down to `min_overlap`, longest overlap and nearest the middle first."""
     x, ids = strip.node_x, strip.node_ids  # in order along the strip (stations checks it)
-    middle = (x[1:] + x[:-1]) / 2.0
-    half = options.overlap / 2.0
-    keep_out_slot = half + options.slot / 2.0 + options.web
-    keep_out_mark = half + node_text_reach(options, ids)
-    clear = np.minimum(middle - x[:-1], x[1:] - middle) >= keep_out_mark  # the interval's own nodes are nearest
+    length, middle = np.diff(x), (x[1:] + x[:-1]) / 2.0
+    overlaps = np.linspace(options.overlap, options.shortest_overlap, OVERLAP_STEPS) if extended else [options.overlap]
+    best, best_half = np.full(len(length), np.nan), np.full(len(length), np.nan)
+    for overlap in dict.fromkeys(float(o) for o in overlaps):
+        for shift in SEAM_SHIFTS if extended else (0.0,):
+            todo = np.flatnonzero(np.isnan(best))
+            if not todo.size:
+                break
+            centre = middle[todo] + shift * length[todo]
+            fits = _seam_problem_codes(strip, options, centre, start, end, todo, overlap) == 0
+            best[todo[fits]], best_half[todo[fits]] = centre[fits], overlap / 2.0
+    chosen = np.flatnonzero(~np.isnan(best))
+    return best[chosen], best_half[chosen], [(ids[k], ids[k + 1]) for k in chosen.tolist()]
+
+
+SEAM_PROBLEMS = {
+    1: "the overlap would run past the strip's end",
+    2: "the overlap would cover a node mark (the overlap plus {gap:g} mm each side must lie between two nodes)",
+    3: "a node id would have no room beside its mark, outside the overlap",
+    4: "an overlap end would cut within {web:g} mm (the web) of a slot",
+    5: "a screw hole would come within {web:g} mm of a slot",
+}
+
+
+def _seam_problem_codes(strip: Strip, options: UnrollOptions, centre: np.ndarray, start: float,
+                        end: float, rows: np.ndarray | None = None, overlap: float | None = None) -> np.ndarray:
+    """Per node interval k (of `rows`, default all; seam centre `centre[k]` between nodes k and k + 1), 0 if a seam
+    fits there, else the first SEAM_PROBLEMS code it breaks. The overlap may contain slots (both segments are cut
+    from the same strip stations, so their slots line up and the crossing strip goes through both layers), not
+    node marks."""
+    x, ids = strip.node_x, strip.node_ids
+    rows = np.arange(len(x) - 1) if rows is None else rows
+    overlap = options.overlap if overlap is None else overlap
+    half, reach = overlap / 2.0, node_text_reach(options, ids)
+    left, right = centre - x[rows], x[rows + 1] - centre
+    # node k's distance to node k - 1 (the first node's: twice its distance to the strip's start)
+    before = np.diff(np.concatenate([[x[0] - 2.0 * (x[0] - start)], x]))[rows]
+    # node k's id goes right of its mark unless it would reach into the overlap; then left, clear of node k-1's id
+    codes = np.zeros(len(centre), dtype=int)
+    checks = [(1, (centre - half <= start) | (centre + half >= end)),
+              (2, np.minimum(left, right) < half + TEXT_GAP),
+              (3, (left < half + reach) & (before < 2.0 * reach))]
     if len(strip.slot_x):
-        clear &= _nearest_distance(middle, strip.slot_x) >= keep_out_slot
-    clear &= (middle - half > start) & (middle + half < end)
-    chosen = np.flatnonzero(clear).tolist()
-    return middle[chosen], [(ids[k], ids[k + 1]) for k in chosen]
+        cut_clear = options.slot / 2.0 + options.web
+        hole_clear = options.screw_hole / 2.0 + cut_clear
+        ends = np.minimum(_nearest_distance(centre - half, strip.slot_x), _nearest_distance(centre + half, strip.slot_x))
+        holes = np.min([_nearest_distance(centre + column * overlap, strip.slot_x)
+                        for column in SEAM_HOLE_COLUMNS], axis=0)
+        checks += [(4, ends < cut_clear), (5, holes < hole_clear)]
+    for code, broken in reversed(checks):
+        codes[broken] = code
+    return codes
+
+
+def seam_failure(strip: Strip, options: UnrollOptions, lo: float, hi: float, start: float, end: float) -> str:
+    """Why no seam fits with its overlap within (lo, hi): the limit each node interval there breaks, the widest first."""
+    x, ids = strip.node_x, strip.node_ids
+    half = options.shortest_overlap / 2.0
+    inside = np.flatnonzero((x[1:] > lo + half) & (x[:-1] < hi - half))
+    if not inside.size:
+        return f"no node interval lies there (nodes {ids[0]}..{ids[-1]})"
+    length = x[inside + 1] - x[inside]
+    middle = (x[inside + 1] + x[inside]) / 2.0
+    codes = _seam_problem_codes(strip, options, middle, start, end, inside, options.shortest_overlap)
+    codes = np.where((middle - half <= lo) | (middle + half > hi), 1, codes)
+    widest = inside[np.argsort(-length, kind="stable")][:3]
+    described = []
+    for k in widest:
+        code = int(codes[np.flatnonzero(inside == k)[0]])
+        reason = SEAM_PROBLEMS[code].format(gap=TEXT_GAP, web=options.web) if code else "its overlap would leave the sheet"
+        described.append(f"{ids[k]}..{ids[k + 1]} ({x[k + 1] - x[k]:.1f} mm): {reason}")
+    return (f"every interval there breaks a limit of an overlap of {options.overlap:g} mm shortened down to "
+            f"{options.shortest_overlap:g} mm (min overlap) with six {options.screw_hole:g} mm screw holes, shifted "
+            f"up to a quarter interval; widest, at the shortest overlap: " + "; ".join(described)
+            + " (lower the min overlap, screw hole or text height, or use a longer sheet)")
 
 
 def _nearest_distance(points: np.ndarray, sorted_values: np.ndarray) -> np.ndarray:

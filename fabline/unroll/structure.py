@@ -2,8 +2,10 @@
 
 All inputs in mm, 1/mm and N/mm2. Bending (6.1): sigma = E t k_g / 2. Twist (6.4): tau = G t tau_g.
 Helix torsion (6.8-6.10): eps(r) = (r kappa)^2 / 2 - i_p^2 kappa^2 / 2, so the edges (r = h/2) stretch and
-the centre contracts. The thesis checks each against yield separately; fabline also reports their
-combination (worst of edge fibre and face centre, von Mises) for every node interval.
+the centre contracts. The thesis checks each against yield separately (high k_g and high tau_g do not meet
+on an asymptotic network); but the twist's shear and its helix contraction meet at the face centre, so
+fabline's verdict is the combined check (VERDICT_RULE): per node interval the worse of the edge fibre
+(sigma_b + sigma_H,max) and the face centre (von Mises), which is never below a separate check.
 """
 
 from __future__ import annotations
@@ -16,6 +18,31 @@ from fabline.geometry.darboux import LamellaGeometry
 from fabline.unroll.materials import Material, Profile
 
 MM_PER_M = 1000.0
+SEPARATE_CHECKS = ("bending", "shear", "helix")
+CHECKS = SEPARATE_CHECKS + ("combined",)
+VERDICT_RULE = ("a lamella passes when the combined utilisation of every node interval is at most 100 % of yield: "
+                "the worse of the edge fibre (bending plus helix stress) and the face centre (von Mises of bending, "
+                "helix contraction and twist shear). The thesis checks the effects separately because high bending "
+                "and high twist do not meet on an asymptotic network, but shear and helix contraction come from the "
+                "same twist and meet at the face centre.")
+
+
+def percent(utilisation: float) -> str:
+    """A utilisation as a percentage for people, never rounded onto or across 100 %: 1.003 is '100.3 %',
+    0.997 '99.7 %', 0.5 '50 %'."""
+    value = 100.0 * float(utilisation)
+    text = f"{value:.0f}"
+    decimals = 0
+    while text.lstrip("-") in ("100", "100." + "0" * decimals) and value != 100.0 and decimals < 6:
+        decimals += 1
+        text = f"{value:.{decimals}f}"
+    return f"{text} %"
+
+
+def rounded_utilisation(value: float) -> float:
+    """A utilisation rounded to 4 decimals for the report, but never onto 1 from above (1.00003 stays over 1)."""
+    rounded = round(float(value), 4)
+    return 1.0001 if value > 1.0 and rounded <= 1.0 else rounded
 
 
 def min_bending_radius(material: Material, profile: Profile) -> float:
@@ -90,6 +117,9 @@ def limits(material: Material, profile: Profile, radius: float | None = None, tw
             "helix_stress_min": float(sigma_min), "helix_stress_max": float(sigma_max),
             "helix_utilisation": float(sigma_max) / material.f_y,
             "centre_contraction_mm_per_m": float(-eps_min) * MM_PER_M,
+            # the verdict's check, with the bending of `radius` when given (both at one place)
+            "combined_utilisation": float(utilisations(material, profile, np.array([1.0 / radius if radius else 0.0]),
+                                                       np.array([kappa]))["combined"][0]),
         }
     return result
 
@@ -112,13 +142,13 @@ class LamellaCheck:
 
     @property
     def utilisation(self) -> float:
-        """The governing utilisation of the thesis's separate checks (bending, shear, helix)."""
-        return float(max(self.use[k].max() for k in ("bending", "shear", "helix")))
+        """The governing utilisation: the largest of every check, the combined one included (VERDICT_RULE)."""
+        return float(max(self.use[k].max() for k in CHECKS))
 
     def summary(self, material: Material, profile: Profile) -> dict:
         """The lamella's row in the report: extremes, utilisations and the helix length changes."""
         k_g, tau_g = float(self.max_k_g.max()), float(self.max_tau_g.max())
-        governing = max(("bending", "shear", "helix"), key=lambda k: self.use[k].max())
+        governing = max(CHECKS, key=lambda k: self.use[k].max())
         return {
             "lamella": self.lamella, "length_mm": round(self.length, 3),
             "min_radius_mm": round(1.0 / k_g, 1) if k_g > 0 else None,
@@ -129,8 +159,9 @@ class LamellaCheck:
             "max_bending_stress": round(float(bending_stress(material, profile, k_g)), 2),
             "max_shear_stress": round(float(twist_shear_stress(material, profile, tau_g)), 2),
             "max_helix_stress": round(float(helix_stresses(material, profile, tau_g)[1]), 2),
-            **{f"utilisation_{k}": round(float(v.max()), 4) for k, v in self.use.items()},
-            "utilisation": round(self.utilisation, 4), "governing": governing,
+            **{f"utilisation_{k}": rounded_utilisation(v.max()) for k, v in self.use.items()},
+            "utilisation": rounded_utilisation(self.utilisation), "governing": governing,
+            "passes": self.utilisation <= 1.0,
             "helix_centre_contraction_mm": round(self.centre_contraction, 3),
             "helix_top_edge_extension_mm": round(self.top_extension, 3),
             "helix_bottom_edge_extension_mm": round(self.bottom_extension, 3),
@@ -140,7 +171,7 @@ class LamellaCheck:
     def _intervals(self) -> list[dict]:
         """Per node interval: the largest k_g and tau_g (1/m) and the utilisations, rounded for the report."""
         columns = {"k_g_per_m": np.round(self.max_k_g * MM_PER_M, 6), "tau_g_per_m": np.round(self.max_tau_g * MM_PER_M, 6),
-                   **{k: np.round(v, 4) for k, v in self.use.items()}}
+                   **{k: np.where((v > 1.0) & (np.round(v, 4) <= 1.0), 1.0001, np.round(v, 4)) for k, v in self.use.items()}}
         keys = ("from", "to", *columns)  # one dict(zip) per interval: tens of thousands of rows in a large network
         rows = zip(self.node_ids[:-1], self.node_ids[1:], *(c.tolist() for c in columns.values()))
         return [dict(zip(keys, row)) for row in rows]
@@ -223,25 +254,32 @@ def _interval_max(values: np.ndarray, reduce_at: np.ndarray, is_start: np.ndarra
 
 
 def _warnings(check: LamellaCheck, material: Material, profile: Profile) -> list[str]:
-    """One line per lamella and check that exceeds yield, naming the worst interval's nodes and numbers."""
+    """One line per lamella and check that exceeds yield, naming the worst interval's nodes and numbers; the
+    combined check warns where it alone exceeds yield (a separate check over yield already said so)."""
     lines = []
     r_min, kappa_max = min_bending_radius(material, profile), max_twist(material, profile)
-    for key in ("bending", "shear", "helix"):
-        over = np.flatnonzero(check.use[key] > 1.0)
+    separate_over = np.any([check.use[key] > 1.0 for key in SEPARATE_CHECKS], axis=0)
+    for key in CHECKS:
+        over = np.flatnonzero((check.use[key] > 1.0) & (~separate_over if key == "combined" else True))
         if not over.size:
             continue
         worst = int(over[np.argmax(check.use[key][over])])
         a, b = check.node_ids[worst], check.node_ids[worst + 1]
         where = f"lamella {check.lamella}, nodes {a}..{b}" + (f" (and {over.size - 1} more intervals)" if over.size > 1 else "")
-        percent = 100.0 * check.use[key][worst]
+        share = percent(check.use[key][worst])
         if key == "bending":
             detail = (f"bending radius {1.0 / check.max_k_g[worst]:.0f} mm is below the minimum {r_min:.0f} mm "
-                      f"for a {profile.t:g} mm thick strip ({percent:.0f} % of f_y)")
+                      f"for a {profile.t:g} mm thick strip ({share} of f_y)")
         elif key == "shear":
             detail = (f"twist {check.max_tau_g[worst] * MM_PER_M:.3f} rad/m exceeds the maximum {kappa_max * MM_PER_M:.3f} rad/m "
-                      f"for a {profile.t:g} mm thick strip ({percent:.0f} % of tau_y)")
-        else:
-            detail = (f"helix edge stress at twist {check.max_tau_g[worst] * MM_PER_M:.3f} rad/m is {percent:.0f} % of f_y "
+                      f"for a {profile.t:g} mm thick strip ({share} of tau_y)")
+        elif key == "helix":
+            detail = (f"helix edge stress at twist {check.max_tau_g[worst] * MM_PER_M:.3f} rad/m is {share} of f_y "
                       f"for a {profile.h:g} mm high strip")
+        else:
+            radius = f"{1.0 / check.max_k_g[worst]:.0f} mm" if check.max_k_g[worst] > 0 else "straight"
+            detail = (f"twist {check.max_tau_g[worst] * MM_PER_M:.3f} rad/m with bending radius {radius}: combined "
+                      f"stress (von Mises at the face centre, or bending plus helix at the edge) is {share} of f_y "
+                      f"for a {profile.h:g} x {profile.t:g} mm strip, though each effect alone is within yield")
         lines.append(f"{where}: {detail}")
     return lines

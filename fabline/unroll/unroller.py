@@ -17,7 +17,8 @@ from fabline.model.network import Network
 from fabline.progress import progress
 from fabline.unroll.batch import straight_flags, straight_parts
 from fabline.unroll.collector import collector_paused
-from fabline.unroll.hardware import HardwareSizes, checkerboard, clamp, singularity_joints, washer_keys, washers
+from fabline.unroll.hardware import (HardwareSizes, checkerboard, clamp, clamp_ids, singularity_joints, washer_ids,
+                                     washer_keys, washers)
 from fabline.unroll.options import UnrollOptions
 from fabline.unroll.parts import Part, PartSet
 from fabline.unroll.pieces import is_seam, segment_part
@@ -104,14 +105,19 @@ def hardware_parts(geometry: NetworkGeometry, options: UnrollOptions, sizes: Har
     keys = washer_keys(angles, bounds)
     raw = angles.tolist()
     joint_mode = options.singularity == "joint"
+    washer_text = iter(washer_ids([nid for nid in crossing if nid not in singular or not joint_mode], sizes,
+                                  options.text_height))
+    clamp_nodes = [(nid, key[1]) for nid, key in zip(crossing, keys) if nid in clamped and nid not in singular]
+    clamp_text = iter(clamp_ids([nid for nid, _ in clamp_nodes], [angle for _, angle in clamp_nodes], sizes,
+                                options.text_height))
     parts: list[Part] = []
     for k, (nid, key) in enumerate(zip(crossing, keys)):
         if nid in singular and joint_mode:
             parts.extend(singularity_joints(nid, raw[bounds[k]:bounds[k + 1]], sizes))
             continue
-        parts.extend(washers(nid, key, sizes))
+        parts.extend(washers(nid, key, sizes, next(washer_text)))
         if nid in clamped and nid not in singular:
-            parts.append(clamp(nid, key[1], sizes))
+            parts.append(clamp(nid, key[1], sizes, next(clamp_text)))
     return parts
 
 
@@ -176,7 +182,7 @@ def _options_row(options: UnrollOptions) -> dict:
     """The settings that shaped the parts, for the record in parts.json."""
     return {
         "pair_spacing_mm": options.pair_spacing, "slot_width_mm": options.slot, "slot_depth_mm": options.slot_depth,
-        "overlap_mm": options.overlap, "screw_hole_mm": options.screw_hole, "usable_length_mm": options.usable_length,
+        "overlap_mm": options.overlap, "min_overlap_mm": options.shortest_overlap, "screw_hole_mm": options.screw_hole, "usable_length_mm": options.usable_length,
         "end_length_mm": options.end, "compensate_twist": options.compensate_twist,
         "singularity": options.singularity, "hardware": options.hardware, "text_height_mm": options.engrave_height,
         "min_crossing_angle_deg": options.min_crossing_angle,

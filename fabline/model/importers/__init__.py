@@ -13,7 +13,8 @@ import trimesh
 
 from fabline.errors import FablineError
 from fabline.model.importers.assemble import ImportReport, NearMissReport, build_network
-from fabline.model.importers.curves import CurveSource, check_surface_units, settle_units
+from fabline.model.importers.curves import CurveSource, check_extent, check_surface_units, settle_units
+from fabline.model.importers.nodes import SupportRule
 from fabline.model.importers.dxf import read_dxf, read_dxf_surface
 from fabline.model.importers.obj import read_obj
 from fabline.model.importers.rhino import read_3dm, read_3dm_surface
@@ -28,12 +29,13 @@ __all__ = ["FORMATS", "ImportReport", "NearMissReport", "import_model"]
 
 
 def import_model(path: str | os.PathLike, surface: str | os.PathLike | None = None, units: str | None = None,
-                 tolerance_mm: float = 1.0) -> tuple[Network, ImportReport]:
+                 tolerance_mm: float = 1.0, supports: str | None = None) -> tuple[Network, ImportReport]:
     """Read a network model from `path` (.json, .obj, .dxf or .3dm) and report what was found and assumed.
 
     CAD curves become lamellas; nodes are their A-B crossings within `tolerance_mm`; normals come from
     `surface` (a mesh file) or the faces in the same file. `units` names the units of a file that
-    declares none; disagreeing declarations are a mixed-units error.
+    declares none (without it, curves of an implausible gridshell size are refused); disagreeing declarations are
+    a mixed-units error. `supports` marks support nodes (`SupportRule.parse`: 'z<0.05', a plan polygon, a name).
     """
     path = str(path)
     file_format = FORMATS.get(Path(path).suffix.lower())
@@ -52,9 +54,11 @@ def import_model(path: str | os.PathLike, surface: str | os.PathLike | None = No
         source = read_dxf(path, units)
     else:
         source = read_3dm(path, units)
+    rule = SupportRule.parse(supports) if supports is not None else None
     model_units = settle_units(source, units)
+    check_extent(source, model_units, assumed=source.declared_units is None and units is None)
     mesh, surface_label = _surface_for(source, model_units, surface)
-    return build_network(source, model_units, tolerance_mm, mesh, surface_label, file_format)
+    return build_network(source, model_units, tolerance_mm, mesh, surface_label, file_format, rule)
 
 
 def _import_json(path: str, surface, units: str | None, tolerance_mm: float) -> tuple[Network, ImportReport]:

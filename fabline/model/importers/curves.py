@@ -35,14 +35,25 @@ class RawCurve:
 
 
 @dataclass
+class NamedPoint:
+    """A point object of a CAD file (OBJ `p`, DXF POINT) with its names (group, object / layer, XDATA values)."""
+
+    names: list[str]
+    xyz: np.ndarray
+    where: str
+
+
+@dataclass
 class CurveSource:
-    """The curves of one CAD file, the units it declares (None if it declares none) and any surface in it."""
+    """The curves of one CAD file, the units it declares (None if it declares none), any surface in it, and its
+    point objects (named nodes, support markers)."""
 
     path: str
     curves: list[RawCurve]
     declared_units: str | None
     mesh: trimesh.Trimesh | None = None
     notes: list[str] = field(default_factory=list)
+    points: list[NamedPoint] = field(default_factory=list)
 
 
 def family_and_id(names: list[str]) -> tuple[str | None, str | None]:
@@ -138,3 +149,30 @@ def check_surface_units(source: CurveSource, units: str, surface_path: str, surf
         raise FablineError(
             f"mixed units: {surface_path} is {ratio:.3g} times the size of the curves in {source.path} "
             f"({surface_size:.4g} vs {curve_size:.4g}); are both in {units}?")
+
+
+PLAUSIBLE_SPAN_M = (0.1, 300.0)
+"""The largest side of a gridshell's bounding box, metres: from table-top models to the largest strained
+gridshells (Mannheim: 80 m). A file without units whose curves fall outside is refused without --units."""
+
+
+def check_extent(source: CurveSource, units: str, assumed: bool) -> None:
+    """Refuse curves whose size is implausible for a gridshell in the units assumed for a file that declares none,
+    naming the units that would make it plausible; declared or given units are trusted, with a note."""
+    from fabline.model.network import UNIT_TO_MM
+
+    points = np.concatenate([c.points for c in source.curves])
+    span = float(np.ptp(points, axis=0).max())
+    metres = span * UNIT_TO_MM[units] / 1000.0
+    low, high = PLAUSIBLE_SPAN_M
+    if low <= metres <= high:
+        return
+    if not assumed:
+        source.notes.append(f"the curves span {metres:.4g} m in {units}; unusual for a gridshell "
+                            f"({low:g} to {high:g} m): check the units")
+        return
+    fits = [name for name, mm in UNIT_TO_MM.items() if low <= span * mm / 1000.0 <= high]
+    hint = (" (" + ", ".join(f"--units {u} makes it {span * UNIT_TO_MM[u] / 1000.0:.4g} m" for u in fits) + ")"
+            if fits else "")
+    raise FablineError(f"{source.path}: declares no units, and in {units} its curves would span {metres:.4g} m, "
+                       f"implausible for a gridshell ({low:g} to {high:g} m): give --units{hint}")

@@ -23,7 +23,7 @@ from ezdxf.lldxf.validator import is_binary_dxf_file
 from ezdxf.render import MeshBuilder
 
 from fabline.errors import FablineError
-from fabline.model.importers.curves import SAGITTA_MM, CurveSource, assign_ids, clean_points, family_and_id
+from fabline.model.importers.curves import SAGITTA_MM, CurveSource, NamedPoint, assign_ids, clean_points, family_and_id
 from fabline.model.importers.surface import mesh_from_arrays
 from fabline.model.network import UNIT_TO_MM
 
@@ -67,6 +67,8 @@ def read_dxf(path: str | Path, units: str | None = None) -> CurveSource:
         source.notes.append(f"{path}: ignored {len(unnamed)} curve(s) on layers that name no family "
                             f"({', '.join(layers[:5])}{', ...' if len(layers) > 5 else ''})")
     source.mesh = _surface(modelspace, path)
+    source.points = [NamedPoint([e.dxf.layer, *_xdata_values(e)], np.array(e.dxf.location, dtype=float),
+                                f"POINT #{e.dxf.handle} on layer {e.dxf.layer}") for e in modelspace.query("POINT")]
     return source
 
 
@@ -242,6 +244,11 @@ def _declared_units(doc, path: str) -> str | None:
 
 def _is_mesh(entity) -> bool:
     return entity.dxftype() == "POLYLINE" and (entity.is_poly_face_mesh or entity.is_polygon_mesh)
+
+
+def _xdata_values(entity) -> list[str]:
+    """The strings fabline stored in an entity's XDATA (a node's id and kind)."""
+    return [str(value) for code, value in entity.get_xdata(XDATA_APP) if code == 1000] if entity.has_xdata(XDATA_APP) else []
 
 
 def _xdata_id(entity) -> str | None:

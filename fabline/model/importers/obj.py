@@ -13,7 +13,7 @@ import numpy as np
 
 from fabline.errors import FablineError
 from fabline.fileio import read_text
-from fabline.model.importers.curves import CurveSource, assign_ids, clean_points, family_and_id
+from fabline.model.importers.curves import CurveSource, NamedPoint, assign_ids, clean_points, family_and_id
 from fabline.model.importers.surface import mesh_from_arrays
 
 UNSUPPORTED = {"curv", "curv2", "surf", "cstype", "bmat", "step"}
@@ -27,6 +27,7 @@ def read_obj(path: str | Path) -> CurveSource:
     vertex_lines: list[int] = []
     faces: list[list[int]] = []
     chains: list[tuple[list[str], list[int], int]] = []  # names, vertex indices, line number
+    point_refs: list[tuple[list[str], int, int]] = []  # names, vertex index, line number of `p` elements
     group = obj = ""
     for number, line in lines:
         if line.startswith("v "):  # the bulk of a file: converted together at the end
@@ -52,6 +53,8 @@ def read_obj(path: str | Path) -> CurveSource:
             if len(indices) < 3:
                 raise FablineError(f"{path}:{number}: a face needs at least three vertices")
             faces.extend([indices[0], indices[i], indices[i + 1]] for i in range(1, len(indices) - 1))
+        elif keyword == "p":
+            point_refs += [([group, obj], k, number) for k in _indices(parts[1:], len(vertex_rows), path, number)]
         elif keyword == "g":
             group = " ".join(parts[1:])
         elif keyword == "o":
@@ -68,7 +71,8 @@ def read_obj(path: str | Path) -> CurveSource:
             unnamed.append(str(number))
             continue
         found.append((family, lamella_id, clean_points(points[indices], path, where), where))
-    source = CurveSource(path, assign_ids(found, path), None)
+    source = CurveSource(path, assign_ids(found, path), None,
+                         points=[NamedPoint(names, points[k], f"line {number}") for names, k, number in point_refs])
     if unnamed:
         source.notes.append(f"{path}: ignored {len(unnamed)} polyline(s) in groups that name no family "
                             f"(lines {', '.join(unnamed[:5])}{', ...' if len(unnamed) > 5 else ''})")
