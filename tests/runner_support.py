@@ -2,8 +2,16 @@
 
 from __future__ import annotations
 
+import os
+import shutil
+import socket
 import sys
+import threading
+import time
+from contextlib import contextmanager
 from pathlib import Path
+
+import pytest
 
 from fabline.link import load_program
 
@@ -16,6 +24,55 @@ JOBS_CLI = [sys.executable, "-c", (
     "sys.exit(args.func(args))\n")]
 """`fabline` with only the jobs stage's subcommands, the same handlers: a restarted runner need not wait for
 every other stage's imports (scipy and friends), which would dominate a test that restarts it 21 times."""
+
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+TOKEN = "s3cret-token"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextmanager
+def page_server(db: Path):
+    """The runner's web page over the queue at `db`, served on 127.0.0.1 with TOKEN; yields its URL."""
+    import uvicorn
+
+    from fabline.jobs.web import create_app
+
+    server = uvicorn.Server(uvicorn.Config(create_app(db, TOKEN, poll=0.1), host="127.0.0.1", port=free_port(),
+                                           log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not server.started and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert server.started
+    try:
+        yield f"http://127.0.0.1:{server.config.port}"
+    finally:
+        server.should_exit = True
+        thread.join(10)
+
+
+@contextmanager
+def headless_chromium():
+    """Playwright's sync API and Debian's Chromium, headless; the test is skipped when either optional piece is
+    missing (CI installs both)."""
+    if not os.path.exists(CHROMIUM):
+        pytest.skip(f"{CHROMIUM} is missing (CI installs it: apt-get install -y chromium)")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright for Python is missing (pip install playwright)")
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=shutil.which(CHROMIUM) or CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            yield sync_api, browser
+        finally:
+            browser.close()
 
 
 def square_program(path: Path, x: float, y: float, squares: int = 1, size: float = 5.0) -> Path:

@@ -4,22 +4,16 @@ restart the sheet, skip it, cancel) is carried out exactly; in the queue, and in
 
 from __future__ import annotations
 
-import os
 import re
-import shutil
-import threading
 import time
 
 import pytest
-import uvicorn
 
 from fabline.errors import FablineError
 from fabline.jobs.queue import JobQueue
 from fabline.jobs.runner import MachineConfig, Runner
-from fabline.jobs.web import create_app
 from fabline.link import Streamer
-from runner_support import executed_program_lines, square_program, wire_lines
-from test_runner_web import CHROMIUM, CHROMIUM_ARGS, TOKEN, free_port
+from runner_support import TOKEN, executed_program_lines, headless_chromium, page_server, square_program, wire_lines
 
 
 def wait(condition, timeout: float = 60.0) -> None:
@@ -179,25 +173,15 @@ def attention_page(tmp_path):
     log = tmp_path / "executed.log"
     port = f"sim://attention-page?settings=32:1&time_scale=4&log={log}"
     runner = interrupt(start(db, port, auto_confirm=True), queue, job_id, 0, port, auto_confirm=False)
-    server = uvicorn.Server(uvicorn.Config(create_app(db, TOKEN, poll=0.1), host="127.0.0.1", port=free_port(),
-                                           log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    wait(lambda: server.started, 20)
-    yield {"url": f"http://127.0.0.1:{server.config.port}", "queue": queue, "job": job_id, "sheets": sheets, "log": log}
-    server.should_exit = True
-    thread.join(10)
+    with page_server(db) as url:
+        yield {"url": url, "queue": queue, "job": job_id, "sheets": sheets, "log": log}
     runner.stop()
 
 
 def test_page_in_headless_chromium_shows_where_the_sheet_stopped_and_resumes_after_confirmation(attention_page):
-    if not os.path.exists(CHROMIUM):
-        pytest.skip(f"{CHROMIUM} is missing (CI installs it: apt-get install -y chromium)")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright for Python is missing (pip install playwright)")
     job, queue, log = attention_page["job"], attention_page["queue"], attention_page["log"]
     checkpoint = queue.job(job).checkpoint()
-    with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=shutil.which(CHROMIUM) or CHROMIUM, args=CHROMIUM_ARGS)
+    with headless_chromium() as (sync_api, browser):
         page = browser.new_page()
         page.goto(f"{attention_page['url']}/?token={TOKEN}")
         row = page.locator(f"#queue tr[data-job='{job}']")
@@ -221,7 +205,6 @@ def test_page_in_headless_chromium_shows_where_the_sheet_stopped_and_resumes_aft
         sync_api.expect(row).to_have_attribute("data-state", "ready", timeout=60000)  # sheet 1 done; load sheet 2
         page.locator(f".machine button.confirm[data-job='{job}']").click()
         sync_api.expect(row).to_have_attribute("data-state", "done", timeout=60000)
-        browser.close()
     expected = [line for sheet in attention_page["sheets"] for line in wire_lines(sheet)]
     assert executed_program_lines(log) == expected
 

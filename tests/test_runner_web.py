@@ -3,30 +3,17 @@
 from __future__ import annotations
 
 import os
-import shutil
 import socket
-import threading
 import time
 
 import httpx
 import pytest
-import uvicorn
 
 from fabline.jobs.queue import JobQueue
 from fabline.jobs.runner import MachineConfig, Runner
-from fabline.jobs.web import TOKEN_HEADER, create_app
-from runner_support import executed_program_lines, square_program, wire_lines
-
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-TOKEN = "s3cret-token"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from fabline.jobs.web import TOKEN_HEADER
+from runner_support import (TOKEN, executed_program_lines, free_port, headless_chromium, page_server, square_program,
+                            wire_lines)
 
 
 @pytest.fixture
@@ -39,18 +26,8 @@ def served(tmp_path):
     log = tmp_path / "executed.log"
     runner = Runner(db, [MachineConfig("m1", f"sim://web-m1?time_scale=8&settings=32:1&log={log}")], poll=0.05, prepare=False)
     runner.start()
-    port = free_port()
-    server = uvicorn.Server(uvicorn.Config(create_app(db, TOKEN, poll=0.1), host="127.0.0.1", port=port,
-                                           log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 20
-    while not server.started and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert server.started
-    yield {"url": f"http://127.0.0.1:{port}", "queue": queue, "job": job_id, "sheets": sheets, "log": log}
-    server.should_exit = True
-    thread.join(10)
+    with page_server(db) as url:
+        yield {"url": url, "queue": queue, "job": job_id, "sheets": sheets, "log": log}
     runner.stop()
 
 
@@ -128,12 +105,8 @@ def test_serve_refuses_an_option_that_is_not_a_positive_number(capsys, tmp_path,
 
 
 def test_page_in_headless_chromium_confirm_sheets_and_watch_progress_reach_done(served):
-    if not os.path.exists(CHROMIUM):
-        pytest.skip(f"{CHROMIUM} is missing (CI installs it: apt-get install -y chromium)")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright for Python is missing (pip install playwright)")
     job, queue = served["job"], served["queue"]
-    with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=shutil.which(CHROMIUM) or CHROMIUM, args=CHROMIUM_ARGS)
+    with headless_chromium() as (sync_api, browser):
         page = browser.new_page()
         page.goto(f"{served['url']}/?token={TOKEN}")
         row = page.locator(f"#queue tr[data-job='{job}']")
@@ -156,7 +129,6 @@ def test_page_in_headless_chromium_confirm_sheets_and_watch_progress_reach_done(
                 sync_api.expect(row).to_have_attribute("data-state", "cutting", timeout=20000)
         sync_api.expect(row).to_have_attribute("data-state", "done", timeout=60000)
         sync_api.expect(row.locator(".state")).to_have_text("done")
-        browser.close()
     assert queue.job(job).state == "done"
     expected = [line for sheet in served["sheets"] for line in wire_lines(sheet)]
     assert executed_program_lines(served["log"]) == expected
@@ -200,12 +172,8 @@ def test_serve_prints_a_fresh_token_and_binds_to_localhost(tmp_path):
 
 
 def test_page_keeps_its_buttons_under_live_updates_confirms_cancel_requeues_and_fits_phone_and_desktop(served, tmp_path):
-    if not os.path.exists(CHROMIUM):
-        pytest.skip(f"{CHROMIUM} is missing (CI installs it: apt-get install -y chromium)")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright for Python is missing (pip install playwright)")
     job, queue = served["job"], served["queue"]
-    with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=shutil.which(CHROMIUM) or CHROMIUM, args=CHROMIUM_ARGS)
+    with headless_chromium() as (sync_api, browser):
         page = browser.new_page(viewport={"width": 1366, "height": 900})
         page.goto(f"{served['url']}/?token={TOKEN}")
         sync_api.expect(page.locator("#live")).to_have_text("live")
@@ -233,7 +201,6 @@ def test_page_keeps_its_buttons_under_live_updates_confirms_cancel_requeues_and_
         row.locator("button[data-action='requeue']").click()
         again = page.locator(f"#queue tr[data-job='{job + 1}']")
         sync_api.expect(again).to_have_attribute("data-state", "ready", timeout=20000)
-        browser.close()
     for name in ("desktop.png", "phone.png"):
         assert (tmp_path / name).stat().st_size > 10_000, f"{name}: the page rendered"
     assert queue.job(job).state == "cancelled" and queue.job(job + 1).name == "web-job"

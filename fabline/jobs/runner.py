@@ -221,6 +221,10 @@ class Runner:
         try:
             with folder:
                 outcome = stream.run()
+        except FablineError:
+            if not stream.cancelled:  # a cancelled sheet is over, however its stop went (the journal may not tell
+                raise                 # where the machine stopped on a path that passes a point twice)
+            outcome = "aborted"
         finally:
             stream.closed.set()
             watcher.join()
