@@ -163,7 +163,9 @@ def test_report_starts_with_a_summary_and_lists_materials_hardware_and_cut_order
     mass = sum(s.width * s.height for s in nesting.sheets) * parts.profile["t"] * density * 1e-9
     assert data["bill_of_materials"]["totals"]["mass_kg"] == pytest.approx(mass, abs=0.05 * len(nesting.sheets))
     shown = f"{mass / 1000:.2f} t" if mass >= 1000 else f"{mass:.1f} kg"
-    assert f"{shown} of sheet" in summary and "every lamella passes" in summary and "survey" in summary
+    structure = data["structure"]
+    verdict = ("every lamella passes" if structure["passes"] else f"{len(structure['failing'])} lamella(s) exceed yield")
+    assert f"{shown} of sheet" in summary and verdict in summary and "survey" in summary
     assert "<table id=bom>" in html and "<table id=hardware>" in html
     assert html.count("<details class=preview") == len(nesting.sheets)
     stream = html[html.index("<table id=stream>"):]

@@ -26,7 +26,7 @@ ELSEWHERE = {
     "nest": {"parts": "the unroll stage's parts", "output": "the job writes nesting.json", "check": "not a nesting run",
              "sheet": "stock.sheet", "stock": "stock.file"},
     "export": {"nesting": "the nest stage's nesting", "dxf": "the job writes dxf/", "gcode": "the job writes gcode/",
-               "machine": "machine.profile", "no_optimise": "export.optimise"},
+               "machine": "machine.profile", "no_optimise": "export.optimise", "no_preview": "export.previews"},
 }
 RENAMED = {"stock_out": "stock_out", "svg": "svg", "time_limit": "time_limit"}
 

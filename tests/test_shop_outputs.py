@@ -89,7 +89,8 @@ def test_a_price_in_the_materials_file_gives_the_sheets_cost(tmp_path):
 
 def test_export_writes_a_cut_list_with_positions_and_seam_partners(cli, tmp_path):
     partset = _partset()
-    placements = [Placement(p.id, 20.0 + 150.0 * k, 300.0 + 0.04, 90.0 * (k % 2)) for k, p in enumerate(partset.parts)]
+    placements = [Placement(p.id, 20.0, 300.04 + 300.0 * k, 0.0) if k < 3 else Placement(p.id, 1200.0 + 150.0 * k, 300.04, 90.0)
+                  for k, p in enumerate(partset.parts)]  # the three strips in a column, the rest turned beside them
     save_parts(partset, tmp_path / "parts.json")
     save_nesting(Nesting([Sheet("S1", 4000.0, 2000.0, placements)], "parts.json"), tmp_path / "nesting.json")
     code, out, err = cli("export", tmp_path / "nesting.json", "--gcode", tmp_path / "out")
@@ -99,7 +100,8 @@ def test_export_writes_a_cut_list_with_positions_and_seam_partners(cli, tmp_path
     assert [r["part"] for r in rows] == [p.id for p in partset.parts]
     middle = rows[1]
     assert middle["kind"] == "strip" and middle["lamella"] == "A-001" and middle["sheet"] == "S1"
-    assert (middle["x_mm"], middle["y_mm"], middle["rotation_deg"]) == ("170.0", "300.0", "90")
+    assert (middle["x_mm"], middle["y_mm"], middle["rotation_deg"]) == ("20.0", "600.0", "0")
+    assert (rows[3]["x_mm"], rows[3]["y_mm"], rows[3]["rotation_deg"]) == ("1650.0", "300.0", "90")
     assert middle["seam_partners"] == "A-001-R.1 A-001-R.3" and rows[0]["seam_partners"] == "A-001-R.2"
     assert rows[3]["kind"] == "washer" and rows[3]["seam_partners"] == "" and rows[3]["lamella"] == ""
 

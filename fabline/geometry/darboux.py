@@ -73,7 +73,9 @@ class CurveFit:
         return np.clip(tau, self.tau[0], self.tau[-1])
 
     def frame(self, tau: np.ndarray) -> dict[str, np.ndarray]:
-        """Darboux frame and curvatures at parameters `tau`: t, u, n (N, 3) and k_g, k_n, tau_g (N,)."""
+        """Darboux frame and curvatures at parameters `tau`: t, u, n (N, 3) and k_g, k_n, tau_g (N,); also
+        k_n_curve = n.c'', the normal curvature read from the centreline's bending alone (the normals' values, not
+        their derivative): what a design's curves are judged by where the normals come from a mesh's field."""
         first, d2 = self.spline(tau, 1), self.spline(tau, 2)[:, :3]
         d1, dn = first[:, :3], first[:, 3:]
         speed = _norm(d1)
@@ -93,7 +95,7 @@ class CurveFit:
         # tau_g = -(dn/ds).u; d(n)/dtau.u = N'.u - (t'.u)(t.N) for n the normalised projection of N.
         dn_u = _dot(dn, u) - k_g * speed * along
         tau_g = -dn_u / (speed * n_len)
-        return {"t": t, "u": u, "n": n, "k_g": k_g, "k_n": k_n, "tau_g": tau_g}
+        return {"t": t, "u": u, "n": n, "k_g": k_g, "k_n": k_n, "tau_g": tau_g, "k_n_curve": _dot(kappa, n)}
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest points on the sampled centreline to `points` (M, 3): their parameters and distances."""
@@ -121,6 +123,7 @@ class LamellaGeometry:
     k_g: np.ndarray
     k_n: np.ndarray
     tau_g: np.ndarray
+    k_n_curve: np.ndarray
     node_ids: list[str]
     node_s: np.ndarray
     node_tangents: np.ndarray
@@ -151,7 +154,7 @@ def lamella_geometry(lamella: Lamella, network: Network) -> LamellaGeometry:
     tangents = frame["t"][samples:]
     frame = {key: value[:samples] for key, value in frame.items()}
     return LamellaGeometry(lamella, fit, fit.s_at_samples, frame["t"], frame["u"], frame["n"], frame["k_g"],
-                           frame["k_n"], frame["tau_g"], list(lamella.nodes), node_s, tangents)
+                           frame["k_n"], frame["tau_g"], frame["k_n_curve"], list(lamella.nodes), node_s, tangents)
 
 
 def analyse(network: Network) -> NetworkGeometry:

@@ -183,7 +183,7 @@ def _export(result: JobResult) -> None:
     result.export = export_job(result.nesting, parts, profile, toolpath_options(spec.export, profile.kerf),
                                dxf_dir=spec.output("dxf"), gcode_dir=spec.output("gcode"), name=spec.name,
                                source=str(spec.output("nesting.json")), cutlist=spec.output("cutlist.csv"),
-                               previews=True)
+                               previews=spec.export["previews"])
     result.sheet_files = []
     for sheet, made in zip(result.nesting.sheets, result.export.sheets):
         gcode = next(f for f in made.files if f.endswith(".gcode") or f.endswith(".nc"))

@@ -161,6 +161,8 @@ def check_extent(source: CurveSource, units: str, assumed: bool) -> None:
     naming the units that would make it plausible; declared or given units are trusted, with a note."""
     from fabline.model.network import UNIT_TO_MM
 
+    if not source.curves:
+        return  # nothing to measure: the network builder says the file has no curves
     points = np.concatenate([c.points for c in source.curves])
     span = float(np.ptp(points, axis=0).max())
     metres = span * UNIT_TO_MM[units] / 1000.0

@@ -28,7 +28,7 @@ def quality_report(network: Network, surface=None, spacing: float | None = None,
     unit_mm = network.mm_per_unit
     curves = {}
     for lam_id, geo in geometry.lamellas.items():
-        curves[lam_id] = {"max_k_n": float(np.abs(geo.k_n).max() * per_metre),
+        curves[lam_id] = {"max_k_n": float(np.abs(geo.k_n_curve).max() * per_metre),  # the traced curve's own bending
                           "max_k_g": float(np.abs(geo.k_g).max() * per_metre),
                           "max_tau_g": float(np.abs(geo.tau_g).max() * per_metre)}
     angles = np.array(list(geometry.crossing_angles.values()))
