@@ -200,9 +200,19 @@ def test_cli_bad_job_file_exits_2_with_one_line_and_writes_nothing(tmp_path, cli
 
 def test_simulated_machines_are_set_up_like_the_machine_profile(tmp_path):
     from fabline.jobs.pipeline import machine_ports
+    from fabline.link.protocol_sim import simulator_from_options
 
     text = GOOD + '[machine]\ntime_scale = 50.0\nports = ["sim://a", "sim://b?time_scale=5&settings=110:900", "/dev/ttyUSB0"]\n'
     simulated, own, serial = machine_ports(load_job_file(write(tmp_path, text)))
-    assert "time_scale=50" in simulated and "110:12000" in simulated and "120:800" in simulated and "32:1" in simulated
-    assert own == "sim://b?time_scale=5&settings=110:900"  # a port that names its own options keeps them
+    controller = simulator_from_options(simulated.split("?", 1)[1])
+    try:
+        assert controller.time_scale == 50 and {n: controller.settings[n] for n in (110, 120, 32)} == {
+            110: 12000, 120: 800, 32: 1}
+    finally:
+        controller.close()
+    controller = simulator_from_options(own.split("?", 1)[1])
+    try:  # a port's own options win over the machine's
+        assert controller.time_scale == 5 and controller.settings[110] == 900 and controller.settings[32] == 1
+    finally:
+        controller.close()
     assert serial == "/dev/ttyUSB0"  # a real machine is never reconfigured

@@ -210,15 +210,15 @@ def _survey(result: JobResult, say: Say) -> None:
 
 
 def machine_ports(spec: JobSpec) -> list[str]:
-    """The job's ports; a simulator URL gets the job's time scale and the machine profile's controller
-    settings (max rates, acceleration, bed) unless it names its own."""
-    from fabline.export import load_machine
+    """The job's ports; a simulator URL gets the job's time scale and is set up as the job's machine (the
+    profile's controller settings: laser mode, max rates, acceleration, bed) unless it says otherwise."""
+    from urllib.parse import quote
 
-    settings = ",".join(f"{key}:{value:g}" for key, value in load_machine(spec.machine["profile"]).controller_settings().items())
     ports = []
     for port in spec.machine["ports"]:
         if port.startswith("sim://"):
-            for option, value in (("time_scale", f"{spec.machine['time_scale']:g}"), ("settings", settings)):
+            for option, value in (("time_scale", f"{spec.machine['time_scale']:g}"),
+                                  ("machine", quote(str(spec.machine["profile"]), safe=""))):
                 if f"{option}=" not in port:
                     port += ("&" if "?" in port else "?") + f"{option}={value}"
         ports.append(port)

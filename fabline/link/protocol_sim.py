@@ -2,7 +2,9 @@
 
 Simulators live in a per-process registry by NAME, so a reconnect after a dropped connection reaches
 the same controller, as a real one outlives its USB cable. Options (used when NAME is first opened):
-time_scale, line_time (firmware seconds per line), log (executed-line log path), settings (`$N` values as `110:12000,120:800`), drop_at, corrupt_at (comma-separated byte offsets),
+time_scale, line_time (firmware seconds per line), log (executed-line log path), machine (a machine profile's name
+or file: the controller is set up as that machine, its `$N` settings as the profile assumes them, e.g. `$32=1` for
+a laser), settings (`$N` values as `110:12000,120:800`, over the machine's), drop_at, corrupt_at (comma-separated byte offsets),
 error_line, error_code, alarm_line, alarm_code, stall_at, stall_seconds; and the build, a stock Grbl 1.1h unless
 build_options (the `$I` option letters, e.g. `VN` for `Ln:` in status reports), planner_blocks or rx_buffer say otherwise.
 """
@@ -62,6 +64,10 @@ def simulator_from_options(query: str) -> GrblSimulator:
         raise ValueError(f"build_options must be option letters such as VN, planner_blocks 1..255 and rx_buffer 16..65535, "
                          f"not {build.options!r}, {build.planner_blocks}, {build.rx_buffer}")
     settings = {}
+    if "machine" in options:
+        from fabline.export import load_machine
+
+        settings.update(load_machine(options.pop("machine")).controller_settings())
     for pair in options.pop("settings", "").split(","):
         if pair:
             key, _, value = pair.partition(":")

@@ -169,13 +169,13 @@ class SimulatorServer:
     `log` receives every executed line in order (see `executed_file_lines`); `time_scale` > 1 runs
     motion faster; `line_time` (s) is the firmware's time to parse and plan a line; `baud` paces bytes
     like a serial line; `adapter_latency` (s) batches answers like a USB-serial bridge; `faults` are
-    sim:// fault options.
+    sim:// fault options; `machine` (a profile's name or file) sets the controller up as that machine.
     """
 
     def __init__(self, *, log: str | os.PathLike | None = None, time_scale: float = 1.0, transport: str = "tcp",
                  baud: int | None = None, adapter_latency: float = 0.0, faults: dict | None = None,
-                 line_time: float = 0.0):
-        options = {"time_scale": time_scale, **(faults or {})}
+                 line_time: float = 0.0, machine: str | None = None):
+        options = {"time_scale": time_scale, **(faults or {}), **({"machine": machine} if machine else {})}
         if line_time:
             options["line_time"] = line_time
         if log is not None:
