@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from fabline.errors import FablineError
-from fabline.survey import (MeasureOptions, SyntheticSpec, detect_tags, list_photos, load_camera, load_tag_map, measure_survey,
-                            read_gray, saddle_network, simulate_survey, tag_image, tagmap_from_dict, tagmap_to_dict)
+from fabline.survey import (MeasureOptions, SyntheticSpec, detect_tags, list_photos, load_camera, load_tag_map, make_tag_map,
+                            measure_survey, read_gray, saddle_network, simulate_survey, tag_image, tagmap_from_dict, tagmap_to_dict)
 
 
 @pytest.fixture(scope="module")
@@ -197,3 +197,52 @@ def test_tags_cut_by_the_photo_edge_stay_out_of_the_adjustment(photo_set):
     square = np.array([[10.0, 10.0], [60.0, 10.0], [60.0, 60.0], [10.0, 60.0]])
     found = [(0, TagDetection(5, square)), (0, TagDetection(6, square - [12, 0], partial=True)), (1, TagDetection(6, square))]
     assert [(o.photo, o.tag) for o in _observations(found, camera, 4.0)] == [(0, 5), (1, 6)]
+
+
+def test_an_id_printed_twice_and_seen_twice_in_a_photo_is_named_and_left_out(tmp_path, network):
+    """Node n02-04 carries a second print of n02-02's tag: photos showing both name the tag and the photo, both nodes
+    stay unmeasured (which copy is the node's cannot be told), and the rest is measured as before."""
+    tag_map = make_tag_map(network)
+    copy, instead_of = tag_map.tag_of_node["n02-02"], tag_map.tag_of_node["n02-04"]
+    spec = SyntheticSpec(photos=10, width=1600, height=1200, focal_px=1300, coverage=0.7, sag_mm=25.0, seed=3,
+                         misprints=((copy, instead_of),))
+    truth = simulate_survey(network, tmp_path / "set", spec)
+    record = measure_survey(list_photos(tmp_path / "set" / "photos"), network, load_camera(tmp_path / "set" / "camera.json"),
+                            load_tag_map(tmp_path / "set" / "tagmap.json"), tmp_path / "survey",
+                            MeasureOptions(reference="supports", pictures=False))
+    twice = [p for p in record["problems"] if p.get("tag") == copy]
+    assert twice and all(f"tag {copy} appears 2 times in this photo" in p["problem"] and p["file"] in p["problem"]
+                         and "printed more than once" in p["problem"] for p in twice)
+    assert "n02-02" not in record["nodes"] and "printed more than once" in record["not_seen"]["n02-02"]
+    assert "n02-04" not in record["nodes"]
+    ids = list(record["nodes"])
+    error = np.array([record["nodes"][n]["deviation_mm"] for n in ids]) - [truth["nodes"][n]["deviation_mm"] for n in ids]
+    assert len(ids) >= 0.85 * len(truth["nodes"]) and np.sqrt(np.mean(np.sum(error ** 2, axis=1))) < 0.5
+
+
+def test_an_id_seen_at_another_place_in_one_photo_is_named_and_left_out(tmp_path, network, photo_set):
+    """One photo shows a tag's print on another node's spot (and not the tag itself, which the other photos show where
+    it is): inconsistent across photos, reported naming the tag and the photos, kept out of the adjustment; the other
+    nodes are measured."""
+    from fabline.survey.simulate import _render_tag
+
+    out, truth = photo_set
+    photos = tmp_path / "photos"
+    shutil.copytree(out / "photos", photos)
+    k = min(range(len(truth["photos"])), key=lambda k: len(truth["photos"][k]["rendered"]))
+    record = truth["photos"][k]
+    seen = [sum(t in p["visible"] for p in truth["photos"]) for t in range(len(truth["nodes"]))]
+    tag = next(t for t in range(len(seen)) if t not in record["rendered"] and seen[t] >= 3)
+    victim = min(record["visible"])
+    gray = read_gray(photos / f"photo-{k:03d}.jpg").astype(np.float32)
+    _render_tag(gray, tag, np.array(record["visible"][victim]), 0.9)
+    (photos / f"photo-{k:03d}.jpg").unlink()
+    cv2.imwrite(str(photos / f"photo-{k:03d}.png"), np.clip(gray + 0.5, 0, 255).astype(np.uint8))
+    result = measure_survey(list_photos(photos), network, load_camera(out / "camera.json"), load_tag_map(out / "tagmap.json"),
+                            tmp_path / "survey", MeasureOptions(reference="supports", pictures=False))
+    problems = [p["problem"] for p in result["problems"] if p.get("tag") == tag]
+    assert len(problems) == 1 and f"tag {tag}: photo(s) photo-{k:03d}.png show it away from where photo(s) " in problems[0]
+    assert "printed more than once" in problems[0]
+    node = next(n for n, v in truth["nodes"].items() if v["tag"] == tag)
+    assert node not in result["nodes"] and "printed more than once" in result["not_seen"][node]
+    assert len(result["nodes"]) >= 0.85 * len(truth["nodes"])

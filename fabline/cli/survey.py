@@ -26,7 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     detect = commands.add_parser("detect", help="detect AprilTag 36h11 tags in photos (corners, optional poses)")
     detect.add_argument("photos", nargs="+", help="image files")
     detect.add_argument("--camera", help="camera.json, to estimate each tag's pose")
-    detect.add_argument("--tag-size", type=float, help="tag black-square edge in metres, for poses (e.g. 0.065)")
+    detect.add_argument("--tag-size", type=float, help="tag black-square edge in mm, for poses (e.g. 65)")
     detect.add_argument("--json", action="store_true", help="print JSON (the default prints a table)")
     detect.set_defaults(func=_detect)
 
@@ -85,11 +85,12 @@ def _tags(args: argparse.Namespace) -> int:
 
 def _detect(args: argparse.Namespace) -> int:
     from fabline.survey import detect_tags, load_camera, read_gray, tag_pose
+    from fabline.survey.tagmap import check_tag_size_mm
 
     if (args.camera is None) != (args.tag_size is None):
         raise FablineError("poses need both --camera and --tag-size")
-    if args.tag_size is not None and args.tag_size <= 0:
-        raise FablineError(f"--tag-size must be positive, got {args.tag_size}")
+    if args.tag_size is not None:
+        check_tag_size_mm(args.tag_size)
     camera = load_camera(args.camera) if args.camera else None
     report, failures = [], 0
     for path in args.photos:
@@ -108,9 +109,10 @@ def _detect(args: argparse.Namespace) -> int:
             # partial: cut by the photo's edge, a corner extrapolated from the edges inside
             tag = {"id": det.tag_id, "corners_px": [[round(x, 3), round(y, 3)] for x, y in det.corners], "partial": det.partial}
             if camera is not None:
-                rvec, tvec, error = tag_pose(det.corners, camera, args.tag_size)
-                tag.update(rotation=[round(v, 6) for v in rvec], translation_m=[round(v, 6) for v in tvec],
-                           reprojection_px=round(error, 4))
+                pose = tag_pose(det.corners, camera, args.tag_size)
+                tag.update(rotation=[round(v, 6) for v in pose.rotation], translation_mm=[round(v, 3) for v in pose.translation],
+                           reprojection_px=round(pose.error_px, 4), ambiguity=round(pose.ambiguity, 4),
+                           ambiguous=pose.ambiguous)
             entry["tags"].append(tag)
         report.append(entry)
     if failures == len(report) == 1:
@@ -122,7 +124,10 @@ def _detect(args: argparse.Namespace) -> int:
             if "error" in entry:
                 print(f"{entry['file']}: error: {entry['error']}")
                 continue
-            print(f"{entry['file']}: {len(entry['tags'])} tag(s) {', '.join(str(t['id']) for t in entry['tags'])}")
+            ids = [t["id"] for t in entry["tags"]]
+            twice = sorted({i for i in ids if ids.count(i) > 1})
+            print(f"{entry['file']}: {len(ids)} tag(s) {', '.join(map(str, ids))}"
+                  + (f"; id(s) {', '.join(map(str, twice))} found more than once" if twice else ""))
     if failures == len(report):
         raise FablineError("no photo could be read")
     return 0

@@ -60,9 +60,11 @@ def list_photos(folder: str | os.PathLike) -> list[Path]:
 
 
 def detect_photos(photos: list[Path], camera: Camera | None, known_tags: set[int] | None = None):
-    """Detections per photo and the problems found: unreadable, wrong resolution, no tags, unknown ids."""
+    """Detections per photo, the problems found (unreadable, wrong resolution, no tags, unknown ids, an id found twice
+    in one photo) and the ids found twice in one photo (id -> photo indices), which are left out of the detections."""
     detections: dict[int, list[TagDetection]] = {}
     problems: list[dict] = []
+    duplicated: dict[int, list[int]] = {}
     for k, path in enumerate(progress(photos, "detecting tags")):
         try:
             gray = read_gray(path)
@@ -78,8 +80,18 @@ def detect_photos(photos: list[Path], camera: Camera | None, known_tags: set[int
             if known_tags is not None and det.tag_id not in known_tags:
                 problems.append({"file": str(path), "tag": det.tag_id,
                                  "problem": f"{path}: tag {det.tag_id} maps to no node of the model (ignored)"})
-        detections[k] = [d for d in found if known_tags is None or d.tag_id in known_tags]
-    return detections, problems
+        found = [d for d in found if known_tags is None or d.tag_id in known_tags]
+        ids = [d.tag_id for d in found]
+        for tag in sorted({t for t in ids if ids.count(t) > 1}):
+            places = ", ".join(f"({x:.0f}, {y:.0f})" for d in found if d.tag_id == tag for x, y in [d.corners.mean(axis=0)])
+            problems.append({"file": str(path), "tag": tag,
+                             "problem": f"{path}: tag {tag} appears {ids.count(tag)} times in this photo, at px {places}: "
+                                        f"printed more than once? (left out of the survey; mount one copy only)"})
+            duplicated.setdefault(tag, []).append(k)
+        detections[k] = [d for d in found if d.tag_id not in duplicated]
+    for k in detections:
+        detections[k] = [d for d in detections[k] if d.tag_id not in duplicated]
+    return detections, problems, duplicated
 
 
 def find_predicted_tags(photos: list[Path], camera: Camera, tag_size: float, reconstruction: Reconstruction,
@@ -141,12 +153,25 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
     model = network.in_mm()
     check_tag_map(tag_map, model)
     check_scale_bars(options.scale_bars, tag_map)
-    detections, problems = detect_photos(photos, camera, set(tag_map.node_of_tag))
+    detections, problems, duplicated = detect_photos(photos, camera, set(tag_map.node_of_tag))
     observations = _observations([(k, d) for k, found in detections.items() for d in found], camera, options.scale_min_cell_px)
     if not observations:
         detail = f" ({problems[0]['problem']}" + (f"; {len(problems) - 1} more problem(s))" if len(problems) > 1 else ")") if problems else ""
         raise FablineError(f"no tags of the tag map were found in any usable photo{detail}")
     reconstruction = bundle_adjust(observations, camera, tag_map.tag_size_mm)
+    misplaced = reconstruction.misplaced(observations, tag_map.tag_size_mm)
+    if misplaced:
+        for tag, (away, agreeing) in sorted(misplaced.items()):
+            names = ", ".join(photos[k].name for k in away)
+            others = ", ".join(photos[k].name for k in agreeing) or "none"
+            problems.append({"tag": tag, "files": [str(photos[k]) for k in away + agreeing],
+                             "problem": f"tag {tag}: photo(s) {names} show it away from where photo(s) {others} put it: "
+                                        f"printed more than once? (left out of the survey; mount one copy only)"})
+            duplicated[tag] = away + agreeing
+        observations = [o for o in observations if o.tag not in misplaced]
+        for k in detections:
+            detections[k] = [d for d in detections[k] if d.tag_id not in misplaced]
+        reconstruction = bundle_adjust(observations, camera, tag_map.tag_size_mm)
     predicted = find_predicted_tags(photos, camera, tag_map.tag_size_mm, reconstruction, detections)
     if predicted:
         observations += _observations(predicted, camera, options.scale_min_cell_px)
@@ -201,7 +226,7 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
     sigma = np.sqrt(np.einsum("ij,njk,ik->ni", rotation, covariances, rotation))
     passed = distance <= options.tolerance_mm
     record = _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviation, distance, sigma, views, passed,
-                     rotation, translation, fit_rms, reconstruction, photos, detections, problems, wrong)
+                     rotation, translation, fit_rms, reconstruction, photos, detections, problems, wrong, duplicated)
     record["summary"]["tags_found_where_predicted"] = len(predicted)
     record["scale"] = scale or {"source": f"tag size {tag_map.tag_size_mm:g} mm", "factor": 1.0, "bars": []}
     record["scale"].update(min_cell_px=options.scale_min_cell_px,
@@ -243,7 +268,7 @@ def wrong_tags(measured: np.ndarray, node_ids: list[str], model: Network, tolera
 
 
 def _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviation, distance, sigma, views, passed,
-            rotation, translation, fit_rms, reconstruction, photos, detections, problems, wrong) -> dict:
+            rotation, translation, fit_rms, reconstruction, photos, detections, problems, wrong, duplicated) -> dict:
     seen_once = {tag_map.node_of_tag[t] for t, n in reconstruction.observation_count.items() if n < options.min_views}
     measured_set = set(node_ids)
     not_seen = {}
@@ -252,6 +277,7 @@ def _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviat
             continue
         tag = tag_map.tag_of_node.get(nid)
         not_seen[nid] = ("no tag" if tag is None else
+                         f"tag {tag} found at more than one place: printed more than once?" if tag in duplicated else
                          f"wrong tag? tag {tag} was found at node {wrong[nid]}" if nid in wrong else
                          f"tag {tag} seen in fewer than {options.min_views} photos" if nid in seen_once else f"tag {tag} not seen")
     order = np.argsort(-distance)
