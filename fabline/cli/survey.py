@@ -62,6 +62,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     measure.add_argument("--tags", help="tagmap.json (default: ids in model node order, 65 mm tags, 20 mm offset)")
     measure.add_argument("-o", "--output", required=True, help="folder for survey.json and the pictures")
     measure.add_argument("--tolerance", type=float, default=20.0, help="pass/fail distance, mm (default 20)")
+    measure.add_argument("--k-sigma", type=float, default=2.0, metavar="K",
+                         help="pass: deviation + K sigma within the tolerance; fail: deviation - K sigma beyond; "
+                              "uncertain otherwise (default 2)")
     measure.add_argument("--reference", default="all",
                          help="nodes the registration fits: all (default), supports, or comma-separated node ids")
     measure.add_argument("--min-views", type=int, default=2, help="photos a tag must be seen in (default 2)")
@@ -194,13 +197,14 @@ def _measure(args: argparse.Namespace) -> int:
     reference = args.reference if args.reference in ("all", "supports") else [n.strip() for n in args.reference.split(",") if n.strip()]
     options = MeasureOptions(tolerance_mm=args.tolerance, reference=reference, min_views=args.min_views,
                              scale_bars=tuple(_scale_bar(values) for values in args.scale_bar),
-                             scale_min_cell_px=args.scale_min_cell)
+                             scale_min_cell_px=args.scale_min_cell, k_sigma=args.k_sigma)
     record = measure_survey(list_photos(args.photos), network, load_camera(args.camera), tag_map, args.output, options)
     for problem in record["problems"]:
         print(f"warning: {problem['problem']}")
     s = record["summary"]
     print(f"{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
-          f"RMS deviation {s['rms_deviation_mm']} mm, max {s['max_deviation_mm']} mm, {s['failed']} over "
-          f"{record['tolerance_mm']:g} mm, {s['not_seen']} not measured; {s['tags_found_where_predicted']} tag view(s) "
+          f"RMS deviation {s['rms_deviation_mm']} mm, max {s['max_deviation_mm']} mm; at {record['tolerance_mm']:g} mm "
+          f"({s['k_sigma']:g} sigma) {s['passed']} pass, {s['failed']} fail, {s['uncertain']} uncertain; "
+          f"{s['not_seen']} not measured; {s['tags_found_where_predicted']} tag view(s) "
           f"found where the reconstruction predicted them -> {Path(args.output) / 'survey.json'}")
     return 0

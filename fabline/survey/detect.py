@@ -31,7 +31,9 @@ from fabline.fileio import atomic_output
 from fabline.survey.camera import Camera
 from fabline.survey.tagmap import TAG_CELLS, TAG_DICTIONARY
 
-EDGE_SAMPLES = 20
+# Each edge is sampled at one point per EDGE_SAMPLE_SPACING_PX of its middle 70 %, at least EDGE_SAMPLES, at most
+# MAX_EDGE_SAMPLES: a large tag's edge line is fitted on many crossings (the AprilTag library samples every pixel)
+EDGE_SAMPLES, MAX_EDGE_SAMPLES, EDGE_SAMPLE_SPACING_PX = 20, 80, 2.0
 # of a quad's corners (and edges, corner i to i + 1) in order, the next, opposite and previous one (np.roll's, faster)
 NEXT_CORNER, OPPOSITE_CORNER, PREVIOUS_CORNER = [1, 2, 3, 0], [2, 3, 0, 1], [3, 0, 1, 2]
 REFINE_PASSES = 2
@@ -439,7 +441,7 @@ def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
     """The four edges of `quad` as lines, points and unit directions (4, 2) each, from the intensity-gradient peaks
     of profiles across them (None when an edge has fewer than four).
 
-    Each edge is sampled at EDGE_SAMPLES points; along each point's outward normal (black border to white
+    Each edge is sampled at EDGE_SAMPLES to MAX_EDGE_SAMPLES points (see there); along each point's outward normal (black border to white
     quiet zone) the profile's steepest rise, interpolated with a parabola, is the edge crossing.
     """
     starts, ends = quad, quad[NEXT_CORNER]
@@ -449,7 +451,9 @@ def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
     normals *= np.where(outward < 0, -1.0, 1.0)[:, None]
     reach = _profile_reach(quad, min_reach)
     offsets = np.linspace(-reach, reach, 2 * int(np.ceil(4 * reach)) + 1)
-    along = np.linspace(0.15, 0.85, EDGE_SAMPLES)
+    samples = int(np.clip(0.7 * np.linalg.norm(ends - starts, axis=1).mean() / EDGE_SAMPLE_SPACING_PX, EDGE_SAMPLES,
+                          MAX_EDGE_SAMPLES))
+    along = np.linspace(0.15, 0.85, samples)
     points = starts[:, None, :] + along[None, :, None] * (ends - starts)[:, None, :]  # (4, S, 2)
     grid = points[:, :, None, :] + offsets[None, None, :, None] * normals[:, None, None, :]  # (4, S, K, 2)
     profiles = map_coordinates(image, [grid[..., 1].ravel(), grid[..., 0].ravel()], order=3, mode="mirror",
@@ -549,22 +553,31 @@ AMBIGUITY_RATIO = 0.5
 
 
 def tag_pose(corners: np.ndarray, camera: Camera, tag_size: float) -> TagPose:
-    """Tag pose from one view: both IPPE solutions for a square (Collins & Bartoli 2014), each refined by
-    Levenberg-Marquardt on the reprojection error (distortion included), the better one chosen, the other kept to
-    judge the ambiguity. `corners` (4, 2) px in the AprilTag order; the pose is in the AprilTag tag frame."""
+    """Tag pose from one view: both IPPE solutions for a square (Collins & Bartoli 2014) and, as a guard where IPPE's
+    closed form breaks down (exactly symmetric corners), SQPnP's, each refined by Levenberg-Marquardt on the
+    reprojection error (distortion included); the best is chosen, the best one that differs from it (a rotation over
+    1 degree apart: the mirror solution) kept to judge the ambiguity, or the best itself when all ended at one minimum.
+    `corners` (4, 2) px in the AprilTag order; the pose is in the AprilTag tag frame."""
     image = np.ascontiguousarray(corners, dtype=np.float64).reshape(4, 1, 2)
     model = tag_object_points(tag_size)
-    ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(model, image, camera.matrix, camera.distortion,
-                                              flags=cv2.SOLVEPNP_IPPE_SQUARE)
-    if not ok:
-        raise FablineError("pose estimation failed: the corners do not make a square seen from in front")
+    starts = []
+    for flags in (cv2.SOLVEPNP_IPPE_SQUARE, cv2.SOLVEPNP_SQPNP):
+        ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(model, image, camera.matrix, camera.distortion, flags=flags)
+        if ok:
+            starts += [(r, t) for r, t in zip(rvecs, tvecs) if np.all(np.isfinite(r)) and np.all(np.isfinite(t))]
     solutions = []
-    for rvec, tvec in zip(rvecs, tvecs):
+    for rvec, tvec in starts:
         rvec, tvec = cv2.solvePnPRefineLM(model, image, camera.matrix, camera.distortion, rvec.copy(), tvec.copy(),
                                           (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12))
         projected, _ = cv2.projectPoints(model, rvec, tvec, camera.matrix, camera.distortion)
         error = float(np.sqrt(np.mean(np.sum((projected - image) ** 2, axis=2))))
-        solutions.append((error, rvec.ravel(), tvec.ravel()))
+        if tvec.ravel()[2] > 0:
+            solutions.append((error, rvec.ravel(), tvec.ravel()))
+    if not solutions:
+        raise FablineError("pose estimation failed: the corners do not make a square seen from in front")
     solutions.sort(key=lambda solution: solution[0])
-    (error, rvec, tvec), (other_error, other_rvec, other_tvec) = solutions[0], solutions[-1]
-    return TagPose(rvec, tvec, error, other_rvec, other_tvec, other_error)
+    error, rvec, tvec = solutions[0]
+    best = cv2.Rodrigues(rvec)[0]
+    other = next((s for s in solutions[1:]
+                  if np.degrees(np.linalg.norm(cv2.Rodrigues(best.T @ cv2.Rodrigues(s[1])[0])[0])) > 1.0), solutions[0])
+    return TagPose(rvec, tvec, error, other[1], other[2], other[0])

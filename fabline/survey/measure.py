@@ -38,6 +38,8 @@ class MeasureOptions:
 
     `scale_min_cell_px`: observations of tags whose narrowest cell is smaller than this in the photo place
     cameras and tags but do not set the scale (detection shrinks such tags by up to 1e-3; 0 uses all).
+    `k_sigma`: a node passes when its deviation plus k times its standard uncertainty along the deviation is within the
+    tolerance, fails when the deviation minus that is beyond it, and is "uncertain" otherwise (2: about 95 %).
     """
 
     tolerance_mm: float = 20.0
@@ -46,6 +48,7 @@ class MeasureOptions:
     pictures: bool = True
     scale_bars: tuple[tuple[int, int, float], ...] = ()
     scale_min_cell_px: float = 4.0
+    k_sigma: float = 2.0
 
 
 def list_photos(folder: str | os.PathLike) -> list[Path]:
@@ -148,6 +151,8 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
         raise FablineError(f"--tolerance {options.tolerance_mm:g}: must be a distance in mm, more than 0")
     if options.min_views < 2:
         raise FablineError(f"--min-views {options.min_views}: a tag must be seen in at least 2 photos to be measured")
+    if not (options.k_sigma >= 0 and np.isfinite(options.k_sigma)):
+        raise FablineError(f"--k-sigma {options.k_sigma:g}: must be a number of standard deviations, 0 or more")
     if not options.scale_min_cell_px >= 0:
         raise FablineError(f"--scale-min-cell {options.scale_min_cell_px:g}: must be a number of px, 0 or more")
     model = network.in_mm()
@@ -223,9 +228,12 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
     measured, design, covariances, views = measured_all[keep], design[keep], covariances[keep], views[keep]
     deviation = measured - design
     distance = np.linalg.norm(deviation, axis=1)
-    sigma = np.sqrt(np.einsum("ij,njk,ik->ni", rotation, covariances, rotation))
-    passed = distance <= options.tolerance_mm
-    record = _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviation, distance, sigma, views, passed,
+    covariances = rotation @ covariances @ rotation.T
+    sigma = np.sqrt(np.einsum("nii->ni", covariances))
+    normals = np.array([model.nodes[n].normal for n in node_ids]).reshape(-1, 3)
+    verdict, sigma_along = verdicts(deviation, covariances, options.tolerance_mm, options.k_sigma)
+    record = _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviation, distance, sigma, views,
+                     (verdict, sigma_along, np.einsum("ni,ni->n", deviation, normals)),
                      rotation, translation, fit_rms, reconstruction, photos, detections, problems, wrong, duplicated)
     record["summary"]["tags_found_where_predicted"] = len(predicted)
     record["scale"] = scale or {"source": f"tag size {tag_map.tag_size_mm:g} mm", "factor": 1.0, "bars": []}
@@ -237,6 +245,22 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
         write_deviation_map(model, record, out_dir / "deviation_map.png")
         write_detection_pictures(photos, detections, out_dir / "detections")
     return record
+
+
+def verdicts(deviation: np.ndarray, covariances: np.ndarray, tolerance_mm: float, k_sigma: float):
+    """Per node "pass", "fail" or "uncertain" and the standard uncertainty (mm) of its distance from the design.
+
+    That uncertainty is the deviation's along its own direction, sqrt(u^T C u) (at a deviation too small to have a
+    direction, the largest along any); pass: distance + k sigma within the tolerance, fail: distance - k sigma beyond.
+    """
+    distance = np.linalg.norm(deviation, axis=1)
+    direction = deviation / np.maximum(distance, 1e-9)[:, None]
+    along = np.einsum("ni,nij,nj->n", direction, covariances, direction)
+    largest = np.linalg.eigvalsh(covariances)[:, -1] if len(covariances) else np.zeros(0)
+    sigma = np.sqrt(np.maximum(np.where(distance > 1e-6, along, largest), 0.0))
+    verdict = np.where(distance + k_sigma * sigma <= tolerance_mm, "pass",
+                       np.where(distance - k_sigma * sigma > tolerance_mm, "fail", "uncertain"))
+    return verdict, sigma
 
 
 def check_scale_bars(bars, tag_map: TagMap) -> None:
@@ -267,7 +291,7 @@ def wrong_tags(measured: np.ndarray, node_ids: list[str], model: Network, tolera
     return suspects
 
 
-def _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviation, distance, sigma, views, passed,
+def _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviation, distance, sigma, views, judged,
             rotation, translation, fit_rms, reconstruction, photos, detections, problems, wrong, duplicated) -> dict:
     seen_once = {tag_map.node_of_tag[t] for t, n in reconstruction.observation_count.items() if n < options.min_views}
     measured_set = set(node_ids)
@@ -281,14 +305,16 @@ def _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviat
                          f"wrong tag? tag {tag} was found at node {wrong[nid]}" if nid in wrong else
                          f"tag {tag} seen in fewer than {options.min_views} photos" if nid in seen_once else f"tag {tag} not seen")
     order = np.argsort(-distance)
+    verdict, sigma_along, along_normal = judged
     return {
         "schema": SURVEY_SCHEMA, "model": model.name, "units": "mm", "tolerance_mm": options.tolerance_mm,
         "registration": {"method": "rigid", "reference": options.reference if isinstance(options.reference, str) else list(options.reference),
                          "rms_mm": round(fit_rms, 4), "rotation": np.round(rotation, 9).tolist(),
                          "translation_mm": np.round(translation, 4).tolist()},
         "summary": {
-            "nodes": len(model.nodes), "measured": len(node_ids), "passed": int(passed.sum()),
-            "failed": int((~passed).sum()), "not_seen": len(not_seen),
+            "nodes": len(model.nodes), "measured": len(node_ids), "passed": int(np.sum(verdict == "pass")),
+            "failed": int(np.sum(verdict == "fail")), "uncertain": int(np.sum(verdict == "uncertain")),
+            "k_sigma": options.k_sigma, "not_seen": len(not_seen),
             "rms_deviation_mm": round(float(np.sqrt(np.mean(distance ** 2))), 4) if len(distance) else None,
             "max_deviation_mm": round(float(distance.max()), 4) if len(distance) else None,
             "worst": [node_ids[i] for i in order[:10]],
@@ -298,7 +324,8 @@ def _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviat
         "nodes": {
             nid: {"tag": tag_ids[i], "design_mm": np.round(design[i], 3).tolist(), "measured_mm": np.round(measured[i], 3).tolist(),
                   "deviation_mm": np.round(deviation[i], 3).tolist(), "distance_mm": round(float(distance[i]), 3),
-                  "sigma_mm": np.round(sigma[i], 3).tolist(), "views": int(views[i]), "pass": bool(passed[i])}
+                  "sigma_mm": np.round(sigma[i], 3).tolist(), "distance_sigma_mm": round(float(sigma_along[i]), 3),
+                  "normal_mm": round(float(along_normal[i]), 3), "views": int(views[i]), "verdict": str(verdict[i])}
             for i, nid in enumerate(node_ids)
         },
         "not_seen": not_seen,
@@ -308,13 +335,22 @@ def _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviat
     }
 
 
+def _diverging(levels: np.ndarray) -> np.ndarray:
+    """BGR colours (N, 3) for levels in [-1, 1]: blue (low), through white, to red (high)."""
+    low, middle, high = np.array([180.0, 70, 20]), np.array([245.0, 245, 245]), np.array([30.0, 30, 200])
+    t = np.clip(levels, -1, 1)[:, None]
+    return np.where(t < 0, middle + (middle - low) * t, middle + (high - middle) * t).round().astype(np.uint8)
+
+
 def write_deviation_map(model: Network, record: dict, path: Path, width: int = 1600) -> None:
-    """Plan view of the design: lamellas in grey, measured nodes coloured by deviation, unseen nodes hollow."""
+    """Plan view of the design: lamellas in grey, measured nodes coloured by their deviation along the node normal
+    (red high, blue low, full colour at the tolerance), failing nodes ringed red and named, uncertain ones ringed
+    orange, unseen nodes hollow."""
     ids, xyz, _ = model.node_array()
     low, high = xyz[:, :2].min(axis=0), xyz[:, :2].max(axis=0)
     scale = (width - 160) / max(high[0] - low[0], high[1] - low[1], 1e-9)
     height = int((high[1] - low[1]) * scale) + 160
-    canvas = np.full((height, width + 200, 3), 255, dtype=np.uint8)
+    canvas = np.full((height, width + 240, 3), 255, dtype=np.uint8)
 
     def to_px(points: np.ndarray) -> np.ndarray:
         return np.column_stack([80 + (points[:, 0] - low[0]) * scale, height - 80 - (points[:, 1] - low[1]) * scale])
@@ -323,25 +359,34 @@ def write_deviation_map(model: Network, record: dict, path: Path, width: int = 1
         cv2.polylines(canvas, [np.round(to_px(lamella.curve) * 16).astype(np.int32)], False, (200, 200, 200), 2, cv2.LINE_AA, shift=4)
     tolerance = record["tolerance_mm"]
     radius = max(4, int(min(12, 0.3 * scale * np.median(np.linalg.norm(np.diff(xyz, axis=0), axis=1)))))
+    labels = []
     for nid, (x, y) in zip(ids, to_px(xyz)):
         centre = (int(round(x)), int(round(y)))
         node = record["nodes"].get(nid)
         if node is None:
             cv2.circle(canvas, centre, radius, (120, 120, 120), 1, cv2.LINE_AA)
             continue
-        level = np.uint8(min(node["distance_mm"] / tolerance, 1.0) * 255)
-        colour = cv2.applyColorMap(np.array([[level]], dtype=np.uint8), cv2.COLORMAP_TURBO)[0, 0].tolist()
+        colour = _diverging(np.array([node["normal_mm"] / tolerance]))[0].tolist()
         cv2.circle(canvas, centre, radius, colour, -1, cv2.LINE_AA)
-        if not node["pass"]:
+        cv2.circle(canvas, centre, radius, (90, 90, 90), 1, cv2.LINE_AA)
+        if node["verdict"] == "fail":
             cv2.circle(canvas, centre, radius + 3, (0, 0, 255), 2, cv2.LINE_AA)
-    bar = cv2.applyColorMap(np.linspace(255, 0, height - 160).astype(np.uint8)[:, None].repeat(30, axis=1), cv2.COLORMAP_TURBO)
+            labels.append((f"{nid} {node['normal_mm']:+.0f}", (centre[0] + radius + 4, centre[1] - radius)))
+        elif node["verdict"] == "uncertain":
+            cv2.circle(canvas, centre, radius + 3, (0, 150, 255), 2, cv2.LINE_AA)
+    for text, at in labels:  # on top of every node
+        cv2.putText(canvas, text, at, cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 3, cv2.LINE_AA)
+        cv2.putText(canvas, text, at, cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 160), 1, cv2.LINE_AA)
+    bar = _diverging(np.linspace(1, -1, height - 160))[:, None, :].repeat(30, axis=1)
     canvas[80:height - 80, width + 40:width + 70] = bar
-    for label, y in ((f"{tolerance:g} mm", 90), ("0 mm", height - 75)):
-        cv2.putText(canvas, label, (width + 80, y), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    for label, y in ((f"+{tolerance:g} mm high", 90), ("0", height // 2 + 5), (f"-{tolerance:g} mm low", height - 75)):
+        cv2.putText(canvas, label, (width + 80, y), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
     summary = record["summary"]
     cv2.putText(canvas, f"{model.name}: {summary['measured']} nodes measured, RMS {summary['rms_deviation_mm']} mm, "
-                        f"max {summary['max_deviation_mm']} mm, {summary['failed']} over {tolerance:g} mm, {summary['not_seen']} not seen",
-                (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 1, cv2.LINE_AA)
+                        f"max {summary['max_deviation_mm']} mm; {summary['passed']} pass, {summary['failed']} fail (red), "
+                        f"{summary['uncertain']} uncertain (orange) at {tolerance:g} mm, {summary['k_sigma']:g} sigma; "
+                        f"{summary['not_seen']} not seen",
+                (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
     write_image(path, canvas)
 
 
