@@ -201,7 +201,7 @@ def test_tags_cut_by_the_photo_edge_stay_out_of_the_adjustment(photo_set):
     camera = load_camera(out / "camera.json")
     square = np.array([[10.0, 10.0], [60.0, 10.0], [60.0, 60.0], [10.0, 60.0]])
     found = [(0, TagDetection(5, square)), (0, TagDetection(6, square - [12, 0], partial=True)), (1, TagDetection(6, square))]
-    assert [(o.photo, o.tag) for o in _observations(found, camera, 4.0)] == [(0, 5), (1, 6)]
+    assert [(o.photo, o.tag) for o in _observations(found, {0: camera, 1: camera}, 4.0)] == [(0, 5), (1, 6)]
 
 
 def test_an_id_printed_twice_and_seen_twice_in_a_photo_is_named_and_left_out(tmp_path, network):

@@ -58,7 +58,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     measure = commands.add_parser("measure", help="measure every tagged node against the design")
     measure.add_argument("photos", help="folder of survey photos")
     measure.add_argument("--model", required=True, help="fabline.network/1 model file")
-    measure.add_argument("--camera", required=True, help="camera.json")
+    measure.add_argument("--camera", help="camera.json (default: the photos calibrate their cameras themselves)")
+    measure.add_argument("--calibrate", action="store_true",
+                         help="fit the intrinsics to the survey's photos, starting from --camera (always without it)")
+    measure.add_argument("--radial-only", action="store_true",
+                         help="self-calibration fits focal length, principal point, k1 and k2 only (not p1, p2, k3)")
+    measure.add_argument("--camera-map", metavar="JSON",
+                         help="photo file name -> camera name, for photos EXIF does not group (e.g. two phones)")
     measure.add_argument("--tags", help="tagmap.json (default: ids in model node order, 65 mm tags, 20 mm offset)")
     measure.add_argument("-o", "--output", required=True, help="folder for survey.json and the pictures")
     measure.add_argument("--tolerance", type=float, default=20.0, help="pass/fail distance, mm (default 20)")
@@ -188,6 +194,16 @@ def _scale_bar(values: list[str]) -> tuple[int, int, float]:
         raise FablineError(f"--scale-bar {' '.join(values)}: expected two tag ids and a distance in mm") from None
 
 
+def _camera_map(path: str) -> dict[str, str]:
+    """A `--camera-map` file: a JSON object of photo file names to camera names; anything else raises naming it."""
+    from fabline.fileio import read_json
+
+    data = read_json(path)
+    if not isinstance(data, dict) or not all(isinstance(v, str) and v for v in data.values()):
+        raise FablineError(f"{path}: a camera map is a JSON object of photo file names to camera names")
+    return data
+
+
 def _measure(args: argparse.Namespace) -> int:
     from fabline.model import load_network
     from fabline.survey import MeasureOptions, list_photos, load_camera, load_tag_map, make_tag_map, measure_survey
@@ -197,10 +213,18 @@ def _measure(args: argparse.Namespace) -> int:
     reference = args.reference if args.reference in ("all", "supports") else [n.strip() for n in args.reference.split(",") if n.strip()]
     options = MeasureOptions(tolerance_mm=args.tolerance, reference=reference, min_views=args.min_views,
                              scale_bars=tuple(_scale_bar(values) for values in args.scale_bar),
-                             scale_min_cell_px=args.scale_min_cell, k_sigma=args.k_sigma)
-    record = measure_survey(list_photos(args.photos), network, load_camera(args.camera), tag_map, args.output, options)
+                             scale_min_cell_px=args.scale_min_cell, k_sigma=args.k_sigma, calibrate=args.calibrate,
+                             radial_only=args.radial_only, camera_map=_camera_map(args.camera_map) if args.camera_map else None)
+    camera = load_camera(args.camera) if args.camera else None
+    record = measure_survey(list_photos(args.photos), network, camera, tag_map, args.output, options)
     for problem in record["problems"]:
         print(f"warning: {problem['problem']}")
+    for fitted in record["cameras"] or []:
+        sigma = {k: float("inf") if v is None else v for k, v in fitted["sigma"].items()}
+        print(f"camera {fitted['name']} ({fitted['photos']} photos, from {fitted['initial']}): f {fitted['f_px']} "
+              f"+/- {sigma.get('f', 0):.3g} px, principal point ({fitted['cx']}, {fitted['cy']}) +/- "
+              f"({sigma.get('cx', 0):.2g}, {sigma.get('cy', 0):.2g}) px, k1 {fitted['distortion'][0]:.4f} "
+              f"+/- {sigma.get('k1', 0):.2g}, k2 {fitted['distortion'][1]:.4f} +/- {sigma.get('k2', 0):.2g}")
     s = record["summary"]
     print(f"{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
           f"RMS deviation {s['rms_deviation_mm']} mm, max {s['max_deviation_mm']} mm; at {record['tolerance_mm']:g} mm "

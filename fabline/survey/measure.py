@@ -24,11 +24,14 @@ from fabline.survey.camera import Camera
 from fabline.survey.detect import TagDetection, cell_width_px, detect_expected_tags, detect_tags, read_gray, write_image
 from fabline.survey.reconstruct import Observation, Reconstruction, bundle_adjust
 from fabline.survey.register import register
+from fabline.survey.selfcal import (UNDETERMINED_FOCAL, CameraGroup, describe, group_photos, initial_camera, refine_cameras,
+                                    weak_cameras)
 from fabline.survey.tagmap import TagMap, check_tag_map
 
 SURVEY_SCHEMA = "fabline.survey/1"
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
 PREVIEW_WIDTH = 1600
+SELF_CALIBRATION_ROUNDS = 2  # intrinsics fitted, corners normalised again, poses adjusted again
 
 
 @dataclass
@@ -38,6 +41,9 @@ class MeasureOptions:
 
     `scale_min_cell_px`: observations of tags whose narrowest cell is smaller than this in the photo place
     cameras and tags but do not set the scale (detection shrinks such tags by up to 1e-3; 0 uses all).
+    `calibrate`: fit the intrinsics to the survey's own photos (`fabline.survey.selfcal`; always when no camera is
+    given): focal length, principal point, k1, k2, p1, p2 and k3, or only the first five with `radial_only`; `camera_map`: photo file name -> camera name, for photos EXIF
+    cannot group.
     `k_sigma`: a node passes when its deviation plus k times its standard uncertainty along the deviation is within the
     tolerance, fails when the deviation minus that is beyond it, and is "uncertain" otherwise (2: about 95 %).
     """
@@ -49,6 +55,9 @@ class MeasureOptions:
     scale_bars: tuple[tuple[int, int, float], ...] = ()
     scale_min_cell_px: float = 4.0
     k_sigma: float = 2.0
+    calibrate: bool = False
+    radial_only: bool = False
+    camera_map: dict[str, str] | None = None
 
 
 def list_photos(folder: str | os.PathLike) -> list[Path]:
@@ -64,8 +73,10 @@ def list_photos(folder: str | os.PathLike) -> list[Path]:
 
 def detect_photos(photos: list[Path], camera: Camera | None, known_tags: set[int] | None = None):
     """Detections per photo, the problems found (unreadable, wrong resolution, no tags, unknown ids, an id found twice
-    in one photo) and the ids found twice in one photo (id -> photo indices), which are left out of the detections."""
+    in one photo), the ids found twice in one photo (id -> photo indices), which are left out of the detections, and
+    each readable photo's size (width, height)."""
     detections: dict[int, list[TagDetection]] = {}
+    sizes: dict[int, tuple[int, int]] = {}
     problems: list[dict] = []
     duplicated: dict[int, list[int]] = {}
     for k, path in enumerate(progress(photos, "detecting tags")):
@@ -76,6 +87,7 @@ def detect_photos(photos: list[Path], camera: Camera | None, known_tags: set[int
         except FablineError as exc:
             problems.append({"file": str(path), "problem": str(exc)})
             continue
+        sizes[k] = (gray.shape[1], gray.shape[0])
         found = detect_tags(gray)
         if not found:
             problems.append({"file": str(path), "problem": f"{path}: no tags found in this photo"})
@@ -94,10 +106,10 @@ def detect_photos(photos: list[Path], camera: Camera | None, known_tags: set[int
         detections[k] = [d for d in found if d.tag_id not in duplicated]
     for k in detections:
         detections[k] = [d for d in detections[k] if d.tag_id not in duplicated]
-    return detections, problems, duplicated
+    return detections, problems, duplicated, sizes
 
 
-def find_predicted_tags(photos: list[Path], camera: Camera, tag_size: float, reconstruction: Reconstruction,
+def find_predicted_tags(photos: list[Path], camera_of: dict[int, Camera], tag_size: float, reconstruction: Reconstruction,
                         detections: dict[int, list[TagDetection]]) -> list[tuple[int, TagDetection]]:
     """Look again, in each photo that joined, for the reconstructed tags it should show but did not yield.
 
@@ -108,7 +120,7 @@ def find_predicted_tags(photos: list[Path], camera: Camera, tag_size: float, rec
     added = []
     for k in progress(sorted(reconstruction.camera_rotations), "looking for predicted tags"):
         seen = {d.tag_id for d in detections[k]}
-        expected = {t: corners for t, corners in reconstruction.predict_corners(k, camera, tag_size).items() if t not in seen}
+        expected = {t: corners for t, corners in reconstruction.predict_corners(k, camera_of[k], tag_size).items() if t not in seen}
         if not expected:
             continue
         found = detect_expected_tags(read_gray(photos[k]), expected)
@@ -117,12 +129,12 @@ def find_predicted_tags(photos: list[Path], camera: Camera, tag_size: float, rec
     return added
 
 
-def _observations(found: list[tuple[int, TagDetection]], camera: Camera, scale_min_cell_px: float) -> list[Observation]:
+def _observations(found: list[tuple[int, TagDetection]], camera_of: dict[int, Camera], scale_min_cell_px: float) -> list[Observation]:
     """(photo index, detection) pairs as observations: corners normalised, scale-free where the cells are small.
 
     Tags cut by the photo's edge (`partial`) are left out: a corner of theirs is extrapolated, not measured.
     """
-    return [Observation(k, d.tag_id, camera.normalise(d.corners), cell_width_px(d.corners) < scale_min_cell_px)
+    return [Observation(k, d.tag_id, camera_of[k].normalise(d.corners), cell_width_px(d.corners) < scale_min_cell_px)
             for k, d in found if not d.partial]
 
 
@@ -143,9 +155,12 @@ def _reference_mask(option: str | list[str], node_ids: list[str], network: Netwo
     return np.isin(node_ids, option)
 
 
-def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map: TagMap,
+def measure_survey(photos: list[Path], network: Network, camera: Camera | None, tag_map: TagMap,
                    out_dir: str | os.PathLike, options: MeasureOptions | None = None) -> dict:
-    """Run the whole survey and write `survey.json` and the pictures into `out_dir`; return the record."""
+    """Run the whole survey and write `survey.json` and the pictures into `out_dir`; return the record.
+
+    Without a `camera` (or with `options.calibrate`) the photos calibrate their cameras themselves (see
+    `fabline.survey.selfcal`); the fitted intrinsics are in the record's "cameras"."""
     options = options or MeasureOptions()
     if not (options.tolerance_mm > 0 and np.isfinite(options.tolerance_mm)):
         raise FablineError(f"--tolerance {options.tolerance_mm:g}: must be a distance in mm, more than 0")
@@ -158,12 +173,17 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
     model = network.in_mm()
     check_tag_map(tag_map, model)
     check_scale_bars(options.scale_bars, tag_map)
-    detections, problems, duplicated = detect_photos(photos, camera, set(tag_map.node_of_tag))
-    observations = _observations([(k, d) for k, found in detections.items() for d in found], camera, options.scale_min_cell_px)
+    detections, problems, duplicated, sizes = detect_photos(photos, camera, set(tag_map.node_of_tag))
+    groups = _camera_groups(photos, sizes, detections, camera, tag_map.tag_size_mm, options, problems) \
+        if camera is None or options.calibrate else None
+    camera_of = {k: camera for k in sizes} if groups is None else {k: g.camera for g in groups for k in g.photos}
+    reference_camera = camera or groups[0].camera
+    pairs = [(k, d) for k, found in detections.items() for d in found]
+    observations = _observations(pairs, camera_of, options.scale_min_cell_px)
     if not observations:
         detail = f" ({problems[0]['problem']}" + (f"; {len(problems) - 1} more problem(s))" if len(problems) > 1 else ")") if problems else ""
         raise FablineError(f"no tags of the tag map were found in any usable photo{detail}")
-    reconstruction = bundle_adjust(observations, camera, tag_map.tag_size_mm)
+    reconstruction = bundle_adjust(observations, reference_camera, tag_map.tag_size_mm)
     misplaced = reconstruction.misplaced(observations, tag_map.tag_size_mm)
     if misplaced:
         for tag, (away, agreeing) in sorted(misplaced.items()):
@@ -176,11 +196,22 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
         observations = [o for o in observations if o.tag not in misplaced]
         for k in detections:
             detections[k] = [d for d in detections[k] if d.tag_id not in misplaced]
-        reconstruction = bundle_adjust(observations, camera, tag_map.tag_size_mm)
-    predicted = find_predicted_tags(photos, camera, tag_map.tag_size_mm, reconstruction, detections)
+        pairs = [(k, d) for k, d in pairs if d.tag_id not in misplaced]
+        reconstruction = bundle_adjust(observations, reference_camera, tag_map.tag_size_mm)
+    if groups is not None:
+        for _ in range(SELF_CALIBRATION_ROUNDS):
+            rejected = set(reconstruction.rejected)
+            refine_cameras(groups, reconstruction, [(k, d) for k, d in pairs if (k, d.tag_id) not in rejected],
+                           tag_map.tag_size_mm, not options.radial_only)
+            camera_of = {k: g.camera for g in groups for k in g.photos}
+            observations = _observations(pairs, camera_of, options.scale_min_cell_px)
+            reconstruction = bundle_adjust(observations, groups[0].camera, tag_map.tag_size_mm)
+        _check_determined(groups, problems)
+        reference_camera = groups[0].camera
+    predicted = find_predicted_tags(photos, camera_of, tag_map.tag_size_mm, reconstruction, detections)
     if predicted:
-        observations += _observations(predicted, camera, options.scale_min_cell_px)
-        reconstruction = bundle_adjust(observations, camera, tag_map.tag_size_mm)
+        observations += _observations(predicted, camera_of, options.scale_min_cell_px)
+        reconstruction = bundle_adjust(observations, reference_camera, tag_map.tag_size_mm)
     scale = None
     if options.scale_bars:
         unmeasured = [t for bar in options.scale_bars for t in bar[:2] if t not in reconstruction.tag_poses]
@@ -236,6 +267,7 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera, tag_map
                      (verdict, sigma_along, np.einsum("ni,ni->n", deviation, normals)),
                      rotation, translation, fit_rms, reconstruction, photos, detections, problems, wrong, duplicated)
     record["summary"]["tags_found_where_predicted"] = len(predicted)
+    record["cameras"] = describe(groups) if groups is not None else None
     record["scale"] = scale or {"source": f"tag size {tag_map.tag_size_mm:g} mm", "factor": 1.0, "bars": []}
     record["scale"].update(min_cell_px=options.scale_min_cell_px,
                            observations_without_scale=reconstruction.scale_free_observations)
@@ -261,6 +293,40 @@ def verdicts(deviation: np.ndarray, covariances: np.ndarray, tolerance_mm: float
     verdict = np.where(distance + k_sigma * sigma <= tolerance_mm, "pass",
                        np.where(distance - k_sigma * sigma > tolerance_mm, "fail", "uncertain"))
     return verdict, sigma
+
+
+def _camera_groups(photos, sizes, detections, camera, tag_size, options, problems) -> list[CameraGroup]:
+    """The cameras to calibrate, each with its photos and a starting point: the camera file given, else EXIF's focal
+    length or the tags' squares; photos without EXIF are noted in `problems`."""
+    found, without = group_photos(photos, sizes, options.camera_map)
+    if without:
+        problems.append({"problem": f"{len(without)} photo(s) without EXIF ({', '.join(without[:3])}"
+                                    f"{', ...' if len(without) > 3 else ''}): taken as one camera per image size, its "
+                                    f"focal length estimated from the tags (give --camera-map to group them otherwise)"})
+    groups = []
+    for name, (indices, exif) in found.items():
+        if camera is not None:
+            start, source = camera, "camera file"
+        else:
+            views = [d.corners for k in indices for d in detections.get(k, []) if not d.partial]
+            try:
+                start, source = initial_camera(sizes[indices[0]], exif, views, tag_size)
+            except FablineError as exc:
+                raise FablineError(f"{name} ({photos[indices[0]].name}, ...): {exc}") from None
+        groups.append(CameraGroup(name, indices, start, source))
+    return sorted(groups, key=lambda g: -len(g.photos))
+
+
+def _check_determined(groups: list[CameraGroup], problems: list[dict]) -> None:
+    """Warn of a camera whose focal length the photos determine poorly; refuse one they cannot determine."""
+    for group, relative in weak_cameras(groups):
+        advice = ("its photos are square-on at one distance, or too few: add photos at 30-60 degrees and at other "
+                  "distances, or give --camera camera.json")
+        if not relative <= UNDETERMINED_FOCAL:
+            raise FablineError(f"camera {group.name}: the photos cannot determine its focal length "
+                               f"(uncertainty {100 * relative:.1f} %): {advice}")
+        problems.append({"problem": f"camera {group.name}: focal length {group.camera.focal_px:.1f} px determined only "
+                                    f"to {100 * relative:.2f} %: {advice}"})
 
 
 def check_scale_bars(bars, tag_map: TagMap) -> None:

@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fabline.fileio import write_json
+from fabline.fileio import atomic_output, write_json
 from fabline.model import Lamella, Network, Node, validate
 from fabline.progress import progress
 from fabline.survey.camera import Camera, save_camera
@@ -49,9 +49,25 @@ class SyntheticSpec:
     seed: int = 1
     # site mistakes: (printed, instead_of) pairs, the tag `instead_of`'s node carrying a copy of tag `printed`
     misprints: tuple[tuple[int, int], ...] = ()
+    # a camera unknown to the survey: focal length, principal point and distortion drawn at random from `seed`
+    # (`focal_px` and `distortion` then unused), as a phone or a zoom lens nobody calibrated
+    random_camera: bool = False
+    # EXIF written into the photos (camera model and the focal length in 35 mm equivalent, whole mm as phones
+    # write it); None writes none
+    exif_model: str | None = None
 
     def camera(self) -> Camera:
-        """The simulated camera's intrinsics (principal point slightly off centre, as in real lenses)."""
+        """The simulated camera's intrinsics (principal point slightly off centre, as in real lenses); drawn at random
+        with `random_camera`: focal length 0.6-1.2 of the width, principal point within 2 % of the centre, square
+        pixels, k1 -0.25..0.05, k2 -0.05..0.2, p1 and p2 within 1e-3, k3 -0.05..0.05."""
+        if self.random_camera:
+            rng = np.random.default_rng([self.seed, 1802])
+            focal = self.width * rng.uniform(0.6, 1.2)
+            centre = [(self.width - 1) / 2, (self.height - 1) / 2] + rng.uniform(-0.02, 0.02, 2) * [self.width, self.height]
+            distortion = [rng.uniform(-0.25, 0.05), rng.uniform(-0.05, 0.2), *rng.uniform(-1e-3, 1e-3, 2),
+                          rng.uniform(-0.05, 0.05)]
+            matrix = np.array([[focal, 0, centre[0]], [0, focal, centre[1]], [0, 0, 1]])
+            return Camera(matrix, np.array(distortion), self.width, self.height)
         matrix = np.array([[self.focal_px, 0, self.width / 2 - 0.5 + 0.004 * self.width],
                            [0, self.focal_px * 1.0005, self.height / 2 - 0.5 - 0.003 * self.height], [0, 0, 1]])
         return Camera(matrix, np.array(self.distortion, dtype=float), self.width, self.height)
@@ -116,7 +132,7 @@ def camera_poses(points_mm: np.ndarray, normals: np.ndarray, spec: SyntheticSpec
     tag normal around the aim point, tilted by up to 25 degrees, kept above the horizon.
     """
     extent = np.ptp(points_mm, axis=0)
-    half_fov = np.arctan(0.5 * min(spec.width, spec.height) / spec.focal_px)
+    half_fov = np.arctan(0.5 * min(spec.width, spec.height) / spec.camera().matrix[0, 0])
     distance = spec.coverage * max(extent[0], extent[1]) / (2 * np.tan(half_fov))
     chosen = [int(rng.integers(len(points_mm)))]
     gap = np.linalg.norm(points_mm - points_mm[chosen[0]], axis=1)
@@ -267,7 +283,10 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
                 visible[int(tags[n])] = np.round(quad, 4).tolist()
         photo = _degrade(photo, spec, rng)
         name = f"photo-{k:03d}.jpg"
-        write_image(photos_dir / name, photo, (cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality))
+        if spec.exif_model:
+            _write_with_exif(photos_dir / name, photo, spec.jpeg_quality, spec.exif_model, camera)
+        else:
+            write_image(photos_dir / name, photo, (cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality))
         rvec, _ = cv2.Rodrigues(rotation)
         photo_records.append({"file": f"photos/{name}", "rotation": np.round(rvec.ravel(), 9).tolist(),
                               "translation_mm": np.round(translation, 4).tolist(),
@@ -289,6 +308,22 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
     }
     write_json(out_dir / "truth.json", truth)
     return truth
+
+
+def _write_with_exif(path: Path, photo: np.ndarray, quality: int, model: str, camera: Camera) -> None:
+    """A JPEG (Pillow) with EXIF naming the camera `model` and its focal length in 35 mm equivalent, whole mm."""
+    import io
+
+    from PIL import Image
+
+    exif = Image.Exif()
+    exif[0x010F], exif[0x0110] = "fabline", model
+    focal_35mm = int(round(camera.focal_px * np.hypot(36.0, 24.0) / np.hypot(camera.width, camera.height)))
+    exif.get_ifd(0x8769)[0xA405] = focal_35mm
+    buffer = io.BytesIO()
+    Image.fromarray(photo).save(buffer, "JPEG", quality=quality, exif=exif)
+    with atomic_output(path, "wb") as handle:
+        handle.write(buffer.getvalue())
 
 
 def _degrade(photo: np.ndarray, spec: SyntheticSpec, rng: np.random.Generator) -> np.ndarray:
