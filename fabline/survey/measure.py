@@ -42,8 +42,8 @@ class MeasureOptions:
     `scale_min_cell_px`: observations of tags whose narrowest cell is smaller than this in the photo place
     cameras and tags but do not set the scale (detection shrinks such tags by up to 1e-3; 0 uses all).
     `calibrate`: fit the intrinsics to the survey's own photos (`fabline.survey.selfcal`; always when no camera is
-    given): focal length, principal point, k1, k2, p1, p2 and k3, or only the first five with `radial_only`; `camera_map`: photo file name -> camera name, for photos EXIF
-    cannot group.
+    given): focal length, principal point, k1, k2, p1, p2 and k3, or only the first five with `radial_only`;
+    `camera_map`: photo file name -> camera name, for photos EXIF cannot group.
     `k_sigma`: a node passes when its deviation plus k times its standard uncertainty along the deviation is within the
     tolerance, fails when the deviation minus that is beyond it, and is "uncertain" otherwise (2: about 95 %).
     """
@@ -177,12 +177,12 @@ def measure_survey(photos: list[Path], network: Network, camera: Camera | None, 
     groups = _camera_groups(photos, sizes, detections, camera, tag_map.tag_size_mm, options, problems) \
         if camera is None or options.calibrate else None
     camera_of = {k: camera for k in sizes} if groups is None else {k: g.camera for g in groups for k in g.photos}
-    reference_camera = camera or groups[0].camera
     pairs = [(k, d) for k, found in detections.items() for d in found]
     observations = _observations(pairs, camera_of, options.scale_min_cell_px)
     if not observations:
         detail = f" ({problems[0]['problem']}" + (f"; {len(problems) - 1} more problem(s))" if len(problems) > 1 else ")") if problems else ""
         raise FablineError(f"no tags of the tag map were found in any usable photo{detail}")
+    reference_camera = camera or groups[0].camera
     reconstruction = bundle_adjust(observations, reference_camera, tag_map.tag_size_mm)
     misplaced = reconstruction.misplaced(observations, tag_map.tag_size_mm)
     if misplaced:

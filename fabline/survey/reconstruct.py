@@ -451,7 +451,7 @@ def _normal_blocks(derivatives, residual, cam_index, tag_index, n_free, n_tags):
 def _schur_solve(blocks, damping: float) -> np.ndarray:
     """The damped Gauss-Newton step (camera part first, then tags) from the normal-equation blocks."""
     u, v, w, g_cam, g_tag = blocks
-    u = u + damping * np.diag(np.diag(u))
+    u = u + damping * np.diag(np.diag(u)) + 1e-9 * np.eye(len(u))  # a photo left without observations: no step
     v = v + damping * np.einsum("tii->ti", v)[:, :, None] * np.eye(6)[None]
     v_inv = np.linalg.inv(v)
     wv, schur = _eliminate_tags(u, v_inv, w)
