@@ -259,12 +259,15 @@ def test_report_survey_figures_agree_with_the_injected_truth(run):
     assert summary["max_deviation_mm"] == pytest.approx(true_distance.max(), abs=1.5)
     true_pass = true_distance <= SURVEY_TOLERANCE_MM
     assert 0 < (~true_pass).sum() < len(ids), "the tolerance splits the nodes"
-    measured_pass = np.array([record["nodes"][n]["pass"] for n in ids])
-    clear = np.abs(true_distance - SURVEY_TOLERANCE_MM) > 3 * rms_error  # away from the threshold, verdicts agree
-    assert np.array_equal(measured_pass[clear], true_pass[clear])
-    assert summary["passed"] == int(measured_pass.sum()) and summary["failed"] == int((~measured_pass).sum())
-    assert comparison["true_failed"] == int((~true_pass).sum())
-    assert comparison["pass_fail_agreement"] == int((measured_pass == true_pass).sum())
+    verdict = np.array([record["nodes"][n]["verdict"] for n in ids])
+    margin = 2 * np.array([record["nodes"][n]["distance_sigma_mm"] for n in ids])
+    clear = np.abs(true_distance - SURVEY_TOLERANCE_MM) > 3 * rms_error + margin  # away from the threshold: agree
+    assert clear.any() and np.array_equal(verdict[clear] == "pass", true_pass[clear])
+    assert not np.any(np.where(true_pass, verdict == "fail", verdict == "pass"))  # near it: uncertain, never wrong
+    assert summary["passed"] == int(np.sum(verdict == "pass")) and summary["failed"] == int(np.sum(verdict == "fail"))
+    assert summary["uncertain"] == int(np.sum(verdict == "uncertain"))
+    assert comparison["true_failed"] == int((~true_pass).sum()) and comparison["wrong_verdicts"] == 0
+    assert comparison["pass_fail_agreement"] == int(np.sum(np.where(true_pass, verdict == "pass", verdict == "fail")))
 
 
 def test_report_page_shows_the_survey_map_first_then_its_figures(run):
@@ -278,7 +281,8 @@ def test_report_page_shows_the_survey_map_first_then_its_figures(run):
     assert f"<tr><td>RMS deviation mm</td><td>{s['rms_deviation_mm']:.1f}</td></tr>" in section   # mm to 0.1
     assert f"<tr><td>max deviation mm</td><td>{s['max_deviation_mm']:.1f}</td></tr>" in section
     assert f"<tr><td>worst nodes</td><td>{', '.join(s['worst'])}</td></tr>" in section
-    assert f"({s['passed']} pass, {s['failed']} fail against 10 mm); {s['not_seen']} not seen" in section
+    assert (f"({s['passed']} pass, {s['failed']} fail, {s['uncertain']} uncertain against 10 mm with 2 sigma of margin); "
+            f"{s['not_seen']} not seen") in section
     assert f"<tr><td>RMS of measured minus true deviation mm</td><td>{truth['rms_error_mm']:.1f}</td></tr>" in section
     assert not re.search(r"<td>\d+\.\d{3,}", section), "no survey figure with more than 2 decimals"
     assert section.index("id=deviation-map") < section.index("id=survey>") < section.index("id=survey-truth")

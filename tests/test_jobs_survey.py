@@ -23,7 +23,7 @@ def shell():
 def record_and_truth(ids, design, built, measured_deviation, reference, tolerance=10.0):
     distance = np.linalg.norm(measured_deviation, axis=1)
     record = {"tolerance_mm": tolerance, "registration": {"reference": reference},
-              "nodes": {n: {"deviation_mm": d.tolist(), "pass": bool(r <= tolerance)}
+              "nodes": {n: {"deviation_mm": d.tolist(), "verdict": "pass" if r <= tolerance else "fail"}
                         for n, d, r in zip(ids, measured_deviation, distance)}}
     truth = {"deviation": {"kind": "sag", "amplitude_mm": 30.0},
              "nodes": {n: {"design_mm": p.tolist(), "built_mm": b.tolist()} for n, p, b in zip(ids, design, built)}}
@@ -45,6 +45,7 @@ def test_supports_reference_compares_with_the_injected_sag_itself(shell):
     assert result["true_failed"] == int((true_distance > 10.0).sum()) > 0
     measured_pass = np.linalg.norm(built - design + error, axis=1) <= 10.0
     assert result["pass_fail_agreement"] == int(np.sum(measured_pass == (true_distance <= 10.0)))
+    assert result["wrong_verdicts"] == len(ids) - result["pass_fail_agreement"] and result["uncertain"] == 0
 
 
 def test_all_nodes_reference_sees_the_truth_through_the_same_rigid_fit(shell):

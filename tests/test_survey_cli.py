@@ -53,7 +53,7 @@ def test_detect_json_with_poses(cli, simulated):
     truth = json.loads((simulated / "truth.json").read_text())
     record = max(truth["photos"], key=lambda p: len(p["visible"]))
     photo = simulated / record["file"]
-    code, out, err = cli("survey", "detect", photo, "--camera", simulated / "camera.json", "--tag-size", "0.065", "--json")
+    code, out, err = cli("survey", "detect", photo, "--camera", simulated / "camera.json", "--tag-size", "65", "--json")
     assert code == 0, err
     (entry,) = json.loads(out)
     found = {t["id"]: t for t in entry["tags"]}
@@ -62,7 +62,8 @@ def test_detect_json_with_poses(cli, simulated):
         tag = found[int(tag_id)]
         assert np.abs(np.array(tag["corners_px"]) - corners).max() < 0.5
         assert tag["partial"] is False  # wholly inside the photo
-        assert len(tag["rotation"]) == 3 and 0.5 < tag["translation_m"][2] < 10  # metres, in front of the camera
+        assert len(tag["rotation"]) == 3 and 500 < tag["translation_mm"][2] < 10000  # mm, in front of the camera
+        assert tag["reprojection_px"] < 0.5 and 0 <= tag["ambiguity"] <= 1 and tag["ambiguous"] == (tag["ambiguity"] > 0.5)
 
 
 def test_measure_prints_a_summary_and_writes_the_survey(cli, model_file, simulated, tmp_path):
@@ -113,6 +114,13 @@ def test_a_scale_bar_corrects_a_wrong_tag_size(cli, model_file, simulated, tmp_p
 @pytest.mark.parametrize("args, message", [
     (["survey", "detect", "{tmp}/missing.jpg"], "missing.jpg: cannot read the image"),
     (["survey", "detect", "{sim}/photos/photo-000.jpg", "--camera", "{sim}/camera.json"], "poses need both --camera and --tag-size"),
+    (["survey", "detect", "{sim}/photos/photo-000.jpg", "--camera", "{sim}/camera.json", "--tag-size", "0.065"],
+     "--tag-size 0.065: a tag's black-square edge in millimetres must be 5 to 2000; 0.065 looks like metres: give 65"),
+    (["survey", "tags", "--model", "{model}", "-o", "{tmp}/out", "--tag-size", "0.05"], "0.05 looks like metres: give 50"),
+    (["survey", "simulate", "--model", "{model}", "-o", "{tmp}/out", "--tag-size", "6500"],
+     "--tag-size 6500: a tag's black-square edge in millimetres must be 5 to 2000"),
+    (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "--tags", "{tmp}/metres.json",
+      "-o", "{tmp}/out"], "metres.json: field 'tag_size_mm' 0.065: a tag's black-square edge in millimetres"),
     (["survey", "tags", "--model", "{tmp}/none.json", "-o", "{tmp}/out"], "none.json: file not found"),
     (["survey", "measure", "{tmp}", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out"], "no photos"),
     (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{tmp}/bad-camera.json", "-o", "{tmp}/out"],
@@ -148,6 +156,7 @@ def test_bad_input_is_one_line_exit_2_nothing_written(cli, model_file, simulated
     (tmp_path / "other-camera.json").write_text(json.dumps({**camera, "width": 4000, "height": 3000}))
     tag_map = json.loads((simulated / "tagmap.json").read_text())
     (tmp_path / "two.json").write_text(json.dumps({**tag_map, "tags": tag_map["tags"] + [{"tag": 1, "node": "n00-00"}]}))
+    (tmp_path / "metres.json").write_text(json.dumps({**tag_map, "tag_size_mm": 0.065}))
     ghost = json.loads(json.dumps(tag_map))
     ghost["tags"][2]["node"] = "ghost"
     (tmp_path / "ghost.json").write_text(json.dumps(ghost))

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from fabline.errors import FablineError
-from fabline.survey import (MeasureOptions, SyntheticSpec, detect_tags, list_photos, load_camera, load_tag_map, measure_survey,
-                            read_gray, saddle_network, simulate_survey, tag_image, tagmap_from_dict, tagmap_to_dict)
+from fabline.survey import (MeasureOptions, SyntheticSpec, detect_tags, list_photos, load_camera, load_tag_map, make_tag_map,
+                            measure_survey, read_gray, saddle_network, simulate_survey, tag_image, tagmap_from_dict, tagmap_to_dict)
 
 
 @pytest.fixture(scope="module")
@@ -72,14 +72,19 @@ def test_per_node_record_and_summary_are_consistent(survey, photo_set):
         deviation = np.subtract(node["measured_mm"], node["design_mm"])
         assert np.allclose(deviation, node["deviation_mm"], atol=2e-3)
         assert node["distance_mm"] == pytest.approx(np.linalg.norm(node["deviation_mm"]), abs=2e-3)
-        assert node["pass"] == (node["distance_mm"] <= 20.0)
+        margin = 2.0 * node["distance_sigma_mm"]
+        assert node["verdict"] == ("pass" if node["distance_mm"] + margin <= 20.0 else
+                                   "fail" if node["distance_mm"] - margin > 20.0 else "uncertain")
+        assert np.linalg.norm(node["sigma_mm"]) + 1e-3 >= node["distance_sigma_mm"] >= 0  # at most the trace's root
+        assert node["normal_mm"] < 0 or node["distance_mm"] < 3  # the sag: low along the upward normal
         assert node["design_mm"] == pytest.approx(truth["nodes"][nid]["design_mm"], abs=1e-3)
         assert node["views"] >= 2
     summary = record["summary"]
     distances = np.array([n["distance_mm"] for n in record["nodes"].values()])
     assert summary["measured"] == len(distances)
-    assert summary["failed"] == int((distances > 20.0).sum()) > 0
-    assert summary["passed"] + summary["failed"] == summary["measured"]
+    verdicts = [n["verdict"] for n in record["nodes"].values()]
+    assert summary["failed"] == verdicts.count("fail") > 0 and summary["uncertain"] == verdicts.count("uncertain")
+    assert summary["passed"] + summary["failed"] + summary["uncertain"] == summary["measured"] and summary["k_sigma"] == 2
     assert summary["max_deviation_mm"] == pytest.approx(distances.max(), abs=1e-3)
     assert summary["rms_deviation_mm"] == pytest.approx(np.sqrt(np.mean(distances ** 2)), abs=1e-3)
     assert record["nodes"][summary["worst"][0]]["distance_mm"] == pytest.approx(distances.max(), abs=1e-3)
@@ -196,4 +201,103 @@ def test_tags_cut_by_the_photo_edge_stay_out_of_the_adjustment(photo_set):
     camera = load_camera(out / "camera.json")
     square = np.array([[10.0, 10.0], [60.0, 10.0], [60.0, 60.0], [10.0, 60.0]])
     found = [(0, TagDetection(5, square)), (0, TagDetection(6, square - [12, 0], partial=True)), (1, TagDetection(6, square))]
-    assert [(o.photo, o.tag) for o in _observations(found, camera, 4.0)] == [(0, 5), (1, 6)]
+    assert [(o.photo, o.tag) for o in _observations(found, {0: camera, 1: camera}, 4.0)] == [(0, 5), (1, 6)]
+
+
+def test_an_id_printed_twice_and_seen_twice_in_a_photo_is_named_and_left_out(tmp_path, network):
+    """Node n02-04 carries a second print of n02-02's tag: photos showing both name the tag and the photo, both nodes
+    stay unmeasured (which copy is the node's cannot be told), and the rest is measured as before."""
+    tag_map = make_tag_map(network)
+    copy, instead_of = tag_map.tag_of_node["n02-02"], tag_map.tag_of_node["n02-04"]
+    spec = SyntheticSpec(photos=10, width=1600, height=1200, focal_px=1300, coverage=0.7, sag_mm=25.0, seed=3,
+                         misprints=((copy, instead_of),))
+    truth = simulate_survey(network, tmp_path / "set", spec)
+    record = measure_survey(list_photos(tmp_path / "set" / "photos"), network, load_camera(tmp_path / "set" / "camera.json"),
+                            load_tag_map(tmp_path / "set" / "tagmap.json"), tmp_path / "survey",
+                            MeasureOptions(reference="supports", pictures=False))
+    twice = [p for p in record["problems"] if p.get("tag") == copy]
+    assert twice and all(f"tag {copy} appears 2 times in this photo" in p["problem"] and p["file"] in p["problem"]
+                         and "printed more than once" in p["problem"] for p in twice)
+    assert "n02-02" not in record["nodes"] and "printed more than once" in record["not_seen"]["n02-02"]
+    assert "n02-04" not in record["nodes"]
+    ids = list(record["nodes"])
+    error = np.array([record["nodes"][n]["deviation_mm"] for n in ids]) - [truth["nodes"][n]["deviation_mm"] for n in ids]
+    assert len(ids) >= 0.85 * len(truth["nodes"]) and np.sqrt(np.mean(np.sum(error ** 2, axis=1))) < 0.5
+
+
+def test_an_id_seen_at_another_place_in_one_photo_is_named_and_left_out(tmp_path, network, photo_set):
+    """One photo shows a tag's print on another node's spot (and not the tag itself, which the other photos show where
+    it is): inconsistent across photos, reported naming the tag and the photos, kept out of the adjustment; the other
+    nodes are measured."""
+    from fabline.survey.simulate import _render_tag
+
+    out, truth = photo_set
+    photos = tmp_path / "photos"
+    shutil.copytree(out / "photos", photos)
+    k = min(range(len(truth["photos"])), key=lambda k: len(truth["photos"][k]["rendered"]))
+    record = truth["photos"][k]
+    seen = [sum(t in p["visible"] for p in truth["photos"]) for t in range(len(truth["nodes"]))]
+    tag = next(t for t in range(len(seen)) if t not in record["rendered"] and seen[t] >= 3)
+    victim = min(record["visible"])
+    gray = read_gray(photos / f"photo-{k:03d}.jpg").astype(np.float32)
+    _render_tag(gray, tag, np.array(record["visible"][victim]), 0.9)
+    (photos / f"photo-{k:03d}.jpg").unlink()
+    cv2.imwrite(str(photos / f"photo-{k:03d}.png"), np.clip(gray + 0.5, 0, 255).astype(np.uint8))
+    result = measure_survey(list_photos(photos), network, load_camera(out / "camera.json"), load_tag_map(out / "tagmap.json"),
+                            tmp_path / "survey", MeasureOptions(reference="supports", pictures=False))
+    problems = [p["problem"] for p in result["problems"] if p.get("tag") == tag]
+    assert len(problems) == 1 and f"tag {tag}: photo(s) photo-{k:03d}.png show it away from where photo(s) " in problems[0]
+    assert "printed more than once" in problems[0]
+    node = next(n for n, v in truth["nodes"].items() if v["tag"] == tag)
+    assert node not in result["nodes"] and "printed more than once" in result["not_seen"][node]
+    assert len(result["nodes"]) >= 0.85 * len(truth["nodes"])
+
+
+def test_verdicts_count_the_uncertainty():
+    """The issue's case: 12 mm off with a 7 mm sigma (14 mm at 2 sigma) against 20 mm is uncertain, not a pass; the
+    sigma that counts is the one along the deviation; k = 0 is the bare distance."""
+    from fabline.survey.measure import verdicts
+
+    deviation = np.array([[12.0, 0, 0], [0, 12.0, 0], [25.0, 0, 0], [0, 0, 25.0], [0, 0, 0], [19.0, 0, 0]])
+    covariances = np.array([np.diag(v) ** 2 for v in ([7.0, 1, 1], [7.0, 1, 1], [1.0, 1, 1], [1.0, 1, 5], [1.0, 3, 1],
+                                                       [0.1, 1, 1])])
+    verdict, sigma = verdicts(deviation, covariances, 20.0, 2.0)
+    assert verdict.tolist() == ["uncertain", "pass", "fail", "uncertain", "pass", "pass"]
+    assert sigma == pytest.approx([7.0, 1.0, 1.0, 5.0, 3.0, 0.1])
+    assert verdicts(deviation, covariances, 20.0, 0.0)[0].tolist() == ["pass", "pass", "fail", "fail", "pass", "pass"]
+
+
+def test_deviation_map_shows_high_and_low_and_names_failing_nodes(tmp_path, network):
+    """Red for a node high along its normal, blue for one low, a red ring around a failing node and its id written
+    beside it, an orange ring around an uncertain one."""
+    from fabline.survey.measure import write_deviation_map
+
+    model = network.in_mm()
+    node = {"distance_mm": 15.0, "distance_sigma_mm": 1.0, "views": 3, "tag": 0}
+    record = {"tolerance_mm": 10.0, "nodes": {"n02-02": {**node, "normal_mm": 15.0, "verdict": "fail"},
+                                               "n04-04": {**node, "normal_mm": -15.0, "verdict": "fail"},
+                                               "n01-03": {**node, "normal_mm": 3.0, "verdict": "uncertain"}},
+              "summary": {"measured": 3, "rms_deviation_mm": 15, "max_deviation_mm": 15, "passed": 0, "failed": 2,
+                          "uncertain": 1, "k_sigma": 2.0, "not_seen": len(model.nodes) - 3}}
+    write_deviation_map(model, record, tmp_path / "map.png")
+    image = cv2.imread(str(tmp_path / "map.png"))
+    ids, xyz, _ = model.node_array()
+    low, high = xyz[:, :2].min(axis=0), xyz[:, :2].max(axis=0)
+    scale = (1600 - 160) / max(high - low)
+    height = int((high[1] - low[1]) * scale) + 160
+
+    def pixel(nid, dx=0):
+        x, y = xyz[ids.index(nid), :2]
+        return image[int(round(height - 80 - (y - low[1]) * scale)), int(round(80 + (x - low[0]) * scale)) + dx].astype(int)
+
+    blue, green, red = pixel("n02-02")
+    assert red > 150 and blue < 100  # high: red
+    blue, green, red = pixel("n04-04")
+    assert blue > 150 and red < 100  # low: blue
+    radius = max(4, int(min(12, 0.3 * scale * np.median(np.linalg.norm(np.diff(xyz, axis=0), axis=1)))))
+    assert pixel("n04-04", radius + 3).tolist() == [0, 0, 255]  # the failing node's ring
+    assert tuple(pixel("n01-03", radius + 3)) == (0, 150, 255)  # the uncertain node's ring
+    x, y = xyz[ids.index("n02-02"), :2]
+    label = image[int(height - 80 - (y - low[1]) * scale) - 30:int(height - 80 - (y - low[1]) * scale),
+                  int(80 + (x - low[0]) * scale) + radius + 4:int(80 + (x - low[0]) * scale) + radius + 80]
+    assert np.sum(np.all(label == [0, 0, 160], axis=2)) > 20  # the node's id written beside it, dark red

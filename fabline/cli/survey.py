@@ -27,7 +27,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     detect = commands.add_parser("detect", help="detect AprilTag 36h11 tags in photos (corners, optional poses)")
     detect.add_argument("photos", nargs="+", help="image files")
     detect.add_argument("--camera", help="camera.json, to estimate each tag's pose")
-    detect.add_argument("--tag-size", type=float, help="tag black-square edge in metres, for poses (e.g. 0.065)")
+    detect.add_argument("--tag-size", type=float, help="tag black-square edge in mm, for poses (e.g. 65)")
     detect.add_argument("--json", action="store_true", help="print JSON (the default prints a table)")
     detect.set_defaults(func=_detect)
 
@@ -59,10 +59,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     measure = commands.add_parser("measure", help="measure every tagged node against the design")
     measure.add_argument("photos", help="folder of survey photos")
     measure.add_argument("--model", required=True, help="fabline.network/1 model file")
-    measure.add_argument("--camera", required=True, help="camera.json")
+    measure.add_argument("--camera", help="camera.json (default: the photos calibrate their cameras themselves)")
+    measure.add_argument("--calibrate", action="store_true",
+                         help="fit the intrinsics to the survey's photos, starting from --camera (always without it)")
+    measure.add_argument("--radial-only", action="store_true",
+                         help="self-calibration fits focal length, principal point, k1 and k2 only (not p1, p2, k3)")
+    measure.add_argument("--camera-map", metavar="JSON",
+                         help="photo file name -> camera name, for photos EXIF does not group (e.g. two phones)")
     measure.add_argument("--tags", help="tagmap.json (default: ids in model node order, 65 mm tags, 20 mm offset)")
     measure.add_argument("-o", "--output", required=True, help="folder for survey.json and the pictures")
     measure.add_argument("--tolerance", type=float, default=20.0, help="pass/fail distance, mm (default 20)")
+    measure.add_argument("--k-sigma", type=float, default=2.0, metavar="K",
+                         help="pass: deviation + K sigma within the tolerance; fail: deviation - K sigma beyond; "
+                              "uncertain otherwise (default 2)")
     measure.add_argument("--reference", default="all",
                          help="nodes the registration fits: all (default), supports, or comma-separated node ids")
     measure.add_argument("--min-views", type=int, default=2, help="photos a tag must be seen in (default 2)")
@@ -87,11 +96,12 @@ def _tags(args: argparse.Namespace) -> int:
 
 def _detect(args: argparse.Namespace) -> int:
     from fabline.survey import detect_tags, load_camera, read_gray, tag_pose
+    from fabline.survey.tagmap import check_tag_size_mm
 
     if (args.camera is None) != (args.tag_size is None):
         raise FablineError("poses need both --camera and --tag-size")
-    if args.tag_size is not None and args.tag_size <= 0:
-        raise FablineError(f"--tag-size must be positive, got {args.tag_size}")
+    if args.tag_size is not None:
+        check_tag_size_mm(args.tag_size)
     camera = load_camera(args.camera) if args.camera else None
     report, failures = [], 0
     for path in args.photos:
@@ -111,9 +121,10 @@ def _detect(args: argparse.Namespace) -> int:
             # partial: cut by the photo's edge, a corner extrapolated from the edges inside
             tag = {"id": det.tag_id, "corners_px": [[round(x, 3), round(y, 3)] for x, y in det.corners], "partial": det.partial}
             if camera is not None:
-                rvec, tvec, error = tag_pose(det.corners, camera, args.tag_size)
-                tag.update(rotation=[round(v, 6) for v in rvec], translation_m=[round(v, 6) for v in tvec],
-                           reprojection_px=round(error, 4))
+                pose = tag_pose(det.corners, camera, args.tag_size)
+                tag.update(rotation=[round(v, 6) for v in pose.rotation], translation_mm=[round(v, 3) for v in pose.translation],
+                           reprojection_px=round(pose.error_px, 4), ambiguity=round(pose.ambiguity, 4),
+                           ambiguous=pose.ambiguous)
             entry["tags"].append(tag)
         report.append(entry)
     if failures == len(report) == 1:
@@ -125,7 +136,10 @@ def _detect(args: argparse.Namespace) -> int:
             if "error" in entry:
                 print(f"{entry['file']}: error: {entry['error']}")
                 continue
-            print(f"{entry['file']}: {len(entry['tags'])} tag(s) {', '.join(str(t['id']) for t in entry['tags'])}")
+            ids = [t["id"] for t in entry["tags"]]
+            twice = sorted({i for i in ids if ids.count(i) > 1})
+            print(f"{entry['file']}: {len(ids)} tag(s) {', '.join(map(str, ids))}"
+                  + (f"; id(s) {', '.join(map(str, twice))} found more than once" if twice else ""))
             for note in entry.get("warnings", []):
                 print(f"warning: {note}")
     if failures == len(report):
@@ -191,6 +205,16 @@ def _scale_bar(values: list[str]) -> tuple[int, int, float]:
         raise FablineError(f"--scale-bar {' '.join(values)}: expected two tag ids and a distance in mm") from None
 
 
+def _camera_map(path: str) -> dict[str, str]:
+    """A `--camera-map` file: a JSON object of photo file names to camera names; anything else raises naming it."""
+    from fabline.fileio import read_json
+
+    data = read_json(path)
+    if not isinstance(data, dict) or not all(isinstance(v, str) and v for v in data.values()):
+        raise FablineError(f"{path}: a camera map is a JSON object of photo file names to camera names")
+    return data
+
+
 def _measure(args: argparse.Namespace) -> int:
     from fabline.model import load_network
     from fabline.survey import MeasureOptions, list_photos, load_camera, load_tag_map, make_tag_map, measure_survey
@@ -201,13 +225,22 @@ def _measure(args: argparse.Namespace) -> int:
     reference = args.reference if args.reference in ("all", "supports") else [n.strip() for n in args.reference.split(",") if n.strip()]
     options = MeasureOptions(tolerance_mm=args.tolerance, reference=reference, min_views=args.min_views,
                              scale_bars=tuple(_scale_bar(values) for values in args.scale_bar),
-                             scale_min_cell_px=args.scale_min_cell)
-    record = measure_survey(list_photos(args.photos), network, load_camera(args.camera), tag_map, args.output, options)
+                             scale_min_cell_px=args.scale_min_cell, k_sigma=args.k_sigma, calibrate=args.calibrate,
+                             radial_only=args.radial_only, camera_map=_camera_map(args.camera_map) if args.camera_map else None)
+    camera = load_camera(args.camera) if args.camera else None
+    record = measure_survey(list_photos(args.photos), network, camera, tag_map, args.output, options)
     for problem in record["problems"]:
         print(f"warning: {problem['problem']}")
+    for fitted in record["cameras"] or []:
+        sigma = {k: float("inf") if v is None else v for k, v in fitted["sigma"].items()}
+        print(f"camera {fitted['name']} ({fitted['photos']} photos, from {fitted['initial']}): f {fitted['f_px']} "
+              f"+/- {sigma.get('f', 0):.3g} px, principal point ({fitted['cx']}, {fitted['cy']}) +/- "
+              f"({sigma.get('cx', 0):.2g}, {sigma.get('cy', 0):.2g}) px, k1 {fitted['distortion'][0]:.4f} "
+              f"+/- {sigma.get('k1', 0):.2g}, k2 {fitted['distortion'][1]:.4f} +/- {sigma.get('k2', 0):.2g}")
     s = record["summary"]
     print(f"{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
-          f"RMS deviation {s['rms_deviation_mm']} mm, max {s['max_deviation_mm']} mm, {s['failed']} over "
-          f"{record['tolerance_mm']:g} mm, {s['not_seen']} not measured; {s['tags_found_where_predicted']} tag view(s) "
+          f"RMS deviation {s['rms_deviation_mm']} mm, max {s['max_deviation_mm']} mm; at {record['tolerance_mm']:g} mm "
+          f"({s['k_sigma']:g} sigma) {s['passed']} pass, {s['failed']} fail, {s['uncertain']} uncertain; "
+          f"{s['not_seen']} not measured; {s['tags_found_where_predicted']} tag view(s) "
           f"found where the reconstruction predicted them -> {Path(args.output) / 'survey.json'}")
     return 0

@@ -141,15 +141,19 @@ def _survey_section(survey: dict[str, Any] | None) -> str:
     if survey["deviation_map"] and Path(survey["deviation_map"]).is_file():
         data = base64.b64encode(Path(survey["deviation_map"]).read_bytes()).decode("ascii")
         parts.append(f'<figure id=deviation-map><img alt="deviation map" src="data:image/png;base64,{data}" '
-                     f'style="max-width:900px"><figcaption>Measured deviation from the design per node, coloured up to '
-                     f"the {survey['tolerance_mm']:g} mm tolerance; failures ringed red, unmeasured nodes hollow."
+                     f'style="max-width:900px"><figcaption>Measured deviation from the design per node along its normal, '
+                     f"red high, blue low, full colour at the {survey['tolerance_mm']:g} mm tolerance; failures ringed red "
+                     f"and named, uncertain nodes ringed orange, unmeasured nodes hollow."
                      "</figcaption></figure>")
+    uncertain, k = s.get("uncertain", 0), s.get("k_sigma", 0)
     verdict = "every measured node within tolerance" if not s["failed"] else f"{s['failed']} node(s) out of tolerance"
     parts.append(f"<p>{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
-                 f"{e(verdict)} ({s['passed']} pass, {s['failed']} fail against {survey['tolerance_mm']:g} mm); "
-                 f"{s['not_seen']} not seen. From {e(survey['file'])}.</p>")
-    rows = [("nodes measured", f"{s['measured']} of {s['nodes']}"), ("pass", s["passed"]),
-            ("fail", s["failed"]), ("tolerance mm", f"{survey['tolerance_mm']:g}"),
+                 f"{e(verdict)} ({s['passed']} pass, {s['failed']} fail, {uncertain} uncertain against "
+                 f"{survey['tolerance_mm']:g} mm with {k:g} sigma of margin); {s['not_seen']} not seen. "
+                 f"From {e(survey['file'])}.</p>")
+    rows = [("nodes measured", f"{s['measured']} of {s['nodes']}"), ("pass (deviation + k sigma within tolerance)", s["passed"]),
+            ("fail (deviation - k sigma beyond tolerance)", s["failed"]), ("uncertain", uncertain), ("k (sigma)", f"{k:g}"),
+            ("tolerance mm", f"{survey['tolerance_mm']:g}"),
             ("RMS deviation mm", mm(s["rms_deviation_mm"])), ("max deviation mm", mm(s["max_deviation_mm"])),
             ("worst nodes", ", ".join(s["worst"])), ("not seen", s["not_seen"]),
             ("reprojection RMS px", f"{s['reprojection_rms_px']:.2f}"), ("scale from", _scale_source(survey.get("scale"))),
@@ -185,7 +189,8 @@ def _truth_table(truth: dict[str, Any], simulated: dict[str, Any], summary: dict
             ("RMS deviation mm, measured / true", f"{mm(summary['rms_deviation_mm'])} / {mm(truth['true_rms_deviation_mm'])}"),
             ("max deviation mm, measured / true", f"{mm(summary['max_deviation_mm'])} / {mm(truth['true_max_deviation_mm'])}"),
             ("nodes failing, measured / true", f"{summary['failed']} / {truth['true_failed']}"),
-            ("pass/fail as the truth", f"{truth['pass_fail_agreement']} of {truth['nodes_compared']} nodes")]
+            ("pass/fail as the truth", f"{truth['pass_fail_agreement']} of {truth['nodes_compared']} nodes"
+                                       f" ({truth.get('uncertain', 0)} uncertain, {truth.get('wrong_verdicts', 0)} wrong)")]
     body = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(v))}</td></tr>" for k, v in rows)
     return (f"<p>Simulated survey: {simulated['photos']} photos of {html.escape(simulated['resolution'])} px "
             f"({simulated['tag_views']} tag views) of the shell built with a {injected['kind']} of "

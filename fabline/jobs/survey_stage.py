@@ -121,13 +121,16 @@ def compare_with_truth(record: dict[str, Any], truth: dict[str, Any], network: "
     error = np.linalg.norm(measured - true_deviation, axis=1)
     true_distance = np.linalg.norm(true_deviation, axis=1)
     true_pass = true_distance <= record["tolerance_mm"]
-    measured_pass = np.array([record["nodes"][n]["pass"] for n in ids], dtype=bool)
+    verdict = np.array([record["nodes"][n]["verdict"] for n in ids])
     return {"injected": truth["deviation"], "nodes_compared": len(ids),
             "rms_error_mm": round(float(np.sqrt(np.mean(error ** 2))), 4),
             "max_error_mm": round(float(error.max()), 4), "worst_node": ids[int(np.argmax(error))],
             "true_rms_deviation_mm": round(float(np.sqrt(np.mean(true_distance ** 2))), 4),
             "true_max_deviation_mm": round(float(true_distance.max()), 4),
-            "true_failed": int((~true_pass).sum()), "pass_fail_agreement": int((true_pass == measured_pass).sum())}
+            "true_failed": int((~true_pass).sum()),
+            "pass_fail_agreement": int(np.sum(np.where(true_pass, verdict == "pass", verdict == "fail"))),
+            "uncertain": int(np.sum(verdict == "uncertain")),
+            "wrong_verdicts": int(np.sum(np.where(true_pass, verdict == "fail", verdict == "pass")))}
 
 
 def survey_entry(record: dict[str, Any], path: Path) -> dict[str, Any]:

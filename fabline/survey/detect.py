@@ -4,8 +4,12 @@ OpenCV's aruco finds the quads without corner refinement (its AprilTag refinemen
 its sub-pixel refinement is about 1 px off on real photos), in a second pass with a lower threshold offset for
 small, dim or grazing tags the first pass cannot see; each tag's four edges are then located to
 sub-pixel precision along the edge normal (the intensity-gradient peak, on a cubic spline of the image),
-a line is fitted per edge and the corners are the line intersections, as in the AprilTag library. Corners follow OpenCV's conventions: pixel centres at integer coordinates,
-order top-left, top-right, bottom-right, bottom-left of the upright tag (clockwise in the image).
+a line is fitted per edge and the corners are the line intersections, as in the AprilTag library. Pixel centres lie at
+integer coordinates (OpenCV's convention; the AprilTag library's are at +0.5). Corners come in the AprilTag library's
+order, p0..p3 at (-s, s), (s, s), (s, -s), (-s, -s) in its tag frame (x right, y down, z into the tag's face, centre at
+the middle, s half the black square's edge: `tag_object_points`); on the tag as OpenCV draws it, upright (`tag_image`),
+that is top-right, top-left, bottom-left, bottom-right (counter-clockwise in the image). Every tag is reported, several
+of one id included (a tag printed twice is a mistake on site that the survey must name).
 A tag cut by the photo's edge is reported `partial` when its data cells are all inside and each edge at least
 half: the corner outside is extrapolated from the edges' parts inside. A tag with a corner hidden under the quiet zone
 of a tag in front of it is found from that tag, its hidden corner likewise extrapolated from the edges' visible parts.
@@ -28,7 +32,9 @@ from fabline.survey.photos import check_photo
 from fabline.survey.camera import Camera
 from fabline.survey.tagmap import TAG_CELLS, TAG_DICTIONARY
 
-EDGE_SAMPLES = 20
+# Each edge is sampled at one point per EDGE_SAMPLE_SPACING_PX of its middle 70 %, at least EDGE_SAMPLES, at most
+# MAX_EDGE_SAMPLES: a large tag's edge line is fitted on many crossings (the AprilTag library samples every pixel)
+EDGE_SAMPLES, MAX_EDGE_SAMPLES, EDGE_SAMPLE_SPACING_PX = 20, 80, 2.0
 # of a quad's corners (and edges, corner i to i + 1) in order, the next, opposite and previous one (np.roll's, faster)
 NEXT_CORNER, OPPOSITE_CORNER, PREVIOUS_CORNER = [1, 2, 3, 0], [2, 3, 0, 1], [3, 0, 1, 2]
 REFINE_PASSES = 2
@@ -62,7 +68,10 @@ OCCLUDED_SEARCH_REACH = 1.2
 OCCLUDED_THRESHOLD_WINDOW_PX, OCCLUDED_THRESHOLD_OFFSET = 5, 10
 CUT_POLYGON_MIN_KEPT = 0.75
 HIDDEN_CORNER_TOLERANCE_CELLS = 0.25
-# a tag's black square and its quiet zone's outline in the tag's cell coordinates, corners in tag order
+# The AprilTag library's corners (`TagDetection.corners`) from the order detection works in (top-left, top-right,
+# bottom-right, bottom-left of the upright tag as OpenCV draws it, clockwise in the image) and back: its own inverse
+APRILTAG_ORDER = [1, 0, 3, 2]
+# a tag's black square and its quiet zone's outline in the tag's cell coordinates, corners in detection's order
 TAG_SQUARE = np.array([[0, 0], [TAG_CELLS, 0], [TAG_CELLS, TAG_CELLS], [0, TAG_CELLS]], dtype=float)
 QUIET_ZONE_OUTLINE = np.array([[-1, -1], [TAG_CELLS + 1, -1], [TAG_CELLS + 1, TAG_CELLS + 1], [-1, TAG_CELLS + 1]],
                               dtype=float)
@@ -79,7 +88,8 @@ MIN_QUIET_ZONE_CELLS = 18  # of the 36 cells of the quiet-zone ring, at least ha
 
 @dataclass
 class TagDetection:
-    """One tag seen in one image: its id and four corners (4, 2) in pixels, OpenCV order and convention."""
+    """One tag seen in one image: its id and four corners (4, 2) in pixels, in the AprilTag library's order (see the
+    module's docstring), pixel centres on integers."""
 
     tag_id: int
     corners: np.ndarray
@@ -134,27 +144,29 @@ def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection
     `partial` (see the module's docstring).
     """
     padded = _padded(gray)
-    found: dict[int, np.ndarray] = {}
+    found: list[tuple[int, np.ndarray]] = []
     for low_contrast in (False, True):
         corners, ids, rejected = _detector(min_side_px, max(padded.shape), low_contrast).detectMarkers(padded)
         candidates = [(q, int(i)) for q, i in zip(corners, ids.ravel())] if ids is not None else []
         candidates += [(q, None) for q in rejected]
         _read_candidates(gray, [(q.reshape(4, 2).astype(float) - BORDER_PAD_PX, i, None) for q, i in candidates],
                          found, min_side_px)
-    _read_candidates(gray, [(q, None, cover) for q, cover in _occluded_quads(gray, list(found.values()))], found,
+    _read_candidates(gray, [(q, None, cover) for q, cover in _occluded_quads(gray, [q for _, q in found])], found,
                      min_side_px, try_quiet_zone=False)
-    return [TagDetection(tag_id, found[tag_id], bool(_edge_inside_fraction(gray, found[tag_id]).min() < 1))
-            for tag_id in sorted(found)]
+    found.sort(key=lambda tag: (tag[0], *tag[1].mean(axis=0)[::-1]))
+    return [TagDetection(tag_id, quad[APRILTAG_ORDER], bool(_edge_inside_fraction(gray, quad).min() < 1))
+            for tag_id, quad in found]
 
 
 def _read_candidates(gray: np.ndarray, candidates: list[tuple[np.ndarray, int | None, np.ndarray | None]],
-                     found: dict[int, np.ndarray], min_side_px: float, try_quiet_zone: bool = True) -> None:
+                     found: list[tuple[int, np.ndarray]], min_side_px: float, try_quiet_zone: bool = True) -> None:
     """Refine and read candidate quads (4, 2) in px, each with aruco's id or None and the outline of what hides part of
-    it or None (see `_decode`), into `found` (id -> corners); quads cut by the image border, or inside a tag found
-    before, are skipped. `try_quiet_zone`: an unread quad may be a tag's quiet zone outline, as aruco's quads of tags on
-    a darker background are."""
-    centres = np.array([q.mean(axis=0) for q in found.values()]).reshape(-1, 2)
-    radii = np.array([0.5 * _shortest_side(q) for q in found.values()])
+    it or None (see `_decode`), into `found` (id, corners); quads cut by the image border, or inside a tag found
+    before, are skipped; a quad read as a tag already found at the same place keeps the larger of the two.
+    `try_quiet_zone`: an unread quad may be a tag's quiet zone outline, as aruco's quads of tags on a darker background
+    are."""
+    centres = np.array([q.mean(axis=0) for _, q in found]).reshape(-1, 2)
+    radii = np.array([0.5 * _shortest_side(q) for _, q in found])
     for quad, tag_id, hidden_by in candidates:
         if np.any(quad < 0) or np.any(quad > [gray.shape[1] - 1, gray.shape[0] - 1]):
             continue  # cut by the image border: its corners cannot be measured
@@ -168,8 +180,17 @@ def _read_candidates(gray: np.ndarray, candidates: list[tuple[np.ndarray, int | 
             read_id, refined = _refine_and_read(gray, _inside_quiet_zone(quad), None)
         if refined is None or read_id is None or _edge_inside_fraction(gray, refined).min() < MIN_EDGE_INSIDE:
             continue
-        if read_id not in found or _area(refined) > _area(found[read_id]):
-            found[read_id] = refined
+        same = [k for k, (other_id, other) in enumerate(found) if other_id == read_id and _overlap(refined, other)]
+        if not same:
+            found.append((read_id, refined))
+        elif _area(refined) > _area(found[same[0]][1]):
+            found[same[0]] = (read_id, refined)
+
+
+def _overlap(quad: np.ndarray, other: np.ndarray) -> bool:
+    """Whether two quads (4, 2) are one tag found twice: either's centre inside the other's inscribed half side."""
+    gap = np.linalg.norm(quad.mean(axis=0) - other.mean(axis=0))
+    return bool(gap < 0.5 * max(_shortest_side(quad), _shortest_side(other)))
 
 
 def _occluded_quads(gray: np.ndarray, tags: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -271,7 +292,8 @@ def _inside_quiet_zone(outline: np.ndarray) -> np.ndarray:
 
 
 def detect_expected_tags(gray: np.ndarray, expected: dict[int, np.ndarray], min_side_px: float = 12.0) -> list[TagDetection]:
-    """The tags `expected` (id -> predicted corners (4, 2) in px) that really are where predicted, sorted by id.
+    """The tags `expected` (id -> predicted corners (4, 2) in px, AprilTag order) that really are where predicted,
+    sorted by id.
 
     For tags whose quad the image alone does not yield: cells under 2 px in a dim photo, whose blurred
     border breaks up even at the low-contrast pass's threshold offset, or a strap across a corner of the
@@ -280,13 +302,13 @@ def detect_expected_tags(gray: np.ndarray, expected: dict[int, np.ndarray], min_
     """
     found = []
     for tag_id, predicted in sorted(expected.items()):
-        quad = np.asarray(predicted, dtype=float).reshape(4, 2)
+        quad = np.asarray(predicted, dtype=float).reshape(4, 2)[APRILTAG_ORDER]
         if (np.any(quad < 0) or np.any(quad > [gray.shape[1] - 1, gray.shape[0] - 1])
                 or _shortest_side(quad) < min_side_px):
             continue
         read_id, refined = _refine_and_read(gray, quad, None)
         if read_id == tag_id:
-            found.append(TagDetection(tag_id, refined))
+            found.append(TagDetection(tag_id, refined[APRILTAG_ORDER]))
     return found
 
 
@@ -425,7 +447,7 @@ def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
     """The four edges of `quad` as lines, points and unit directions (4, 2) each, from the intensity-gradient peaks
     of profiles across them (None when an edge has fewer than four).
 
-    Each edge is sampled at EDGE_SAMPLES points; along each point's outward normal (black border to white
+    Each edge is sampled at EDGE_SAMPLES to MAX_EDGE_SAMPLES points (see there); along each point's outward normal (black border to white
     quiet zone) the profile's steepest rise, interpolated with a parabola, is the edge crossing.
     """
     starts, ends = quad, quad[NEXT_CORNER]
@@ -435,7 +457,9 @@ def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
     normals *= np.where(outward < 0, -1.0, 1.0)[:, None]
     reach = _profile_reach(quad, min_reach)
     offsets = np.linspace(-reach, reach, 2 * int(np.ceil(4 * reach)) + 1)
-    along = np.linspace(0.15, 0.85, EDGE_SAMPLES)
+    samples = int(np.clip(0.7 * np.linalg.norm(ends - starts, axis=1).mean() / EDGE_SAMPLE_SPACING_PX, EDGE_SAMPLES,
+                          MAX_EDGE_SAMPLES))
+    along = np.linspace(0.15, 0.85, samples)
     points = starts[:, None, :] + along[None, :, None] * (ends - starts)[:, None, :]  # (4, S, 2)
     grid = points[:, :, None, :] + offsets[None, None, :, None] * normals[:, None, None, :]  # (4, S, K, 2)
     profiles = map_coordinates(image, [grid[..., 1].ravel(), grid[..., 0].ravel()], order=3, mode="mirror",
@@ -500,17 +524,66 @@ def cell_width_px(corners: np.ndarray) -> float:
 
 
 def tag_object_points(tag_size: float) -> np.ndarray:
-    """The four corners (4, 3) in the tag's own frame (x right, y up, z out of the face), OpenCV order."""
+    """The four corners (4, 3) in the tag's own frame, the AprilTag library's: x right, y down, z into the tag's face,
+    corners p0..p3 at (-s, s), (s, s), (s, -s), (-s, -s) for half size s (also the order IPPE_SQUARE requires)."""
     h = tag_size / 2
     return np.array([[-h, h, 0], [h, h, 0], [h, -h, 0], [-h, -h, 0]], dtype=float)
 
 
-def tag_pose(corners: np.ndarray, camera: Camera, tag_size: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """Tag pose in the camera frame from one view (IPPE for squares): rotation vector, translation, error px."""
-    ok, rvecs, tvecs, errors = cv2.solvePnPGeneric(
-        tag_object_points(tag_size), corners.reshape(4, 1, 2).astype(np.float64), camera.matrix,
-        camera.distortion, flags=cv2.SOLVEPNP_IPPE_SQUARE)
-    if not ok:
-        raise FablineError("pose estimation failed")
-    best = int(np.argmin(np.ravel(errors)))
-    return np.ravel(rvecs[best]), np.ravel(tvecs[best]), float(np.ravel(errors)[best])
+@dataclass
+class TagPose:
+    """A tag's pose in the camera frame from one view: rotation vector and translation (tag frame to camera frame, in
+    the tag size's unit), RMS reprojection error px; the other of the two planar solutions and its error, and whether
+    the two are too close to tell apart (`ambiguous`: best error over the other's above AMBIGUITY_RATIO)."""
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    error_px: float
+    other_rotation: np.ndarray
+    other_translation: np.ndarray
+    other_error_px: float
+
+    @property
+    def ambiguity(self) -> float:
+        """Best solution's reprojection error over the other's: near 0 clear, near 1 the two fit the corners alike."""
+        return float(self.error_px / max(self.other_error_px, 1e-12))
+
+    @property
+    def ambiguous(self) -> bool:
+        return self.ambiguity > AMBIGUITY_RATIO
+
+
+# A planar square seen in one photo has two poses that fit its corners, mirror images about the line of sight; when the
+# worse one's reprojection error is within this factor of the better one's, corner noise alone can swap them
+AMBIGUITY_RATIO = 0.5
+
+
+def tag_pose(corners: np.ndarray, camera: Camera, tag_size: float) -> TagPose:
+    """Tag pose from one view: both IPPE solutions for a square (Collins & Bartoli 2014) and, as a guard where IPPE's
+    closed form breaks down (exactly symmetric corners), SQPnP's, each refined by Levenberg-Marquardt on the
+    reprojection error (distortion included); the best is chosen, the best one that differs from it (a rotation over
+    1 degree apart: the mirror solution) kept to judge the ambiguity, or the best itself when all ended at one minimum.
+    `corners` (4, 2) px in the AprilTag order; the pose is in the AprilTag tag frame."""
+    image = np.ascontiguousarray(corners, dtype=np.float64).reshape(4, 1, 2)
+    model = tag_object_points(tag_size)
+    starts = []
+    for flags in (cv2.SOLVEPNP_IPPE_SQUARE, cv2.SOLVEPNP_SQPNP):
+        ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(model, image, camera.matrix, camera.distortion, flags=flags)
+        if ok:
+            starts += [(r, t) for r, t in zip(rvecs, tvecs) if np.all(np.isfinite(r)) and np.all(np.isfinite(t))]
+    solutions = []
+    for rvec, tvec in starts:
+        rvec, tvec = cv2.solvePnPRefineLM(model, image, camera.matrix, camera.distortion, rvec.copy(), tvec.copy(),
+                                          (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12))
+        projected, _ = cv2.projectPoints(model, rvec, tvec, camera.matrix, camera.distortion)
+        error = float(np.sqrt(np.mean(np.sum((projected - image) ** 2, axis=2))))
+        if tvec.ravel()[2] > 0:
+            solutions.append((error, rvec.ravel(), tvec.ravel()))
+    if not solutions:
+        raise FablineError("pose estimation failed: the corners do not make a square seen from in front")
+    solutions.sort(key=lambda solution: solution[0])
+    error, rvec, tvec = solutions[0]
+    best = cv2.Rodrigues(rvec)[0]
+    other = next((s for s in solutions[1:]
+                  if np.degrees(np.linalg.norm(cv2.Rodrigues(best.T @ cv2.Rodrigues(s[1])[0])[0])) > 1.0), solutions[0])
+    return TagPose(rvec, tvec, error, other[1], other[2], other[0])

@@ -74,6 +74,28 @@ class Reconstruction:
             self.tag_covariances[tag] = scaling @ self.tag_covariances[tag] @ scaling
         return factor, (factor * measured - lengths).tolist()
 
+    def misplaced(self, observations: list["Observation"], tag_size: float) -> dict[int, tuple[list[int], list[int]]]:
+        """Tags some photo shows away from where the reconstruction puts them, as a tag printed twice is: id -> (photos
+        whose view of it is farther than its own side from where the adjustment projects it, the photos that agree).
+
+        Bad corners move a tag by a fraction of its side; another copy of it lies elsewhere in the scene.
+        """
+        model = tag_object_points(tag_size)
+        away: dict[int, list[int]] = {}
+        agree: dict[int, list[int]] = {}
+        for obs in observations:
+            if obs.photo not in self.camera_rotations or obs.tag not in self.tag_poses:
+                continue
+            pose = self.tag_poses[obs.tag]
+            world = model @ rotation_matrices(pose[None, :3])[0].T + pose[3:]
+            in_camera = world @ self.camera_rotations[obs.photo].T + self.camera_translations[obs.photo]
+            side = np.linalg.norm(obs.normalised - np.roll(obs.normalised, 1, axis=0), axis=1).min()
+            behind = np.any(in_camera[:, 2] <= 0)
+            gap = np.inf if behind else np.linalg.norm((in_camera[:, :2] / in_camera[:, 2:]).mean(axis=0)
+                                                       - obs.normalised.mean(axis=0))
+            (away if gap > side else agree).setdefault(obs.tag, []).append(obs.photo)
+        return {tag: (photos, agree.get(tag, [])) for tag, photos in away.items()}
+
     def predict_corners(self, photo: int, camera: Camera, tag_size: float,
                         max_view_angle_deg: float = 80.0) -> dict[int, np.ndarray]:
         """Where photo `photo` should show each reconstructed tag: id -> corners (4, 2) in px, detection order.
@@ -91,7 +113,7 @@ class Reconstruction:
         rotation, translation = self.camera_rotations[photo], self.camera_translations[photo]
         centre = -rotation.T @ translation
         to_camera = centre - poses[:, 3:]
-        facing = np.einsum("ni,ni->n", rotations[:, :, 2], to_camera) / np.linalg.norm(to_camera, axis=1)
+        facing = -np.einsum("ni,ni->n", rotations[:, :, 2], to_camera) / np.linalg.norm(to_camera, axis=1)  # z: into the face
         points = np.einsum("nij,kj->nki", rotations, np.concatenate([square, outer])) + poses[:, None, 3:]
         in_camera = points @ rotation.T + translation
         reach = 1.2 * max(camera.width, camera.height) / min(camera.matrix[0, 0], camera.matrix[1, 1])
@@ -107,15 +129,15 @@ class Reconstruction:
     def points_below_tags(self, offset: float) -> tuple[list[int], np.ndarray, np.ndarray]:
         """Tag ids, the points `offset` behind each tag centre along its normal (N, 3), their covariances (N, 3, 3).
 
-        With the mounting offset this is each tagged node; the covariance carries the tag's rotation
-        uncertainty through the offset lever arm.
+        With the mounting offset this is each tagged node (the tag frame's z points into the face, towards it); the
+        covariance carries the tag's rotation uncertainty through the offset lever arm.
         """
         ids = sorted(self.tag_poses)
         poses = np.array([self.tag_poses[t] for t in ids]).reshape(-1, 6)
         covariances = np.array([self.tag_covariances[t] for t in ids]).reshape(-1, 6, 6)
-        points = poses[:, 3:] - offset * rotation_matrices(poses[:, :3])[:, :, 2]
+        points = poses[:, 3:] + offset * rotation_matrices(poses[:, :3])[:, :, 2]
         jacobian = np.zeros((len(ids), 3, 6))
-        jacobian[:, :, :3] = -offset * rotation_derivatives(poses[:, :3], np.tile([0.0, 0.0, 1.0], (len(ids), 1)))
+        jacobian[:, :, :3] = offset * rotation_derivatives(poses[:, :3], np.tile([0.0, 0.0, 1.0], (len(ids), 1)))
         jacobian[:, :, 3:] = np.eye(3)
         return ids, points, np.einsum("nij,njk,nlk->nil", jacobian, covariances, jacobian)
 
@@ -429,7 +451,7 @@ def _normal_blocks(derivatives, residual, cam_index, tag_index, n_free, n_tags):
 def _schur_solve(blocks, damping: float) -> np.ndarray:
     """The damped Gauss-Newton step (camera part first, then tags) from the normal-equation blocks."""
     u, v, w, g_cam, g_tag = blocks
-    u = u + damping * np.diag(np.diag(u))
+    u = u + damping * np.diag(np.diag(u)) + 1e-9 * np.eye(len(u))  # a photo left without observations: no step
     v = v + damping * np.einsum("tii->ti", v)[:, :, None] * np.eye(6)[None]
     v_inv = np.linalg.inv(v)
     wv, schur = _eliminate_tags(u, v_inv, w)

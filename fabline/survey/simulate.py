@@ -16,11 +16,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fabline.fileio import write_json
+from fabline.fileio import atomic_output, write_json
 from fabline.model import Lamella, Network, Node, validate
 from fabline.progress import progress
 from fabline.survey.camera import Camera, save_camera
-from fabline.survey.detect import tag_object_points, write_image
+from fabline.survey.detect import APRILTAG_ORDER, tag_object_points, write_image
 from fabline.survey.tagmap import TAG_CELLS, TagMap, make_tag_map, save_tag_map, tag_image
 
 TRUTH_SCHEMA = "fabline.survey-truth/1"
@@ -47,9 +47,27 @@ class SyntheticSpec:
     min_side_px: float = 16.0
     jpeg_quality: int = 95
     seed: int = 1
+    # site mistakes: (printed, instead_of) pairs, the tag `instead_of`'s node carrying a copy of tag `printed`
+    misprints: tuple[tuple[int, int], ...] = ()
+    # a camera unknown to the survey: focal length, principal point and distortion drawn at random from `seed`
+    # (`focal_px` and `distortion` then unused), as a phone or a zoom lens nobody calibrated
+    random_camera: bool = False
+    # EXIF written into the photos (camera model and the focal length in 35 mm equivalent, whole mm as phones
+    # write it); None writes none
+    exif_model: str | None = None
 
     def camera(self) -> Camera:
-        """The simulated camera's intrinsics (principal point slightly off centre, as in real lenses)."""
+        """The simulated camera's intrinsics (principal point slightly off centre, as in real lenses); drawn at random
+        with `random_camera`: focal length 0.6-1.2 of the width, principal point within 2 % of the centre, square
+        pixels, k1 -0.25..0.05, k2 -0.05..0.2, p1 and p2 within 1e-3, k3 -0.05..0.05."""
+        if self.random_camera:
+            rng = np.random.default_rng([self.seed, 1802])
+            focal = self.width * rng.uniform(0.6, 1.2)
+            centre = [(self.width - 1) / 2, (self.height - 1) / 2] + rng.uniform(-0.02, 0.02, 2) * [self.width, self.height]
+            distortion = [rng.uniform(-0.25, 0.05), rng.uniform(-0.05, 0.2), *rng.uniform(-1e-3, 1e-3, 2),
+                          rng.uniform(-0.05, 0.05)]
+            matrix = np.array([[focal, 0, centre[0]], [0, focal, centre[1]], [0, 0, 1]])
+            return Camera(matrix, np.array(distortion), self.width, self.height)
         matrix = np.array([[self.focal_px, 0, self.width / 2 - 0.5 + 0.004 * self.width],
                            [0, self.focal_px * 1.0005, self.height / 2 - 0.5 - 0.003 * self.height], [0, 0, 1]])
         return Camera(matrix, np.array(self.distortion, dtype=float), self.width, self.height)
@@ -114,7 +132,7 @@ def camera_poses(points_mm: np.ndarray, normals: np.ndarray, spec: SyntheticSpec
     tag normal around the aim point, tilted by up to 25 degrees, kept above the horizon.
     """
     extent = np.ptp(points_mm, axis=0)
-    half_fov = np.arctan(0.5 * min(spec.width, spec.height) / spec.focal_px)
+    half_fov = np.arctan(0.5 * min(spec.width, spec.height) / spec.camera().matrix[0, 0])
     distance = spec.coverage * max(extent[0], extent[1]) / (2 * np.tan(half_fov))
     chosen = [int(rng.integers(len(points_mm)))]
     gap = np.linalg.norm(points_mm - points_mm[chosen[0]], axis=1)
@@ -172,12 +190,13 @@ def _draw_lamella(photo: np.ndarray, curve_cam: np.ndarray, camera: Camera) -> N
 
 
 def _render_tag(photo: np.ndarray, tag_id: int, black_corners: np.ndarray, shade: float) -> None:
-    """Warp tag `tag_id` (with its white quiet zone) into `photo` so its black square lands on `black_corners`."""
+    """Warp tag `tag_id` (with its white quiet zone) into `photo` so its black square lands on `black_corners` (4, 2) px,
+    in the AprilTag order (`fabline.survey.detect`)."""
     side = np.max(np.linalg.norm(black_corners - np.roll(black_corners, 1, axis=0), axis=1))
     cell = max(4, int(np.ceil(SUPERSAMPLE * side / TAG_CELLS)))
     texture = tag_image(tag_id, cell).astype(np.float32) * (195.0 / 255.0) + 25.0
     source = np.array([[cell, cell], [9 * cell, cell], [9 * cell, 9 * cell], [cell, 9 * cell]], dtype=np.float64) - 0.5
-    to_image = cv2.getPerspectiveTransform(source.astype(np.float32), black_corners.astype(np.float32))
+    to_image = cv2.getPerspectiveTransform(source.astype(np.float32), black_corners[APRILTAG_ORDER].astype(np.float32))
     outer = cv2.perspectiveTransform(np.array([[[-0.5, -0.5], [10 * cell - 0.5, -0.5], [10 * cell - 0.5, 10 * cell - 0.5],
                                                 [-0.5, 10 * cell - 0.5]]]), to_image)[0]
     x0, y0 = np.floor(outer.min(axis=0)).astype(int) - 2
@@ -215,9 +234,12 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
     facing_up = normals[rows] * np.where(normals[rows][:, 2] < 0, -1.0, 1.0)[:, None]  # tags sit on the top washer
     frames = _tag_frames(facing_up, rng)
     centres = built[rows] + tag_map.mount_offset_mm * facing_up
-    corners_world = centres[:, None, :] + np.einsum("nij,kj->nki", frames, tag_object_points(tag_map.tag_size_mm))
+    # the AprilTag frame of each tag: x, y in its face, z into it (the tag image upright to an observer outside)
+    apriltag_frames = frames @ np.diag([-1.0, 1.0, -1.0])
+    corners_world = centres[:, None, :] + np.einsum("nij,kj->nki", apriltag_frames, tag_object_points(tag_map.tag_size_mm))
     outer_world = centres[:, None, :] + np.einsum("nij,kj->nki", frames, tag_object_points(tag_map.tag_size_mm * 10 / TAG_CELLS))
     camera = spec.camera()
+    printed = {instead_of: copy for copy, instead_of in spec.misprints}
     sun = np.array([0.3, -0.4, 0.87])
     photos_dir = out_dir / "photos"
     photos_dir.mkdir(parents=True, exist_ok=True)
@@ -244,7 +266,7 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
             if np.any(np.abs(outers[n]) > 4 * max(spec.width, spec.height)):
                 continue
             shade = float(np.clip(0.75 + 0.25 * np.dot(frames[n][:, 2], sun), 0.6, 1.0))
-            _render_tag(photo, tags[n], pixels[n], shade)
+            _render_tag(photo, printed.get(tags[n], tags[n]), pixels[n], shade)
             cv2.fillConvexPoly(label, np.round(outers[n]).astype(np.int32), int(n))
         visible = {}
         for n, quad in pixels.items():
@@ -257,15 +279,18 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
             sub = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
             cv2.fillConvexPoly(sub, np.round(outers[n] - [x0, y0]).astype(np.int32), 1)
             own = label[y0:y1, x0:x1][sub > 0]
-            if own.size and np.mean(own == n) > 0.995:
+            if own.size and np.mean(own == n) > 0.995 and tags[n] not in printed:
                 visible[int(tags[n])] = np.round(quad, 4).tolist()
         photo = _degrade(photo, spec, rng)
         name = f"photo-{k:03d}.jpg"
-        write_image(photos_dir / name, photo, (cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality))
+        if spec.exif_model:
+            _write_with_exif(photos_dir / name, photo, spec.jpeg_quality, spec.exif_model, camera)
+        else:
+            write_image(photos_dir / name, photo, (cv2.IMWRITE_JPEG_QUALITY, spec.jpeg_quality))
         rvec, _ = cv2.Rodrigues(rotation)
         photo_records.append({"file": f"photos/{name}", "rotation": np.round(rvec.ravel(), 9).tolist(),
                               "translation_mm": np.round(translation, 4).tolist(),
-                              "rendered": sorted(int(tags[n]) for n in pixels), "visible": visible})
+                              "rendered": sorted(int(printed.get(tags[n], tags[n])) for n in pixels), "visible": visible})
     centre_of_node = {tag_map.node_of_tag[t]: centres[n] for n, t in enumerate(tags)}
     camera_path, tagmap_path = out_dir / "camera.json", out_dir / "tagmap.json"
     save_camera(camera, camera_path)
@@ -273,6 +298,7 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
     truth = {
         "schema": TRUTH_SCHEMA, "model": model.name, "units": "mm",
         "deviation": {"kind": "sag", "amplitude_mm": spec.sag_mm},
+        "misprints": [{"printed": copy, "instead_of": instead_of} for copy, instead_of in spec.misprints],
         "camera": "camera.json", "tag_map": "tagmap.json",
         "nodes": {nid: {"design_mm": np.round(design[i], 4).tolist(), "built_mm": np.round(built[i], 4).tolist(),
                         "deviation_mm": np.round(deviation[i], 4).tolist(), "tag": tag_map.tag_of_node.get(nid),
@@ -282,6 +308,22 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
     }
     write_json(out_dir / "truth.json", truth)
     return truth
+
+
+def _write_with_exif(path: Path, photo: np.ndarray, quality: int, model: str, camera: Camera) -> None:
+    """A JPEG (Pillow) with EXIF naming the camera `model` and its focal length in 35 mm equivalent, whole mm."""
+    import io
+
+    from PIL import Image
+
+    exif = Image.Exif()
+    exif[0x010F], exif[0x0110] = "fabline", model
+    focal_35mm = int(round(camera.focal_px * np.hypot(36.0, 24.0) / np.hypot(camera.width, camera.height)))
+    exif.get_ifd(0x8769)[0xA405] = focal_35mm
+    buffer = io.BytesIO()
+    Image.fromarray(photo).save(buffer, "JPEG", quality=quality, exif=exif)
+    with atomic_output(path, "wb") as handle:
+        handle.write(buffer.getvalue())
 
 
 def _degrade(photo: np.ndarray, spec: SyntheticSpec, rng: np.random.Generator) -> np.ndarray:

@@ -24,6 +24,8 @@ TAG_FAMILY = "tag36h11"
 TAG_DICTIONARY = cv2.aruco.DICT_APRILTAG_36h11
 TAG_COUNT = 587
 TAG_CELLS = 8  # the black square is 8 cells wide (6 data + border); a 1-cell white quiet zone surrounds it
+# Tag sizes (the black square's edge) are millimetres everywhere; outside this range a value is taken for another unit
+TAG_SIZE_RANGE_MM = (5.0, 2000.0)
 
 
 @dataclass
@@ -42,11 +44,21 @@ class TagMap:
         return {node: tag for tag, node in self.node_of_tag.items()}
 
 
+def check_tag_size_mm(value: float, source: str = "--tag-size") -> float:
+    """`value` as a tag size in mm; a value no tag has in mm (0.065: metres; 6500: a tenth of a mm) raises naming
+    `source` and what to give instead."""
+    low, high = TAG_SIZE_RANGE_MM
+    if not (isinstance(value, (int, float)) and np.isfinite(value) and low <= value <= high):
+        hint = (f"; {value:g} looks like metres: give {value * 1000:g}" if isinstance(value, (int, float)) and
+                0 < value * 1000 <= high and value * 1000 >= low else "")
+        raise FablineError(f"{source} {value:g}: a tag's black-square edge in millimetres must be {low:g} to {high:g}{hint}")
+    return float(value)
+
+
 def make_tag_map(network: Network, tag_size_mm: float = 65.0, mount_offset_mm: float = 20.0,
                  every: int = 1) -> TagMap:
     """Give tag ids 0, 1, ... to the model's nodes in order (every `every`-th node, supports always)."""
-    if tag_size_mm <= 0:
-        raise FablineError(f"tag size must be positive, got {tag_size_mm} mm")
+    check_tag_size_mm(tag_size_mm)
     if every < 1:
         raise FablineError(f"--every must be at least 1, got {every}")
     chosen = [nid for i, (nid, node) in enumerate(network.nodes.items()) if i % every == 0 or node.kind == "support"]
@@ -81,8 +93,7 @@ def tagmap_from_dict(data: object, source: str = "tag map") -> TagMap:
         if not finite_number(value):
             raise FablineError(f"{source}: field '{key}' must be a number")
         numbers[key] = float(value)
-    if numbers["tag_size_mm"] <= 0:
-        raise FablineError(f"{source}: field 'tag_size_mm' must be positive")
+    check_tag_size_mm(numbers["tag_size_mm"], f"{source}: field 'tag_size_mm'")
     entries = data.get("tags")
     if not isinstance(entries, list):
         raise FablineError(f"{source}: missing or malformed 'tags' (expected a list)")
