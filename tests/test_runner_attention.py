@@ -36,6 +36,16 @@ def interrupt(runner: Runner, queue: JobQueue, job_id: int, k: int, port: str, a
     return start(queue.path, port, auto_confirm=auto_confirm)
 
 
+def squares_job(tmp_path, name: str, sheets: int):
+    """A job of `sheets` sheets of ten squares each, queued ready, and a simulated laser's port logging to
+    m1.log: (queue, job id, programs, log, port)."""
+    programs = [square_program(tmp_path / f"{name}{k + 1}.gcode", 10, 10 + 20 * k, squares=10) for k in range(sheets)]
+    queue = JobQueue(tmp_path / "runner.sqlite")
+    job_id = queue.submit(name, programs=[(p.stem, str(p), "") for p in programs])
+    log = tmp_path / "m1.log"
+    return queue, job_id, programs, log, f"sim://{name}?settings=32:1&time_scale=4&log={log}"
+
+
 def test_a_program_finished_elsewhere_is_cut_again_in_full_by_a_new_job(tmp_path):
     program = square_program(tmp_path / "sheet.gcode", 10, 10, squares=3)
     before = tmp_path / "before.log"
@@ -77,13 +87,8 @@ def test_a_cancelled_job_resubmitted_starts_at_its_first_line(tmp_path):
 
 
 def test_a_restarted_runner_waits_for_the_operator_and_carries_out_each_choice(tmp_path):
-    sheets = [square_program(tmp_path / f"s{k + 1}.gcode", 10, 10 + 20 * k, squares=10) for k in range(3)]
-    db = tmp_path / "q.sqlite"
-    queue = JobQueue(db)
-    job_id = queue.submit("choices", programs=[(p.stem, str(p), "") for p in sheets])
-    log = tmp_path / "m1.log"
-    port = f"sim://choices?settings=32:1&time_scale=4&log={log}"
-    runner = start(db, port, auto_confirm=True)
+    queue, job_id, sheets, log, port = squares_job(tmp_path, "choices", 3)
+    runner = start(queue.path, port, auto_confirm=True)
     try:
         # Sheet 1: cut off by a restart, waits, then "resume here": each line once.
         runner = interrupt(runner, queue, job_id, 0, port)
@@ -166,14 +171,9 @@ def test_the_cli_asks_before_acting_on_a_job_that_needs_attention_and_refuses_wi
 @pytest.fixture
 def attention_page(tmp_path):
     """A 2-sheet job whose first sheet a runner restart cut off, the new runner and the page on 127.0.0.1."""
-    sheets = [square_program(tmp_path / f"page{k + 1}.gcode", 30, 30 + 40 * k, squares=10) for k in range(2)]
-    db = tmp_path / "runner.sqlite"
-    queue = JobQueue(db)
-    job_id = queue.submit("page-job", programs=[(p.stem, str(p), "") for p in sheets])
-    log = tmp_path / "executed.log"
-    port = f"sim://attention-page?settings=32:1&time_scale=4&log={log}"
-    runner = interrupt(start(db, port, auto_confirm=True), queue, job_id, 0, port, auto_confirm=False)
-    with page_server(db) as url:
+    queue, job_id, sheets, log, port = squares_job(tmp_path, "page", 2)
+    runner = interrupt(start(queue.path, port, auto_confirm=True), queue, job_id, 0, port, auto_confirm=False)
+    with page_server(queue.path) as url:
         yield {"url": url, "queue": queue, "job": job_id, "sheets": sheets, "log": log}
     runner.stop()
 
