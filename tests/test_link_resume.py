@@ -380,3 +380,19 @@ def test_sigterm_and_sighup_stop_like_ctrl_c_and_the_job_resumes(tmp_path, signa
                                   text=True, timeout=60)
         assert finished.returncode == 0, finished.stderr
     assert executed_file_lines(log) == expected(program)
+
+
+def test_a_settings_query_refused_while_buffered_lines_run_is_asked_again_when_the_machine_stands_still(sim):
+    """After a lost connection the controller may be idle for a moment and then run lines still in its buffer:
+    a `$I` sent then is refused with error:8 (seen in the fault campaign); the streamer waits and asks again."""
+    url = sim(time_scale=5)
+    streamer = Streamer(url)
+    streamer._open()
+    try:
+        streamer._write(b"G1 X8 F600\n")  # what the host sent before the connection dropped
+        time.sleep(0.05)
+        assert streamer._query_status().state == "Run"
+        feedback = streamer._command(b"$I\n")
+        assert "VER:1.1h.20190830:" in feedback and streamer._query_status().state == "Idle"
+    finally:
+        streamer._close()

@@ -899,9 +899,11 @@ class Streamer:
 
     def _command(self, line: bytes, expect_error: bool = False, until_banner: bool = False) -> list[str]:
         """Send one line with nothing else in flight; return the feedback lines before its ok
-        (or, with `expect_error`, before its error)."""
+        (or, with `expect_error`, before its error). A `$` query refused because the controller is running
+        (error:8: lines a lost connection left in its buffer, found idle a moment before) is asked again once
+        the controller stands still."""
         self._write(line)
-        feedback, answered = [], False
+        feedback, answered, waited = [], False, False
         deadline = time.monotonic() + max(self.connect_timeout, 2.0)
         while time.monotonic() < deadline:
             for response in self._read(0.02):
@@ -909,6 +911,11 @@ class Streamer:
                     feedback.append(response.text)
                 elif response.kind == ("error" if expect_error else "ok"):
                     answered = True
+                elif response.kind == "error" and response.code == 8 and line.startswith(b"$") and not waited:
+                    self._settle()  # bounded by settle_timeout, with its own message
+                    waited, feedback = True, []
+                    self._write(line)
+                    deadline = time.monotonic() + max(self.connect_timeout, 2.0)
                 elif response.kind == "error":
                     raise FablineError(f"{self.url}: {line.decode().strip()!r} answered {explain_error(response.code)}")
                 elif response.kind == "banner" and until_banner and answered:
