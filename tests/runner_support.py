@@ -75,13 +75,15 @@ def headless_chromium():
             browser.close()
 
 
-def square_program(path: Path, x: float, y: float, squares: int = 1, size: float = 5.0) -> Path:
-    """A laser program cutting `squares` squares in a row starting at (x, y); coordinates make it unique."""
+def square_program(path: Path, x: float, y: float, squares: int = 1, size: float = 5.0, closed: bool = True) -> Path:
+    """A laser program cutting `squares` squares in a row starting at (x, y); coordinates make it unique. With
+    `closed=False` each square lacks its last side, so the path never passes a point twice and a feed hold
+    anywhere tells which line the machine was in."""
     lines = ["G21 G90 G17 G94", "M5"]
     for k in range(squares):
         x0 = x + k * (size + 2)
         lines += [f"G0 X{x0:.3f} Y{y:.3f}", "M4 S1000", f"G1 X{x0 + size:.3f} Y{y:.3f} F3000",
-                  f"G1 X{x0 + size:.3f} Y{y + size:.3f}", f"G1 X{x0:.3f} Y{y + size:.3f}", f"G1 X{x0:.3f} Y{y:.3f}", "M5"]
+                  f"G1 X{x0 + size:.3f} Y{y + size:.3f}", f"G1 X{x0:.3f} Y{y + size:.3f}"] + ([f"G1 X{x0:.3f} Y{y:.3f}"] if closed else []) + ["M5"]
     lines += ["G0 X0 Y0", "M2"]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n", encoding="ascii")

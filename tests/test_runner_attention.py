@@ -39,7 +39,8 @@ def interrupt(runner: Runner, queue: JobQueue, job_id: int, k: int, port: str, a
 def squares_job(tmp_path, name: str, sheets: int):
     """A job of `sheets` sheets of ten squares each, queued ready, and a simulated laser's port logging to
     m1.log: (queue, job id, programs, log, port)."""
-    programs = [square_program(tmp_path / f"{name}{k + 1}.gcode", 10, 10 + 20 * k, squares=10) for k in range(sheets)]
+    programs = [square_program(tmp_path / f"{name}{k + 1}.gcode", 10, 10 + 20 * k, squares=10, closed=False)
+                for k in range(sheets)]  # open squares: a runner stopped anywhere knows which line the machine was in
     queue = JobQueue(tmp_path / "runner.sqlite")
     job_id = queue.submit(name, programs=[(p.stem, str(p), "") for p in programs])
     log = tmp_path / "m1.log"
