@@ -396,3 +396,85 @@ def test_a_settings_query_refused_while_buffered_lines_run_is_asked_again_when_t
         assert "VER:1.1h.20190830:" in feedback and streamer._query_status().state == "Idle"
     finally:
         streamer._close()
+
+
+# ----- a journal that cannot be written ---------------------------------------------------------------------
+def fail_fsync_after(monkeypatch, calls: int) -> None:
+    """The disk fills after `calls` fsyncs: every later fsync fails as a full disk does."""
+    from fabline.link import journal as journal_module
+    real, count = os.fsync, [0]
+
+    def fsync(fd):
+        count[0] += 1
+        if count[0] > calls:
+            raise OSError(28, "No space left on device")
+        real(fd)
+
+    monkeypatch.setattr(journal_module.os, "fsync", fsync)
+
+
+def test_a_journal_that_fills_the_disk_before_the_first_line_sends_nothing(tmp_path, sim, monkeypatch):
+    program = write(tmp_path / "sheet.gcode", sawtooth(20))
+    url = sim(time_scale=200)
+    fail_fsync_after(monkeypatch, 0)
+    with pytest.raises(FablineError, match=r"sheet\.gcode\.journal: cannot write the journal: No space left on "
+                                            r"device; nothing was sent"):
+        Streamer(url, status_interval=0.02).run(program)
+    assert executed_file_lines(log_of(url)) == []
+
+
+def test_a_journal_that_fails_mid_stream_stops_the_machine_and_names_the_line_to_resume_from(tmp_path, sim,
+                                                                                            monkeypatch):
+    """A full disk in the middle of a sheet: the stream stops (feed hold) rather than cut lines no journal records,
+    names the line to go on from, and --from-line then cuts every line exactly once."""
+    program = write(tmp_path / "sheet.gcode", sawtooth(120))
+    url = sim(time_scale=5)
+    fail_fsync_after(monkeypatch, 4)  # the start record's commit and a few background commits succeed
+    with pytest.raises(StreamInterrupted, match=r"cannot write the journal: No space left on device; the machine "
+                                                r"was stopped after file line \d+: make room, then "
+                                                r"run again with --resume --from-line (\d+)") as stop:
+        Streamer(url, status_interval=0.02).run(program)
+    assert stop.value.reason == "journal" and 0 < stop.value.executed < 120
+    monkeypatch.undo()
+    ran = executed_file_lines(log_of(url))
+    assert ran == expected(program)[:stop.value.executed]
+    from_line = int(str(stop.value).rsplit(" ", 1)[1])
+    simulator_of(url).time_scale = 200
+    assert Streamer(url, status_interval=0.02).run(program, resume=True, start_line=from_line).completed
+    assert exactly_once(program, url)
+
+
+def test_an_exchange_log_that_fails_mid_stream_stops_the_machine_and_the_journal_resumes(tmp_path, sim):
+    """The exchange log's disk fills mid-sheet: the stream stops as for the journal, the journal (still sound)
+    records where, and a plain --resume cuts every remaining line exactly once."""
+    program = write(tmp_path / "sheet.gcode", sawtooth(120))
+    url = sim(time_scale=5)
+    log = tmp_path / "exchange.log"
+    streamer = Streamer(url, status_interval=0.02, exchange_log=log)
+
+    class FullDisk:
+        def __init__(self, real):
+            self.real = real
+
+        def write(self, text):
+            raise OSError(28, "No space left on device")
+
+        def flush(self):
+            self.real.flush()
+
+        def close(self):
+            self.real.close()
+
+    def fill_the_disk(progress):
+        if progress.acked >= 20 and not isinstance(streamer._log, (FullDisk, type(None))):
+            streamer._log = FullDisk(streamer._log)
+
+    with pytest.raises(StreamInterrupted, match=r"exchange\.log: cannot write the exchange log: No space left on "
+                                                r"device; the machine was stopped after file line \d+: make room, "
+                                                r"then run again with --resume$") as stop:
+        streamer.run(program, on_progress=fill_the_disk)
+    assert stop.value.reason == "journal" and 0 < stop.value.executed < 120
+    assert read_journal(f"{program}.journal").done == stop.value.executed
+    simulator_of(url).time_scale = 200
+    assert Streamer(url, status_interval=0.02).run(program, resume=True).completed
+    assert exactly_once(program, url)

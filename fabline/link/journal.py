@@ -13,9 +13,11 @@ Format (`fabline.link-journal/1`): one JSON object per line, each with an `event
   alarm    {code}                            the controller raised ALARM:code
   done     {count}                           the first `count` lines are known to be executed
   resume   {count}                           a resume restarts after the first `count` lines
-  stopped  {reason}                          the stream stopped early (error, alarm, abort, lost connection)
+  stopped  {reason}                          the stream stopped early (error, alarm, abort, lost
+                                             connection, a log that could not be written)
   finished {}                                every line executed; the job is complete
-Records are fsynced at least every 50 ms, and at once when the stream stops.
+Records are fsynced at least every 50 ms, and at once when the stream stops. A journal that cannot be written
+(disk full, device gone) raises JournalError at the next record, so the stream stops rather than cut unrecorded.
 A half-written last record (the host died while writing it) is ignored when reading and cut off before
 anything is appended; any other malformed record is a one-line error naming the journal line.
 Default location: beside the program, `<program>.journal`.
@@ -59,11 +61,16 @@ class JournalState:
     identity: dict[str, str] | None = None
 
 
+class JournalError(FablineError):
+    """The journal cannot be written: records from here on would be lost, so no further line may be sent."""
+
+
 class Journal:
     """Append-only job journal; `commit()` makes everything recorded so far durable (fsync).
 
     With `sync_interval` a background thread also commits that often, so a streaming loop never
-    waits for the disk (an fsync can take longer than the controller's buffer lasts).
+    waits for the disk (an fsync can take longer than the controller's buffer lasts). A write that fails there
+    is raised by the next `record()`; `abandon()` then lets the stream stop without recording anything more.
     """
 
     def __init__(self, path: str | os.PathLike, sync_interval: float | None = None):
@@ -73,6 +80,8 @@ class Journal:
         self._lock = threading.Lock()
         self._closing = threading.Event()
         self._syncer: threading.Thread | None = None
+        self._failure: JournalError | None = None
+        self._abandoned = False
 
     def open(self, fresh: bool = False) -> "Journal":
         """Open for appending (creating the file and its folder if needed), after cutting off a torn last record;
@@ -90,30 +99,65 @@ class Journal:
 
     def record(self, event: str, **fields) -> None:
         """Append one record (buffered until the next commit)."""
+        if self._abandoned:
+            return
         text = json.dumps({"event": event, **fields}, separators=(",", ":")) + "\n"
         with self._lock:
-            self._handle.write(text)
+            self._raise_failure()
+            self._guarded(self._handle.write, text)
 
     def commit(self) -> None:
         """Flush and fsync: every record so far survives a crash."""
+        if self._abandoned:
+            return
         with self._lock:
-            self._handle.flush()
-        os.fsync(self._handle.fileno())
+            self._raise_failure()
+            self._guarded(self._handle.flush)
+        self._guarded(os.fsync, self._handle.fileno())
+
+    @property
+    def failed(self) -> bool:
+        """Whether a write to the journal failed (its records from then on are lost)."""
+        return self._failure is not None
+
+    def abandon(self) -> None:
+        """Give up on a journal that failed: later records and commits are dropped while the stream stops."""
+        self._abandoned = True
+
+    def _guarded(self, write, *args) -> None:
+        try:
+            write(*args)
+        except OSError as exc:
+            self._failure = JournalError(f"{self.path}: cannot write the journal: {exc.strerror or exc}")
+            raise self._failure from None
+
+    def _raise_failure(self) -> None:
+        if self._failure is not None:
+            raise self._failure
 
     def _sync_periodically(self) -> None:
         while not self._closing.wait(self.sync_interval):
-            self.commit()
+            try:
+                self.commit()
+            except JournalError:
+                return  # kept in _failure: the streaming loop's next record raises it
 
     def close(self) -> None:
-        """Stop the background commits, commit and close."""
+        """Stop the background commits, commit and close (a failed journal is closed as far as it got)."""
         if self._handle is not None:
             self._closing.set()
             if self._syncer is not None:
                 self._syncer.join()
                 self._syncer = None
-            self.commit()
-            self._handle.close()
-            self._handle = None
+            try:
+                if self._failure is None:
+                    self.commit()
+            finally:
+                try:
+                    self._handle.close()
+                except OSError:
+                    pass  # its buffer could not be written either: the failure was already raised
+                self._handle = None
 
     def __enter__(self) -> "Journal":
         return self.open()

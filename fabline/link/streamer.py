@@ -42,7 +42,7 @@ from fabline.link.build import ANY_BUILD, STOCK_BUILD, BuildInfo
 from fabline.link.codes import explain_alarm, explain_error, listing
 from fabline.link.compat import controller_problems, program_machine
 from fabline.link.gcode import ModalState, Vector
-from fabline.link.journal import Journal, JournalState, default_journal_path, read_journal
+from fabline.link.journal import Journal, JournalError, JournalState, default_journal_path, read_journal
 from fabline.link.program import TAG_CYCLE, Program, line_tag, load_program
 from fabline.link.protocol import (CYCLE_START, FEED_HOLD, SOFT_RESET, STATUS_QUERY, CharacterCounter,
                                    LineSplitter, Response, StatusReport, classify)
@@ -95,7 +95,8 @@ class StreamInterrupted(FablineError):
     """The stream stopped on an error, an alarm or a lost connection; the journal allows a resume.
 
     `reason` is one of: error, alarm, connection, reset, undecided (the stopped position fits several lines:
-    resume with --from-line); `executed` counts the program lines known done.
+    resume with --from-line), journal (the journal could not be written; resume with --from-line); `executed`
+    counts the program lines known done.
     """
 
     def __init__(self, message: str, reason: str, executed: int):
@@ -323,13 +324,21 @@ class Streamer:
             self._exchange("#", "--force: streaming despite: " + "; ".join(forced))
         if previous is not None:
             self.journal.record("resume", count=executed)
-        self.journal.commit()
+        try:
+            self.journal.commit()
+        except JournalError as exc:
+            if previous is None:  # a journal begun here holds nothing worth keeping
+                self.journal.close()
+                self.journal_path.unlink(missing_ok=True)
+            raise JournalError(f"{exc}; nothing was sent") from None
         preamble = self._preamble(executed) if previous is not None else []
         self.acked = self.done = self.sent = self.first_index = executed
         self.started = time.monotonic()  # elapsed counts streaming, not the handshake
         while True:
             try:
                 return self._stream(preamble)
+            except JournalError as exc:
+                self._stop_unrecorded(exc)
             except _Lost as exc:
                 self._counter = None  # whatever was in flight is settled by the recovery, not by stray answers
                 self.journal.record("stopped", reason=f"connection lost: {exc}")
@@ -500,6 +509,28 @@ class Streamer:
         return StreamResult(False, executed, len(self.program.lines), "aborted", time.monotonic() - self.started,
                             self.bytes_sent)
 
+    def _stop_unrecorded(self, failure: JournalError) -> None:
+        """The journal cannot be written: stop the machine so that no line runs unrecorded, and name the line to
+        resume from, which the journal can no longer tell."""
+        if self.journal.failed:
+            self.journal.abandon()
+        try:
+            executed = self._halt(rejected=None)
+        except _Undecided as exc:
+            self._stop_undecided(exc, f"{failure}; the machine was stopped, but ")
+        self.journal.record("done", count=executed)  # dropped when the journal is what failed
+        self.journal.record("stopped", reason=f"log failed: {failure}")
+        self.journal.commit()
+        where = (f"after file line {self._file_line(executed - 1)}" if executed else "before the first line")
+        if executed == len(self.program.lines):
+            hint = "every line had run"
+        elif self.journal.failed:  # the journal no longer knows where the machine stopped: the operator says it
+            hint = f"run again with --resume --from-line {self._file_line(executed)}"
+        else:
+            hint = "run again with --resume"
+        raise StreamInterrupted(f"{failure}; the machine was stopped {where}: make room, then {hint}", "journal",
+                                executed) from None
+
     def _stop_undecided(self, exc: _Undecided, cause: str = "") -> None:
         """Journal that the stopped position did not tell the line (a resume must then be told, --from-line)."""
         self.journal.record("stopped", reason=f"undecided: {exc}")
@@ -613,7 +644,7 @@ class Streamer:
         if stopped.startswith("undecided"):
             raise _Undecided(f"{self.journal_path}: the last run stopped where fabline could not tell the line "
                              f"({stopped[len('undecided: '):]})")
-        if stopped.startswith(("error", "aborted", "ALARM")):  # the host that stopped it judged what ran
+        if stopped.startswith(("error", "aborted", "ALARM", "log failed")):  # the host that stopped it judged what ran
             executed = previous.done
         elif status.state == "Hold" and not stopped.startswith("controller reset"):
             # held when its host went away: let it finish what it holds (the operator asked to resume), then ask $G
@@ -718,12 +749,15 @@ class Streamer:
         self._connect_port()
         self._detect()
         if self.exchange_log_path is not None:
+            new_log = not Path(self.exchange_log_path).exists()
             try:
                 self._log = open_append(self.exchange_log_path, "exchange log", errors="replace")
+                self._exchange("#", f"connected to {self.url}: Grbl {self.version or '1.1'}, rx buffer {self.rx_buffer}")
             except FablineError:
                 self._close_port()
+                if new_log and self._log is None:  # created here and not even its first record went in
+                    Path(self.exchange_log_path).unlink(missing_ok=True)
                 raise
-            self._exchange("#", f"connected to {self.url}: Grbl {self.version or '1.1'}, rx buffer {self.rx_buffer}")
 
     def _connect_port(self) -> None:
         try:
@@ -1001,9 +1035,19 @@ class Streamer:
             message=self.message))
 
     def _exchange(self, direction: str, text: str) -> None:
+        """Append to the exchange log; a log that cannot be written is closed and raised as a JournalError."""
         if self._log is not None:
-            self._log.write(f"{time.time():.3f} {direction} {text}\n")
-            self._log.flush()
+            try:
+                self._log.write(f"{time.time():.3f} {direction} {text}\n")
+                self._log.flush()
+            except OSError as exc:
+                log, self._log = self._log, None
+                try:
+                    log.close()
+                except OSError:
+                    pass  # its buffer cannot be written either
+                raise JournalError(f"{self.exchange_log_path}: cannot write the exchange log: "
+                                   f"{exc.strerror or exc}") from None
 
     def _file_line(self, index: int) -> int | None:
         lines = self.program.lines
