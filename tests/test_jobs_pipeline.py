@@ -220,7 +220,9 @@ def test_simulated_survey_writes_a_fresh_photo_set_and_its_survey(run):
     truth = json.loads((folder / "truth.json").read_text())
     network = load_network(run["dir"] / "network.json")
     assert sorted(truth["nodes"]) == sorted(network.nodes)
-    assert re.search(r"survey: \d+ of 9 nodes measured", run["out"])
+    assert re.search(r"survey: \d+ of 9 nodes measured in [\d.]+ s: RMS deviation \d+\.\d mm, max \d+\.\d mm; at "
+                     r"[\d.]+ mm \d+ pass, \d+ fail, \d+ uncertain; against the injected truth RMS error \d+\.\d\d mm",
+                     run["out"]), run["out"]   # mm to 0.1, the verdicts as the report gives them
 
 
 def test_report_survey_figures_agree_with_the_injected_truth(run):

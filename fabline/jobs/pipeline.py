@@ -197,6 +197,7 @@ def _export(result: JobResult) -> None:
 
 
 def _survey(result: JobResult, say: Say) -> None:
+    from fabline.jobs.report_shop import mm
     from fabline.jobs.survey_stage import SURVEY_FOLDER, simulate_and_measure
 
     spec = result.spec
@@ -204,8 +205,9 @@ def _survey(result: JobResult, say: Say) -> None:
     result.survey = simulate_and_measure(result.network, folder, spec.survey, say)
     summary, truth = result.survey["summary"], result.survey["truth"]
     say(f"survey: {summary['measured']} of {summary['nodes']} nodes measured in {result.survey['simulated']['measure_s']:.1f} s: "
-        f"RMS deviation {summary['rms_deviation_mm']} mm, max {summary['max_deviation_mm']} mm, {summary['failed']} over "
-        f"{result.survey['tolerance_mm']:g} mm; against the injected truth RMS error {truth['rms_error_mm']} mm "
+        f"RMS deviation {mm(summary['rms_deviation_mm'])} mm, max {mm(summary['max_deviation_mm'])} mm; at "
+        f"{result.survey['tolerance_mm']:g} mm {summary['passed']} pass, {summary['failed']} fail, "
+        f"{summary['uncertain']} uncertain; against the injected truth RMS error {truth['rms_error_mm']:.2f} mm "
         f"-> {folder / 'survey.json'}")
 
 
