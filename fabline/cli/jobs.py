@@ -11,7 +11,7 @@ import sys
 import threading
 from pathlib import Path
 
-from fabline.cli import positive
+from fabline.cli import hidden_alias, positive
 from fabline.errors import FablineError
 
 RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm", "restart", "skip", "requeue", "frame")
@@ -40,17 +40,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     runner = subparsers.add_parser("runner", help="the shop-floor runner: a persistent job queue with a web page")
     commands = runner.add_subparsers(dest="runner_command", metavar="ACTION", required=True)
     serve = commands.add_parser("serve", help="run the queue, the machines and the web page until interrupted")
-    serve.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1, this computer only)")
-    serve.add_argument("--port", type=positive(int, 65535), default=8080, help="web page port (default 8080)")
+    serve.add_argument("--host", default="127.0.0.1", help="address to bind (127.0.0.1: this computer only)")
+    web_port = serve.add_argument("--web-port", type=positive(int, 65535), default=8080, metavar="N",
+                                  help="TCP port of the web page")
+    hidden_alias(serve, web_port, "--port")
     serve.add_argument("--machine", action="append", default=[], metavar="NAME=PORT",
-                       help="a machine and its port, repeatable (default: sim1=sim://sim1)")
+                       help="a machine and its serial port, repeatable (default: sim1=sim://sim1)")
     serve.add_argument("--allow-host", action="append", default=[], metavar="NAME",
                        help="a host name the page may be reached by besides the loopback names and --host, repeatable "
                        "(requests naming any other host are refused)")
     serve.add_argument("--token", help="the token for everything but the bare page (default: a new random one, printed)")
     serve.add_argument("--auto-confirm", action="store_true",
                        help="start every sheet without an operator's confirmation (sheets fed automatically)")
-    serve.add_argument("--scan", type=positive(float), default=2.0, help="seconds between scans of the jobs folder")
+    serve.add_argument("--scan", type=positive(float), default=2.0, metavar="SECONDS",
+                       help="seconds between scans of the jobs folder")
     serve.set_defaults(func=run_serve)
     submit = commands.add_parser("submit", help="queue a job file, or ready G-code programs (one per sheet)")
     submit.add_argument("job", nargs="?", help="a job file")
@@ -73,7 +76,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              help="do not ask before acting on a job that needs attention")
         sub.set_defaults(func=run_action, action=action)
     for sub in (serve, submit, status, *(commands.choices[a] for a in RUNNER_ACTIONS)):
-        sub.add_argument("--jobs", default="jobs", help="the jobs folder (default ./jobs)")
+        sub.add_argument("--jobs", default="jobs", help="the jobs folder")
         sub.add_argument("--db", help="the queue database (default JOBS/runner.sqlite)")
 
 
@@ -181,9 +184,9 @@ def run_serve(args: argparse.Namespace) -> int:
         print(f"fabline runner: {len(machines)} machine(s): {', '.join(f'{m.name}={m.port}' for m in machines)}; "
               f"queue {_db(args)}", flush=True)
         print(f"token: {token}", flush=True)
-        print(f"open http://{args.host}:{args.port}/?token={token}", flush=True)
+        print(f"open http://{args.host}:{args.web_port}/?token={token}", flush=True)
         try:
-            uvicorn.Server(uvicorn.Config(create_app(_db(args), token, hosts=hosts), host=args.host, port=args.port,
+            uvicorn.Server(uvicorn.Config(create_app(_db(args), token, hosts=hosts), host=args.host, port=args.web_port,
                                           log_level="warning")).run()
         finally:
             runner.stop()
