@@ -88,7 +88,8 @@ def run_job_command(args: argparse.Namespace) -> int:
     """Run every stage of the job and print where the report is; Ctrl-C, SIGTERM and SIGHUP stop the machines
     safely (exit 130, resumable with --resume)."""
     from fabline.jobs.jobfile import load_job_file
-    from fabline.jobs.pipeline import run_job
+    from fabline.jobs.pipeline import load_facts, run_job
+    from fabline.jobs.queue import describe_load
     from fabline.locks import exclusive_lock, lock_path
 
     said = threading.Lock()  # the machines report from their own threads: one whole line at a time
@@ -98,10 +99,13 @@ def run_job_command(args: argparse.Namespace) -> int:
             with said:
                 print(text, flush=True)
 
-    def confirm(k: int, count: int, sheet: str) -> None:
-        answer = _ask(f"load sheet {k + 1} of {count} ({sheet}) on the machine, then press Enter ")
+    def confirm(k: int, count: int, sheet: dict) -> None:
+        facts = load_facts(sheet)
+        print(f"load {describe_load(sheet['sheet'], k, count, facts)}\n  picture: {Path(facts['picture']).as_uri()}",
+              flush=True)
+        answer = _ask(f"load sheet {sheet['sheet']} on the machine, then press Enter ")
         if answer is None:
-            raise FablineError(f"sheet {k + 1} of {count} ({sheet}) was not confirmed: standard input closed; "
+            raise FablineError(f"sheet {k + 1} of {count} ({sheet['sheet']}) was not confirmed: standard input closed; "
                                "nothing more is cut (run it again with --resume)")
 
     spec = load_job_file(args.job)
