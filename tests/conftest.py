@@ -2,10 +2,20 @@
 
 from __future__ import annotations
 
+import atexit
+import os
+import shutil
+import tempfile
+
 import pytest
 
 from fabline.cli import main
 from fabline.model.designs import catenoid_network, enneper_network, helicoid_network
+
+
+# runner servers the tests start publish a discovery record in the user's state folder: a folder of the tests' own
+os.environ["XDG_STATE_HOME"] = tempfile.mkdtemp(prefix="fabline-test-state-")
+atexit.register(shutil.rmtree, os.environ["XDG_STATE_HOME"], True)
 
 
 @pytest.fixture(scope="session")

@@ -467,6 +467,19 @@ class JobQueue:
             self._event(db, job_id, job.machine, f"job {job_id}: operator asked to {action}")
         return self.job(job_id)
 
+    def act(self, job_id: int, action: str, from_line: int | None = None) -> dict[str, Any]:
+        """One operator action (the page's buttons, `fabline runner ACTION`): confirm the sheet, pause, resume,
+        cancel, frame, restart or skip a sheet, resume from a file line, or requeue; the job's state after it."""
+        if action == "requeue":
+            return {"id": self.requeue(job_id), "requeued": job_id}
+        if action == "confirm":
+            job = self.confirm_sheet(job_id)
+        elif action in ("restart", "skip") or from_line is not None:
+            job = self.resolve(job_id, action, from_line)
+        else:
+            job = self.request(job_id, action)
+        return {"id": job.id, "state": job.state, "status": job.describe(), "request": job.request}
+
     def take_request(self, job_id: int) -> str | None:
         """The pending operator request of a cutting job, cleared as it is taken."""
         with self.transaction() as db:
