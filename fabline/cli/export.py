@@ -68,7 +68,7 @@ def run_export(args: argparse.Namespace) -> int:
         print(f"wrote {path}")
     folders = dict.fromkeys(str(f) for f in (dxf_dir, gcode_dir) if f is not None)
     print(f"{len(result.files)} files in {' and '.join(folders)}")
-    print(f"\nmachine {result.machine}, kerf {result.kerf:.1f} mm")
+    print(f"\nmachine {result.machine}, kerf {result.kerf:g} mm")
     print(f"{'sheet':<12}{'parts':>6}{'cut m':>11}{'mark m':>10}{'travel m':>10}{'time':>10}")
     for sheet in result.sheets + [None]:
         summary = sheet.summary if sheet else result.totals()

@@ -12,6 +12,7 @@ import threading
 from pathlib import Path
 
 from fabline.cli import hidden_alias, positive
+from fabline.cli.units import duration
 from fabline.errors import FablineError
 
 RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm", "restart", "skip", "requeue", "frame")
@@ -128,9 +129,9 @@ def run_job_command(args: argparse.Namespace) -> int:
         stop_signals()
     total = sum(result.timings.values())
     if result.report_path:
-        print(f"report: {result.report_path} (JSON: {result.report_path.with_suffix('.json')}); {total:.1f} s")
+        print(f"report: {result.report_path} (JSON: {result.report_path.with_suffix('.json')}); {duration(total)}")
     else:
-        print(f"done in {total:.1f} s; outputs in {spec.output_folder} (no report stage)")
+        print(f"done in {duration(total)}; outputs in {spec.output_folder} (no report stage)")
     return 0
 
 

@@ -148,7 +148,7 @@ def run_inspect(args: argparse.Namespace) -> int:
         print(f"{r['lamella']:<10}{r['family']:>4}{r['nodes']:>6}{r['length_m']:>10.3f}{r['max_k_g']:>9.3f}"
               f"{r['max_tau_g']:>10.3f}{r['max_k_n']:>9.2e}{angle:>16}")
     angles = [a for r in rows for a in (r["min_angle"], r["max_angle"]) if a is not None]
-    print(f"\n{len(rows)} lamellas, {len(network.nodes)} nodes, total length {sum(r['length_m'] for r in rows):.2f} m; "
+    print(f"\n{len(rows)} lamellas, {len(network.nodes)} nodes, total length {sum(r['length_m'] for r in rows):.3f} m; "
           f"max k_g {max(r['max_k_g'] for r in rows):.3f} 1/m, max tau_g {max(r['max_tau_g'] for r in rows):.3f} 1/m, "
           f"max k_n {max(r['max_k_n'] for r in rows):.2e} 1/m; crossing angles "
           + (f"{min(angles):.2f}..{max(angles):.2f} deg" if angles else "none"))

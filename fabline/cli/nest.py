@@ -71,8 +71,8 @@ def run_nest(args: argparse.Namespace) -> int:
           f"area with clearance {bounds['clearance_area']}, strip cutting-stock LP {bounds['strip_lp']}); "
           f"strips: {report['strips']['method']}; {report['runtime_s']:.1f} s")
     for remnant in result.nesting.remnants:
-        print(f"remnant {remnant['id']}: {remnant['width']:.0f} x {remnant['height']:.0f} mm at "
-              f"({remnant['x']:.0f}, {remnant['y']:.0f}) on sheet {remnant['sheet']}")
+        print(f"remnant {remnant['id']}: {remnant['width']:.1f} x {remnant['height']:.1f} mm at "
+              f"({remnant['x']:.1f}, {remnant['y']:.1f}) on sheet {remnant['sheet']}")
     if args.svg:
         written = write_sheet_svgs(result.nesting, partset, args.svg)
         print(f"{len(written)} SVG pictures in {args.svg}")

@@ -221,6 +221,7 @@ def _camera_map(path: str) -> dict[str, str]:
 
 
 def _measure(args: argparse.Namespace) -> int:
+    from fabline.jobs.report_shop import mm
     from fabline.model import load_network
     from fabline.survey import MeasureOptions, list_photos, load_camera, load_tag_map, make_tag_map, measure_survey
 
@@ -244,7 +245,7 @@ def _measure(args: argparse.Namespace) -> int:
               f"+/- {sigma.get('k1', 0):.2g}, k2 {fitted['distortion'][1]:.4f} +/- {sigma.get('k2', 0):.2g}")
     s = record["summary"]
     print(f"{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
-          f"RMS deviation {s['rms_deviation_mm']} mm, max {s['max_deviation_mm']} mm; at {record['tolerance_mm']:g} mm "
+          f"RMS deviation {mm(s['rms_deviation_mm'])} mm, max {mm(s['max_deviation_mm'])} mm; at {record['tolerance_mm']:g} mm "
           f"({s['k_sigma']:g} sigma) {s['passed']} pass, {s['failed']} fail, {s['uncertain']} uncertain; "
           f"{s['not_seen']} not measured; {s['tags_found_where_predicted']} tag view(s) "
           f"found where the reconstruction predicted them -> {Path(args.output) / 'survey.json'}")

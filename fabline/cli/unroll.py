@@ -95,19 +95,19 @@ def run_unroll(args: argparse.Namespace) -> int:
     s = report["summary"]
     kinds = ", ".join(f"{count} {kind}" for kind, count in s["parts_by_kind"].items())
     print(f"\n{args.output}: {s['parts']} parts ({kinds}) from {s['lamellas']} lamellas, {s['strips']} strips, "
-          f"{s['strip_length_m']:.2f} m of strip; max utilisation {percent(s['max_utilisation'])} "
+          f"{s['strip_length_m']:.3f} m of strip; max utilisation {percent(s['max_utilisation'])} "
           f"({s['governing_check']}, lamella {s['governing_lamella']}); {s['warnings']} warnings")
     return 0
 
 
 def _print_table(rows: list[dict]) -> None:
-    print(f"{'lamella':<10}{'length m':>10}{'min r m':>9}{'twist /m':>10}{'sigma_b':>9}{'tau':>8}{'sigma_H':>9}"
+    print(f"{'lamella':<10}{'length m':>10}{'min r m':>10}{'twist /m':>10}{'sigma_b':>9}{'tau':>8}{'sigma_H':>9}"
           f"{'util %':>8}{'helix top/bot mm':>18}")
     for r in rows:
-        radius = f"{r['min_radius_mm'] / 1000:.2f}" if r["min_radius_mm"] else "inf"
-        print(f"{r['lamella']:<10}{r['length_mm'] / 1000:>10.3f}{radius:>9}{r['max_twist_rad_per_m']:>10.3f}"
+        radius = f"{r['min_radius_mm'] / 1000:.3f}" if r["min_radius_mm"] else "inf"
+        print(f"{r['lamella']:<10}{r['length_mm'] / 1000:>10.3f}{radius:>10}{r['max_twist_rad_per_m']:>10.3f}"
               f"{r['max_bending_stress']:>9.1f}{r['max_shear_stress']:>8.1f}{r['max_helix_stress']:>9.1f}"
-              f"{percent(r['utilisation'])[:-2]:>8}{r['helix_top_edge_extension_mm']:>9.2f}/{r['helix_bottom_edge_extension_mm']:.2f}")
+              f"{percent(r['utilisation'])[:-2]:>8}{r['helix_top_edge_extension_mm']:>9.1f}/{r['helix_bottom_edge_extension_mm']:.1f}")
 
 
 def run_limits(args: argparse.Namespace) -> int:
