@@ -21,23 +21,25 @@ except ImportError:  # Python 3.10
     import tomli as tomllib
 
 
-def _commands() -> list[tuple[str, argparse.ArgumentParser]]:
-    """(`fabline nest`, its parser) for every command and sub-command that takes options."""
-    found = []
+def _parsers() -> dict[str, argparse.ArgumentParser]:
+    """`fabline`, `fabline runner`, `fabline runner pause`, ...: every parser by its prog."""
+    found = {}
 
     def walk(parser: argparse.ArgumentParser) -> None:
-        subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-        for action in subs:
-            for sub in action.choices.values():
-                walk(sub)
-        if not subs:
-            found.append((parser.prog, parser))
+        found[parser.prog] = parser
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub in action.choices.values():
+                    walk(sub)
 
     walk(build_parser(tuple(STAGE_COMMANDS)))
     return found
 
 
-COMMANDS = _commands()
+PARSERS = _parsers()
+COMMANDS = [(prog, parser) for prog, parser in PARSERS.items()
+            if not any(isinstance(a, argparse._SubParsersAction) for a in parser._actions)]
+"""(`fabline nest`, its parser) for every command and sub-command that takes options."""
 LENGTH_NAMES = re.compile(r"size|spacing|kerf|gap|margin|length|width|height|offset|radius|overlap|clearance|"
                           r"tolerance|sag|screw-hole|waist|pitch|lead-in|square|marker")
 NOT_LENGTHS = {
@@ -144,6 +146,9 @@ def test_a_job_file_takes_lengths_with_units_and_plain_numbers_as_before(tmp_pat
     (["runner", "cancel", "3", "--yse"], "fabline runner cancel: error: unknown option --yse; did you mean --yes?"),
     (["export", "n.json", "--frobnicate"], "fabline export: error: unknown option --frobnicate "
                                           "(see fabline export --help)"),
+    (["nets", "p.json"], "fabline: error: argument COMMAND: invalid choice: 'nets'; did you mean nest?"),
+    (["runner", "stauts"], "fabline runner: error: argument ACTION: invalid choice: 'stauts'; did you mean status?"),
+    (["frobnicate"], "fabline: error: argument COMMAND: invalid choice: 'frobnicate' (see fabline --help)"),
 ])
 def test_a_misspelled_option_gets_the_option_meant_and_the_sub_commands_usage(argv, line, capsys):
     with pytest.raises(SystemExit) as stop:
@@ -151,7 +156,7 @@ def test_a_misspelled_option_gets_the_option_meant_and_the_sub_commands_usage(ar
     err = capsys.readouterr().err
     prog = line.split(": error:")[0]
     assert stop.value.code == 2
-    assert err == f"{line}\n{dict(COMMANDS)[prog].format_usage()}"
+    assert err == f"{line}\n{PARSERS[prog].format_usage()}"
 
 
 @pytest.mark.parametrize("prog, argv, dest, value", [

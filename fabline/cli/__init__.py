@@ -11,6 +11,7 @@ import argparse
 import difflib
 import importlib
 import math
+import re
 import sys
 import warnings
 from contextlib import nullcontext
@@ -92,6 +93,12 @@ class OneLineParser(argparse.ArgumentParser):
         super().__init__(*args, formatter_class=formatter_class, **kwargs)
 
     def error(self, message: str):
+        wrong = re.search(r"invalid choice: '([^']*)'", message)
+        commands = [a for a in self._actions if isinstance(a, argparse._SubParsersAction)]
+        if wrong and commands:
+            nearest = difflib.get_close_matches(wrong[1], list(commands[0].choices), n=1, cutoff=0.6)
+            message = message.split(" (choose from", 1)[0] + (f"; did you mean {nearest[0]}?" if nearest else
+                                                             f" (see {self.prog} --help)")
         self.exit(2, f"{self.prog}: error: {message}\n{self.format_usage()}")
 
     def parse_args(self, args=None, namespace=None):

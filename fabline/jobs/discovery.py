@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from fabline.errors import FablineError
-from fabline.fileio import atomic_output, write_json
+from fabline.fileio import _alive, atomic_output, write_json  # _alive: the temp-file sweep's process check
 
 SCHEMA = "fabline.runner/1"
 DB_NAME = "runner.sqlite"
@@ -87,16 +87,6 @@ def _read_record(path: Path) -> dict[str, Any] | None:
             not all(isinstance(record.get(k), kind) for k, kind in fields.items()):
         return None
     return record
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process: not this user's runner
-        return False
-    return True
 
 
 class LocalRunner:
