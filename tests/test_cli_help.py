@@ -170,3 +170,9 @@ def test_an_old_option_name_still_works_but_is_not_shown(prog, argv, dest, value
     assert getattr(build_parser().parse_args(argv), dest) == value
     old = argv[-2]
     assert not re.search(rf"{old}\b(?!-)", _help_of(dict(COMMANDS)[prog])), f"{prog} --help shows {old}"
+
+
+def test_a_job_files_survey_lengths_take_units_too(tmp_path):
+    survey = '[survey]\nsimulate = true\nsag_mm = "2.5 cm"\ntolerance_mm = "0.02 m"\n'
+    spec = job_from_dict(tomllib.loads(GOOD + survey), tmp_path / "job.toml")
+    assert (spec.survey["sag_mm"], spec.survey["tolerance_mm"]) == pytest.approx((25.0, 20.0))

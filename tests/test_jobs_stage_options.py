@@ -62,9 +62,9 @@ def _write(tmp_path: Path, extra: str) -> Path:
     ("[nest]\nremnant_min = '400'", "job.toml: nest.remnant_min:"),
     ("[nest]\nstock_out = '../stock.json'", "would be written outside the output folder"),
     ("[export]\ntabs = -1", "job.toml: export.tabs: must be a finite number, at least 0, got -1"),
-    ("[export]\nlead_in = 'long'", "job.toml: export.lead_in: expected a number (mm) or a length with a unit"),
+    ("[export]\nlead_in = 'long'", "job.toml: export.lead_in: expected a number in mm or with a unit: 3mm, 0.2 mm"),
     ("[export]\nlead_in = true", "job.toml: export.lead_in: expected a number, got boolean"),
-    ("[nest]\ngap = '3 furlongs'", "job.toml: nest.gap: expected a number (mm) or a length with a unit, unknown unit"),
+    ("[nest]\ngap = '3 furlongs'", "job.toml: nest.gap: unknown unit 'furlongs' (use mm, cm, m, in, ft, pt or px)"),
     ("[nest]\nmargin = 10\nsheet_margin = 10", "job.toml: nest.margin: the old name of nest.sheet_margin"),
     ("[export]\nspeed = 3", "job.toml: export.speed: unknown key"),
 ])

@@ -41,7 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     runner = subparsers.add_parser("runner", help="the shop-floor runner: a persistent job queue with a web page")
     commands = runner.add_subparsers(dest="runner_command", metavar="ACTION", required=True)
     serve = commands.add_parser("serve", help="run the queue, the machines and the web page until interrupted")
-    serve.add_argument("--host", default="127.0.0.1", help="address to bind (127.0.0.1: this computer only)")
+    serve.add_argument("--host", default="127.0.0.1", help="address to bind; 127.0.0.1 is this computer only")
     web_port = serve.add_argument("--web-port", type=positive(int, 65535), default=8080, metavar="N",
                                   help="TCP port of the web page")
     hidden_alias(serve, web_port, "--port")

@@ -37,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="rotation steps per full turn for parts without grain (4: 0/90/180/270)")
     parser.add_argument("--common-line", action="store_true", help="neighbouring strips share one cut (no gap)")
     parser.add_argument("--fill-holes", action="store_true", help="allow small parts inside large holes")
-    parser.add_argument("--time-limit", type=float, default=10.0, help="seconds for the strip solver")
+    parser.add_argument("--time-limit", type=float, default=10.0, metavar="SECONDS", help="seconds for the strip solver")
     parser.add_argument("--svg", metavar="DIR", help="write one SVG picture per sheet into DIR")
     parser.set_defaults(func=run_nest)
 

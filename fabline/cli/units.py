@@ -101,7 +101,7 @@ def job_length(value: float | str, unit: str = "mm") -> float:
     try:
         return parse_length(value, unit)
     except ValueError as exc:
-        raise FablineError(f"expected a number ({unit}) or a length with a unit, {exc}") from None
+        raise FablineError(str(exc)) from None
 
 
 def metres(millimetres: float) -> str:

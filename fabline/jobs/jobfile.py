@@ -85,7 +85,7 @@ SCHEMA: dict[str, Any] = {
                 "time_scale": Key(float, default=1.0)},
     "output": {"folder": Key(str, required=True), "report": Key(str, default="report.html")},
     "survey": {"result": Key(str), "simulate": Key(bool, default=False), "photos": Key(int), "resolution": Key(str),
-               "coverage": Key(float), "sag_mm": Key(float), "seed": Key(int), "tolerance_mm": Key(float),
+               "coverage": Key(float), "sag_mm": Length(), "seed": Key(int), "tolerance_mm": Length(),
                "reference": Key(str), "scale_bars": Key(int)},
 }
 
