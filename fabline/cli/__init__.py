@@ -82,7 +82,7 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
             return text
         unit = getattr(action.type, "unit", None)
         shown = "x".join(f"{v:g}" for v in default) if isinstance(default, tuple) else str(default)
-        return f"{text} (default: {shown}{f' {unit}' if unit else ''})".replace("%", "%%").replace("%%(", "%(")
+        return text + f" (default: {shown}{f' {unit}' if unit else ''})".replace("%", "%%")  # help is %-formatted
 
 
 class OneLineParser(argparse.ArgumentParser):
