@@ -2,10 +2,20 @@
 
 from __future__ import annotations
 
+import atexit
+import os
+import shutil
+import tempfile
+
 import pytest
 
 from fabline.cli import main
 from fabline.model.designs import catenoid_network, enneper_network, helicoid_network
+
+
+# runner servers the tests start publish a discovery record in the user's state folder: a folder of the tests' own
+os.environ["XDG_STATE_HOME"] = tempfile.mkdtemp(prefix="fabline-test-state-")
+atexit.register(shutil.rmtree, os.environ["XDG_STATE_HOME"], True)
 
 
 @pytest.fixture(scope="session")
@@ -23,9 +33,21 @@ def helicoid():
     return helicoid_network()
 
 
+def without_usage(err: str) -> str:
+    """stderr of a command-line mistake without the usage argparse prints after it, checked: one error line
+    (`fabline CMD: error: ...`), then at most the usage of that very command, nothing else."""
+    error, marker, usage = err.partition("\nusage: ")
+    if marker:
+        prog = error.split(": error: ", 1)[0]
+        assert usage.startswith(f"{prog} ") and "\n\n" not in usage and "Traceback" not in usage, err
+        return error + "\n"
+    return err
+
+
 @pytest.fixture
 def cli(capsys):
-    """Run `fabline ARGS...` in-process; returns (exit code, stdout, stderr), also of a usage error (SystemExit)."""
+    """Run `fabline ARGS...` in-process; returns (exit code, stdout, stderr), also of a usage error (SystemExit);
+    the usage after an argparse error is checked and left out (`without_usage`)."""
 
     def run(*args: str):
         try:
@@ -33,7 +55,7 @@ def cli(capsys):
         except SystemExit as stop:
             code = stop.code if isinstance(stop.code, int) else 1
         out = capsys.readouterr()
-        return code, out.out, out.err
+        return code, out.out, without_usage(out.err)
 
     return run
 

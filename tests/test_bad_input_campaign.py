@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import without_usage
 from fabline.cli import STAGE_COMMANDS, build_parser, main
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -97,7 +98,8 @@ def _digest(folder: Path, skip: Path | None = None) -> dict:
 
 
 def _run(args) -> tuple[int, str]:
-    """Run the command line in-process; the exit code and stderr (usage errors too: SystemExit)."""
+    """Run the command line in-process; the exit code and stderr (usage errors too: SystemExit, their usage checked
+    and left out)."""
     import contextlib
     import io
 
@@ -107,7 +109,7 @@ def _run(args) -> tuple[int, str]:
             code = main([str(a) for a in args])
         except SystemExit as stop:
             code = stop.code if isinstance(stop.code, int) else 1
-    return code, err.getvalue()
+    return code, without_usage(err.getvalue())
 
 
 def _assert_refused(args, world: Path, out: Path) -> str:
@@ -375,10 +377,10 @@ def _number_options() -> list[tuple[str, tuple[str, ...], str, type]]:
 
 NUMBER_VALUES = {float: ("nan", "-inf", "1e308"), int: ("1" + "0" * 400, "1e3")}
 SIZE_OPTIONS = [
-    (("survey", "simulate", "--model", "{world}/net.json", "-o", "{out}/s"), "--size", ("100000x100000", "1e308x5", "0x0")),
+    (("survey", "simulate", "--model", "{world}/net.json", "-o", "{out}/s"), "--resolution", ("100000x100000", "1e308x5", "0x0")),
     (("survey", "simulate", "--model", "{world}/net.json", "-o", "{out}/s"), "--photos", ("100000000",)),
-    (("nest", "{world}/parts.json", "-o", "{out}/n.json"), "--sheet", ("1e308x2000", "nanx2000", "-4000x2000", "4000")),
-    (("nest", "{world}/parts.json", "-o", "{out}/n.json"), "--remnant-min", ("1e308x5", "x")),
+    (("nest", "{world}/parts.json", "-o", "{out}/n.json"), "--sheet-size", ("1e308x2000", "nanx2000", "-4000x2000", "4000", "4 furlong x 2")),
+    (("nest", "{world}/parts.json", "-o", "{out}/n.json"), "--remnant-min", ("1e308x5", "x", "0x0")),
     (("unroll", "{world}/net.json", "-o", "{out}/p.json"), "--profile", ("1e308x1.5", "100x0", "nanx1.5")),
     (("design", "enneper", "-o", "{out}/e.json"), "--size", ("1e308x12", "infx12", "0x0")),
     (("design", "catenoid", "-o", "{out}/e.json"), "--count", ("100000000",)),

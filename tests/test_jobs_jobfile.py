@@ -90,7 +90,7 @@ def test_required_keys(tmp_path):
     ("[survey]\nsimulate = true\nresolution = \"48x48\"", "job.toml: survey.resolution: '48x48': must be at least 64x64"),
     ("[survey]\nsimulate = true\ncoverage = 3", "job.toml: survey.coverage: must be in (0, 2], got 3.0"),
     ("[survey]\nsimulate = true\nsag_mm = -5", "job.toml: survey.sag_mm: must not be negative, got -5.0"),
-    ("[survey]\nsimulate = true\nsag_mm = \"a lot\"", "job.toml: survey.sag_mm: expected a number, got string 'a lot'"),
+    ("[survey]\nsimulate = true\nsag_mm = \"a lot\"", "job.toml: survey.sag_mm: expected a number in mm or with a unit: 3mm, 0.2 mm, 25 cm, 4m, 1in; got 'a lot'"),
     ("[survey]\nsimulate = true\nseed = -1", "job.toml: survey.seed: must not be negative, got -1"),
     ("[survey]\nsimulate = true\ntolerance_mm = 0", "job.toml: survey.tolerance_mm: must be positive, got 0.0"),
     ("[survey]\nsimulate = true\nreference = \"corners\"",

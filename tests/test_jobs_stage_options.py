@@ -24,8 +24,9 @@ ELSEWHERE = {
                "no_hardware": "unroll.hardware", "svg": "unroll.previews (written to previews/)",
                "json": "the job writes its report"},
     "nest": {"parts": "the unroll stage's parts", "output": "the job writes nesting.json", "check": "not a nesting run",
-             "sheet": "stock.sheet", "stock": "stock.file"},
-    "export": {"nesting": "the nest stage's nesting", "dxf": "the job writes dxf/", "gcode": "the job writes gcode/",
+             "sheet_size": "stock.sheet", "stock": "stock.file"},
+    "export": {"nesting": "the nest stage's nesting", "output": "the job writes dxf/ and gcode/ in output.folder",
+               "dxf": "the job writes dxf/", "gcode": "the job writes gcode/",
                "machine": "machine.profile", "no_optimise": "export.optimise", "no_preview": "export.previews"},
 }
 RENAMED = {"stock_out": "stock_out", "svg": "svg", "time_limit": "time_limit"}
@@ -61,7 +62,10 @@ def _write(tmp_path: Path, extra: str) -> Path:
     ("[nest]\nremnant_min = '400'", "job.toml: nest.remnant_min:"),
     ("[nest]\nstock_out = '../stock.json'", "would be written outside the output folder"),
     ("[export]\ntabs = -1", "job.toml: export.tabs: must be a finite number, at least 0, got -1"),
-    ("[export]\nlead_in = 'long'", "job.toml: export.lead_in: expected a number, got string"),
+    ("[export]\nlead_in = 'long'", "job.toml: export.lead_in: expected a number in mm or with a unit: 3mm, 0.2 mm"),
+    ("[export]\nlead_in = true", "job.toml: export.lead_in: expected a number, got boolean"),
+    ("[nest]\ngap = '3 furlongs'", "job.toml: nest.gap: unknown unit 'furlongs' (use mm, cm, m, in, ft, pt or px)"),
+    ("[nest]\nmargin = 10\nsheet_margin = 10", "job.toml: nest.margin: the old name of nest.sheet_margin"),
     ("[export]\nspeed = 3", "job.toml: export.speed: unknown key"),
 ])
 def test_bad_stage_options_are_one_line_naming_file_and_key(tmp_path, extra, message):

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 import serial
 
+from conftest import without_usage
 from fabline.cli import main
 from fabline.link import executed_file_lines
 from fabline.link.protocol_sim import close_simulator
@@ -112,7 +113,7 @@ def test_option_that_is_not_a_positive_number_is_refused(capsys, gcode, simulato
         main(["stream", str(gcode), "--port", url(), option, value])
     out, err = capsys.readouterr()
     assert stop.value.code == 2 and out == ""
-    assert err.splitlines()[-1] == f"fabline stream: error: {message}"
+    assert without_usage(err) == f"fabline stream: error: {message}\n"
     assert written(tmp_path) == {"sheet-03.gcode"}
 
 

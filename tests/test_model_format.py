@@ -136,7 +136,7 @@ def test_failed_design_writes_nothing(cli, tmp_path):
     (("enneper", "--spacing", "0.0001"), "spacing 0.0001 m makes a 120001 x 89999 grid"),
     (("helicoid", "--spacing", "1e-5"), "spacing 1e-05 m makes a"),
     (("catenoid", "--count", "100000"), "count 100000 (height 3 m, waist 1 m) makes a"),
-    (("enneper", "--spacing", "nan"), "argument --spacing: must be a finite number"),
+    (("enneper", "--spacing", "nan"), "argument --spacing: expected a number in m or with a unit"),
 ])
 def test_design_grid_too_coarse_or_too_large_is_one_line(cli, tmp_path, args, expected):
     out = tmp_path / "never.json"

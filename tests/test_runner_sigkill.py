@@ -28,7 +28,7 @@ def free_port() -> int:
 
 def start_runner(tmp_path: Path, db: Path, url: str) -> subprocess.Popen:
     command = [*JOBS_CLI, "runner", "serve", "--jobs", str(tmp_path / "jobs"), "--db", str(db),
-               "--machine", f"m1={url}", "--auto-confirm", "--port", str(free_port()), "--token", "t"]
+               "--machine", f"m1={url}", "--auto-confirm", "--web-port", str(free_port()), "--token", "t"]
     return subprocess.Popen(command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
 

@@ -9,6 +9,7 @@ import time
 import httpx
 import pytest
 
+from conftest import without_usage
 from fabline.jobs.queue import JobQueue
 from fabline.jobs.runner import MachineConfig, Runner
 from fabline.jobs.web import TOKEN_HEADER
@@ -88,8 +89,8 @@ def test_the_server_binds_to_localhost_only_by_default():
 
 
 @pytest.mark.parametrize("option, value, message", [
-    ("--port", "99999", "argument --port: must be a positive whole number, at most 65535, got '99999'"),
-    ("--port", "0", "argument --port: must be a positive whole number, at most 65535, got '0'"),
+    ("--web-port", "99999", "argument --web-port: must be a positive whole number, at most 65535, got '99999'"),
+    ("--port", "0", "argument --port: must be a positive whole number, at most 65535, got '0'"),  # the old name
     ("--scan", "-1", "argument --scan: must be a positive number, got '-1'"),
     ("--scan", "nan", "argument --scan: must be a positive number, got 'nan'"),
 ])
@@ -100,7 +101,7 @@ def test_serve_refuses_an_option_that_is_not_a_positive_number(capsys, tmp_path,
         main(["runner", "serve", "--jobs", str(tmp_path / "jobs"), option, value])
     out, err = capsys.readouterr()
     assert stop.value.code == 2 and out == ""
-    assert err.splitlines()[-1] == f"fabline runner serve: error: {message}"
+    assert without_usage(err) == f"fabline runner serve: error: {message}\n"
     assert not list(tmp_path.iterdir())
 
 

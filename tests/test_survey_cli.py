@@ -26,7 +26,7 @@ def simulated(tmp_path_factory, model_file):
     from fabline.cli import main
 
     out = tmp_path_factory.mktemp("sim")
-    code = main(["survey", "simulate", "--model", str(model_file), "-o", str(out), "--photos", "8", "--size", "1600x1200",
+    code = main(["survey", "simulate", "--model", str(model_file), "-o", str(out), "--photos", "8", "--resolution", "1600x1200",
                  "--focal", "1300", "--coverage", "0.8", "--seed", "5"])
     assert code == 0
     return out
@@ -139,7 +139,7 @@ def test_a_scale_bar_corrects_a_wrong_tag_size(cli, model_file, simulated, tmp_p
     (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out",
       "--scale-bar", "0", "4", "0"], "--scale-bar 0 4 0: the distance must be a positive number of mm"),
     (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out",
-      "--scale-bar", "0", "4", "1.5m"], "--scale-bar 0 4 1.5m: expected two tag ids and a distance in mm"),
+      "--scale-bar", "0", "4", "1.5 furlong"], "--scale-bar 0 4 1.5 furlong: expected two tag ids and a distance in mm"),
     (["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out",
       "--scale-min-cell", "-1"], "--scale-min-cell -1: must be a number of px, 0 or more"),
     *[(["survey", "measure", "{sim}/photos", "--model", "{model}", "--camera", "{sim}/camera.json", "-o", "{tmp}/out",
@@ -149,7 +149,7 @@ def test_a_scale_bar_corrects_a_wrong_tag_size(cli, model_file, simulated, tmp_p
         ("--tolerance", "-5", "--tolerance -5: must be a distance in mm, more than 0"),
         ("--min-views", "0", "--min-views 0: a tag must be seen in at least 2 photos")]],
     (["survey", "calibrate", "{tmp}", "-o", "{tmp}/cam.json"], "no photos"),
-    (["survey", "simulate", "--model", "{model}", "-o", "{tmp}/out", "--size", "big"], "--size 'big': expected WxH"),
+    (["survey", "simulate", "--model", "{model}", "-o", "{tmp}/out", "--resolution", "big"], "--resolution 'big': expected WxH"),
 ])
 def test_bad_input_is_one_line_exit_2_nothing_written(cli, model_file, simulated, tmp_path, args, message):
     camera = json.loads((simulated / "camera.json").read_text())

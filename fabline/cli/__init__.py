@@ -8,8 +8,10 @@ the module of the command it runs (the stages' libraries take seconds to import)
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import math
+import re
 import sys
 import warnings
 from contextlib import nullcontext
@@ -69,11 +71,63 @@ def bounded(kind: type) -> Callable[[str], int | float]:
     return parse
 
 
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """`--help` of every command: descriptions keep their line breaks, and every option with a default shows it,
+    with the unit of a length option (`(default: 0.2 mm)`)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text, default = action.help or "", action.default
+        if ("%(default)" in text or default is None or default is False or default is argparse.SUPPRESS
+                or default == [] or not action.option_strings):
+            return text
+        unit = getattr(action.type, "unit", None)
+        shown = "x".join(f"{v:g}" for v in default) if isinstance(default, tuple) else str(default)
+        return text + f" (default: {shown}{f' {unit}' if unit else ''})".replace("%", "%%")  # help is %-formatted
+
+
 class OneLineParser(argparse.ArgumentParser):
-    """An argument parser whose mistakes are one line (`fabline CMD: error: ...`, exit 2), as the stages' are."""
+    """An argument parser whose mistakes are one line (`fabline CMD: error: ...`, exit 2), as the stages' are, followed
+    by the command's usage; a misspelled option gets the nearest option's name."""
+
+    def __init__(self, *args, formatter_class: type = HelpFormatter, **kwargs):
+        super().__init__(*args, formatter_class=formatter_class, **kwargs)
 
     def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message}\n")
+        wrong = re.search(r"invalid choice: '([^']*)'", message)
+        commands = [a for a in self._actions if isinstance(a, argparse._SubParsersAction)]
+        if wrong and commands:
+            nearest = difflib.get_close_matches(wrong[1], list(commands[0].choices), n=1, cutoff=0.6)
+            message = message.split(" (choose from", 1)[0] + (f"; did you mean {nearest[0]}?" if nearest else
+                                                             f" (see {self.prog} --help)")
+        self.exit(2, f"{self.prog}: error: {message}\n{self.format_usage()}")
+
+    def parse_args(self, args=None, namespace=None):
+        namespace, extras = self.parse_known_args(args, namespace)
+        if extras:
+            parser = _chosen_command(self, namespace)
+            unknown = next((a for a in extras if a.startswith("-")), None)
+            if unknown is None:
+                parser.error(f"unexpected argument(s): {' '.join(extras)}")
+            name = unknown.split("=", 1)[0]
+            known = [o for a in parser._actions if a.help != argparse.SUPPRESS for o in a.option_strings]
+            nearest = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+            parser.error(f"unknown option {name}" + (f"; did you mean {nearest[0]}?" if nearest else
+                                                     f" (see {parser.prog} --help)"))
+        return namespace
+
+
+def _chosen_command(parser: argparse.ArgumentParser, namespace: argparse.Namespace) -> argparse.ArgumentParser:
+    """The innermost sub-command parser `namespace` was parsed by (`fabline runner pause` -> its parser)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and getattr(namespace, action.dest, None) in action.choices:
+            return _chosen_command(action.choices[getattr(namespace, action.dest)], namespace)
+    return parser
+
+
+def hidden_alias(parser: argparse.ArgumentParser, canonical: argparse.Action, *names: str) -> None:
+    """Old names of an option that still work (job files, scripts, README) but no longer show in `--help`."""
+    parser.add_argument(*names, dest=canonical.dest, type=canonical.type, choices=canonical.choices,
+                        metavar=canonical.metavar, default=argparse.SUPPRESS, help=argparse.SUPPRESS)
 
 
 def build_parser(modules: tuple[str, ...] = tuple(STAGE_COMMANDS)) -> argparse.ArgumentParser:

@@ -6,6 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
+from fabline.cli.units import duration, length_mm, metres
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
 from fabline.export import ToolpathOptions, check_gcode, export_nesting, load_machine
@@ -18,15 +19,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    description="Write per sheet a DXF (R2010, mm, one layer per operation) and a "
                                                "G-code program for the machine, plus an all-sheets DXF.")
     export.add_argument("nesting", help="nesting.json (fabline.nesting/1); its parts file is read too")
-    export.add_argument("--dxf", metavar="DIR", help="folder for the DXF files (default, with neither --dxf nor "
-                                                     "--gcode: NESTING-export/ beside the nesting file, for both)")
-    export.add_argument("--gcode", metavar="DIR", help="folder for the G-code programs (default: as for --dxf)")
+    export.add_argument("-o", "--output", metavar="DIR", help="folder for the DXF files, the G-code programs and "
+                        "their previews (default: NESTING-export/ beside the nesting file)")
+    export.add_argument("--dxf", metavar="DIR", help="folder for the DXF files instead (with --gcode alone: none)")
+    export.add_argument("--gcode", metavar="DIR", help="folder for the G-code programs instead (with --dxf alone: none)")
     export.add_argument("--machine", default="grbl-laser",
                         help="machine profile: a built-in name (grbl-laser, grbl-plotter, rs274-mill) or a .toml path")
-    export.add_argument("--kerf", type=float, help="cut width in mm (default: the profile's)")
-    export.add_argument("--lead-in", type=float, default=0.0, metavar="MM", help="lead-in length for closed cuts")
+    export.add_argument("--kerf", type=length_mm, metavar="MM", help="cut width, mm (default: the machine profile's)")
+    export.add_argument("--lead-in", type=length_mm, default=0.0, metavar="MM", help="lead-in length for closed cuts")
     export.add_argument("--tabs", type=int, default=0, help="uncut bridges per outer contour (micro-joints)")
-    export.add_argument("--tab-width", type=float, default=1.0, metavar="MM", help="width of each tab")
+    export.add_argument("--tab-width", type=length_mm, default=1.0, metavar="MM", help="width of each tab")
     export.add_argument("--no-preview", action="store_true",
                         help="skip the cut-order preview SVG beside each G-code program (about 1 s of CPU per sheet)")
     export.add_argument("--no-optimise", action="store_true", help="keep the nesting's part order (no travel optimisation)")
@@ -41,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     check.add_argument("--machine", default="grbl-laser", help="machine profile name or .toml path")
     check.add_argument("--build-options", default=STOCK_BUILD.options, metavar="LETTERS",
                        help="the option letters of the Grbl build's $I answer [OPT:LETTERS,...]: M accepts M7, R M56 "
-                            f"(default {STOCK_BUILD.options}: a stock Grbl 1.1h)")
+                            f"({STOCK_BUILD.options}: a stock Grbl 1.1h)")
     check.set_defaults(func=run_check)
 
 
@@ -57,20 +59,22 @@ def run_export(args: argparse.Namespace) -> int:
                               optimise=not args.no_optimise)
     dxf_dir, gcode_dir = args.dxf, args.gcode
     if dxf_dir is None and gcode_dir is None:
-        dxf_dir = gcode_dir = default_export_folder(args.nesting)
+        dxf_dir = gcode_dir = args.output or default_export_folder(args.nesting)
+    elif args.output:
+        dxf_dir, gcode_dir = dxf_dir or args.output, gcode_dir or args.output
     check_outputs(folders=(dxf_dir, gcode_dir), inputs=(args.nesting, profile.source))
     result = export_nesting(args.nesting, profile, options, dxf_dir, gcode_dir, previews=not args.no_preview)
-    print(f"machine {result.machine}, kerf {result.kerf:.3f} mm")
-    print(f"{'sheet':<12}{'parts':>6}{'cut m':>10}{'mark m':>10}{'travel m':>10}{'time':>10}")
+    for path in result.files:
+        print(f"wrote {path}")
+    folders = dict.fromkeys(str(f) for f in (dxf_dir, gcode_dir) if f is not None)
+    print(f"{len(result.files)} files in {' and '.join(folders)}")
+    print(f"\nmachine {result.machine}, kerf {result.kerf:g} mm")
+    print(f"{'sheet':<12}{'parts':>6}{'cut m':>11}{'mark m':>10}{'travel m':>10}{'time':>10}")
     for sheet in result.sheets + [None]:
         summary = sheet.summary if sheet else result.totals()
         label, count = (sheet.sheet, sheet.parts) if sheet else ("total", sum(s.parts for s in result.sheets))
-        print(f"{label:<12}{count:>6}{summary.cut_length / 1000:>10.2f}{summary.mark_length / 1000:>10.2f}"
-              f"{summary.travel / 1000:>10.2f}{_duration(summary.time):>10}")
-    for path in result.files:
-        print(f"wrote {path}")
-    if not (args.dxf or args.gcode):
-        print(f"{len(result.files)} files in {dxf_dir}")
+        print(f"{label:<12}{count:>6}{metres(summary.cut_length):>11}{metres(summary.mark_length):>10}"
+              f"{metres(summary.travel):>10}{duration(summary.time):>10}")
     return 0
 
 
@@ -87,12 +91,7 @@ def run_check(args: argparse.Namespace) -> int:
     for problem in report.problems:
         print(f"{args.file}: {problem}")
     s = report.summary
-    print(f"{args.file}: {report.lines} lines, {s.moves} moves, cut {s.cut_length:.3f} mm, mark {s.mark_length:.3f} mm, "
-          f"travel {s.travel:.3f} mm, estimated {_duration(s.time)} ({s.time:.1f} s)")
+    print(f"{args.file}: {report.lines} lines, {s.moves} moves, cut {metres(s.cut_length)} m, mark {metres(s.mark_length)} m, "
+          f"travel {metres(s.travel)} m, estimated {duration(s.time)} ({s.time:.1f} s)")
     print(f"{args.file}: {len(report.problems)} problem(s)" if report.problems else f"{args.file}: ok")
     return 1 if report.problems else 0
-
-
-def _duration(seconds: float) -> str:
-    minutes, secs = divmod(round(seconds), 60)
-    return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}"

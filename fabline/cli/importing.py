@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from fabline.cli.units import length_mm
 from fabline.fileio import check_outputs
 from fabline.model import save_network
 from fabline.model.importers import FORMATS, import_model
@@ -21,8 +22,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                           "default: faces, meshes or surfaces in FILE")
     parser.add_argument("--units", choices=tuple(UNIT_TO_MM),
                         help="units of a file that declares none (OBJ); default m, with a note")
-    parser.add_argument("--tolerance", type=float, default=1.0,
-                        help="two lamellas closer than this (mm) cross at a node (default 1)")
+    parser.add_argument("--tolerance", type=length_mm, default=1.0, metavar="MM",
+                        help="two lamellas closer than this cross at a node")
     parser.add_argument("--supports", metavar="RULE",
                         help="support nodes: 'z<0.05' (below a level), 'x,y x,y x,y ...' (inside a plan polygon), both "
                              "in model units, or the layer/group/object name of points at the supports")

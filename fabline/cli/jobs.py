@@ -11,7 +11,8 @@ import sys
 import threading
 from pathlib import Path
 
-from fabline.cli import positive
+from fabline.cli import hidden_alias, positive
+from fabline.cli.units import duration
 from fabline.errors import FablineError
 
 RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm", "restart", "skip", "requeue", "frame")
@@ -40,17 +41,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     runner = subparsers.add_parser("runner", help="the shop-floor runner: a persistent job queue with a web page")
     commands = runner.add_subparsers(dest="runner_command", metavar="ACTION", required=True)
     serve = commands.add_parser("serve", help="run the queue, the machines and the web page until interrupted")
-    serve.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1, this computer only)")
-    serve.add_argument("--port", type=positive(int, 65535), default=8080, help="web page port (default 8080)")
+    serve.add_argument("--host", default="127.0.0.1", help="address to bind; 127.0.0.1 is this computer only")
+    web_port = serve.add_argument("--web-port", type=positive(int, 65535), default=8080, metavar="N",
+                                  help="TCP port of the web page")
+    hidden_alias(serve, web_port, "--port")
     serve.add_argument("--machine", action="append", default=[], metavar="NAME=PORT",
-                       help="a machine and its port, repeatable (default: sim1=sim://sim1)")
+                       help="a machine and its serial port, repeatable (default: sim1=sim://sim1)")
     serve.add_argument("--allow-host", action="append", default=[], metavar="NAME",
                        help="a host name the page may be reached by besides the loopback names and --host, repeatable "
                        "(requests naming any other host are refused)")
     serve.add_argument("--token", help="the token for everything but the bare page (default: a new random one, printed)")
     serve.add_argument("--auto-confirm", action="store_true",
                        help="start every sheet without an operator's confirmation (sheets fed automatically)")
-    serve.add_argument("--scan", type=positive(float), default=2.0, help="seconds between scans of the jobs folder")
+    serve.add_argument("--scan", type=positive(float), default=2.0, metavar="SECONDS",
+                       help="seconds between scans of the jobs folder")
     serve.set_defaults(func=run_serve)
     submit = commands.add_parser("submit", help="queue a job file, or ready G-code programs (one per sheet)")
     submit.add_argument("job", nargs="?", help="a job file")
@@ -72,9 +76,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             sub.add_argument("-y", "--yes", action="store_true",
                              help="do not ask before acting on a job that needs attention")
         sub.set_defaults(func=run_action, action=action)
-    for sub in (serve, submit, status, *(commands.choices[a] for a in RUNNER_ACTIONS)):
-        sub.add_argument("--jobs", default="jobs", help="the jobs folder (default ./jobs)")
-        sub.add_argument("--db", help="the queue database (default JOBS/runner.sqlite)")
+    serve.add_argument("--jobs", default="jobs", help="the jobs folder it watches and keeps its queue in")
+    serve.add_argument("--db", help="the queue database (default JOBS/runner.sqlite)")
+    for sub in (submit, status, *(commands.choices[a] for a in RUNNER_ACTIONS)):
+        sub.add_argument("--jobs", help="the runner's jobs folder (default: the running runner, else ./jobs)")
+        sub.add_argument("--db", help="the runner's queue database (default: the running runner's, else JOBS/runner.sqlite)")
 
 
 def _db(args: argparse.Namespace) -> Path:
@@ -85,7 +91,8 @@ def run_job_command(args: argparse.Namespace) -> int:
     """Run every stage of the job and print where the report is; Ctrl-C, SIGTERM and SIGHUP stop the machines
     safely (exit 130, resumable with --resume)."""
     from fabline.jobs.jobfile import load_job_file
-    from fabline.jobs.pipeline import run_job
+    from fabline.jobs.pipeline import load_facts, run_job
+    from fabline.jobs.queue import describe_load
     from fabline.locks import exclusive_lock, lock_path
 
     said = threading.Lock()  # the machines report from their own threads: one whole line at a time
@@ -95,10 +102,13 @@ def run_job_command(args: argparse.Namespace) -> int:
             with said:
                 print(text, flush=True)
 
-    def confirm(k: int, count: int, sheet: str) -> None:
-        answer = _ask(f"load sheet {k + 1} of {count} ({sheet}) on the machine, then press Enter ")
+    def confirm(k: int, count: int, sheet: dict) -> None:
+        facts = load_facts(sheet)
+        print(f"load {describe_load(sheet['sheet'], k, count, facts)}\n  picture: {Path(facts['picture']).as_uri()}",
+              flush=True)
+        answer = _ask(f"load sheet {sheet['sheet']} on the machine, then press Enter ")
         if answer is None:
-            raise FablineError(f"sheet {k + 1} of {count} ({sheet}) was not confirmed: standard input closed; "
+            raise FablineError(f"sheet {k + 1} of {count} ({sheet['sheet']}) was not confirmed: standard input closed; "
                                "nothing more is cut (run it again with --resume)")
 
     spec = load_job_file(args.job)
@@ -119,19 +129,19 @@ def run_job_command(args: argparse.Namespace) -> int:
         stop_signals()
     total = sum(result.timings.values())
     if result.report_path:
-        print(f"report: {result.report_path} (JSON: {result.report_path.with_suffix('.json')}); {total:.1f} s")
+        print(f"report: {result.report_path} (JSON: {result.report_path.with_suffix('.json')}); {duration(total)}")
     else:
-        print(f"done in {total:.1f} s; outputs in {spec.output_folder} (no report stage)")
+        print(f"done in {duration(total)}; outputs in {spec.output_folder} (no report stage)")
     return 0
 
 
-def _job_number(queue, given: str) -> int:
+def _job_number(jobs: list[dict], given: str, where: str) -> int:
     """A job named by its number, or by its name (the newest job of that name)."""
     if given.isdigit():
         return int(given)
-    named = [job.id for job in queue.jobs() if job.name == given]
+    named = [job["id"] for job in jobs if job["name"] == given]
     if not named:
-        raise FablineError(f"no job named {given!r} in {queue.path} (see `fabline runner status`)")
+        raise FablineError(f"no job named {given!r} in {where} (see `fabline runner status`)")
     return named[-1]
 
 
@@ -164,6 +174,7 @@ def run_serve(args: argparse.Namespace) -> int:
     """Start the runner's threads and the web page; stop cleanly on Ctrl-C (the queue keeps its state)."""
     import uvicorn
 
+    from fabline.jobs.discovery import page_url, remove_records, write_records
     from fabline.jobs.runner import MachineConfig, Runner, parse_machine
     from fabline.jobs.web import create_app
     from fabline.locks import exclusive_lock
@@ -181,82 +192,92 @@ def run_serve(args: argparse.Namespace) -> int:
         print(f"fabline runner: {len(machines)} machine(s): {', '.join(f'{m.name}={m.port}' for m in machines)}; "
               f"queue {_db(args)}", flush=True)
         print(f"token: {token}", flush=True)
-        print(f"open http://{args.host}:{args.port}/?token={token}", flush=True)
+        print(f"open http://{args.host}:{args.web_port}/?token={token}", flush=True)
+        records = write_records(_db(args), page_url(args.host, args.web_port), token)
+        print(f"found by `fabline runner status` and the other commands through {' and '.join(map(str, records))}",
+              flush=True)
         try:
-            uvicorn.Server(uvicorn.Config(create_app(_db(args), token, hosts=hosts), host=args.host, port=args.port,
+            uvicorn.Server(uvicorn.Config(create_app(_db(args), token, hosts=hosts), host=args.host, port=args.web_port,
                                           log_level="warning")).run()
         finally:
+            remove_records(_db(args))
             runner.stop()
     return 0
 
 
+def _runner(args: argparse.Namespace):
+    """The running runner (over HTTP) or its queue database, found as `fabline.jobs.discovery` says."""
+    from fabline.jobs.discovery import Search, find_runner
+
+    return find_runner(Search(db=args.db, jobs=args.jobs))
+
+
 def run_submit(args: argparse.Namespace) -> int:
-    """Queue a job file (checked first) or ready sheet programs (checked by the link stage's parser)."""
+    """Queue a job file (checked first) or ready sheet programs (checked by the link stage's parser) in the
+    runner's queue."""
     from fabline.jobs.jobfile import load_job_file
     from fabline.jobs.queue import JobQueue
 
     if (args.job is None) == (args.gcode is None):
         raise FablineError("runner submit: give a job file or --gcode PROGRAM..., not both")
-    queue = JobQueue(_db(args))
+    try:
+        db = _runner(args).db
+    except FablineError:  # no runner yet: the queue `fabline runner serve` will open, made now
+        db = Path(args.db) if args.db else Path(args.jobs or "jobs") / "runner.sqlite"
+    queue = JobQueue(db)
     if args.gcode:
         programs = [(Path(p).stem, str(Path(p).resolve()), "") for p in args.gcode]
         name = args.name or programs[0][0]
         job_id = queue.submit(name, programs=programs)
-        print(f"job {job_id}: {name} ready, {len(programs)} sheet(s)")
+        print(f"job {job_id}: {name} ready, {len(programs)} sheet(s) (queue {db})")
         return 0
     spec = load_job_file(args.job)
     job_id = queue.submit(spec.name, job_file=str(spec.path))
-    print(f"job {job_id}: {spec.name} queued")
+    print(f"job {job_id}: {spec.name} queued (queue {db})")
     return 0
 
 
 def run_status(args: argparse.Namespace) -> int:
-    """Print the queue and the machines."""
-    from fabline.jobs.queue import JobQueue
-
-    if not _db(args).is_file():
-        raise FablineError(f"{_db(args)}: no runner queue here (start one with `fabline runner serve`)")
-    state = JobQueue(_db(args)).snapshot()
+    """Print the queue and the machines, from the running runner or its database."""
+    runner = _runner(args)
+    state = runner.state()
     if args.json:
         print(json.dumps(state, indent=1))
         return 0
+    print(runner.where)
     for machine in state["machines"]:
         x, y, z = machine["position"]
         job = f", job {machine['job_id']}" if machine["job_id"] is not None else ""
         print(f"machine {machine['name']} ({machine['port']}): {machine['state']}{job}, at X{x} Y{y} Z{z}")
     for job in state["jobs"]:
         print(f"job {job['id']:>4} {job['name']:<20} {job['status']}" + (f" on {job['machine']}" if job["machine"] else ""))
+        if job["state"] == "ready" and job["confirmed"] < job["sheet"] < len(job["sheet_list"]):
+            print(f"     load {job['sheet_list'][job['sheet']]['load']}")
     return 0
 
 
 def run_action(args: argparse.Namespace) -> int:
-    """Pause, resume, cancel a job or confirm its next sheet."""
-    from fabline.jobs.queue import JobQueue
-
-    if not _db(args).is_file():
-        raise FablineError(f"{_db(args)}: no runner queue here")
-    queue = JobQueue(_db(args))
-    args.job_id = _job_number(queue, args.job_id)
+    """Pause, resume, cancel a job, confirm its next sheet, and the rest, through the running runner or its
+    database; a job that needs attention is described and the choice asked for first (unless --yes)."""
+    runner = _runner(args)
+    jobs = runner.state()["jobs"]
+    job_id = _job_number(jobs, args.job_id, runner.where)
     if args.action == "requeue":
-        print(f"job {args.job_id} queued again as job {queue.requeue(args.job_id)}")
+        print(f"job {job_id} queued again as job {runner.act(job_id, 'requeue')['id']}")
         return 0
-    before = queue.job(args.job_id)
-    if before.state == "attention" and args.action in ("resume", "restart", "skip", "cancel"):
-        print(f"job {before.id}: {before.describe()}")
+    before = next((job for job in jobs if job["id"] == job_id), None)
+    if before is not None and before["state"] == "attention" and args.action in ("resume", "restart", "skip", "cancel"):
+        print(f"job {job_id}: {before['status']}")
         question = {"resume": "resume the sheet where it stopped (the same sheet on the bed, the origin unchanged)",
                     "restart": "restart the sheet from its first line (a new sheet loaded)",
                     "skip": "skip the sheet (its parts stay uncut)", "cancel": "cancel the job"}[args.action]
         if not args.yes:
             answer = _ask(f"{question}? [y/N] ")
             if answer is None:
-                raise FablineError(f"job {before.id}: cannot ask for confirmation (standard input closed); add --yes")
+                raise FablineError(f"job {job_id}: cannot ask for confirmation (standard input closed); add --yes")
             if answer.strip().lower() not in ("y", "yes"):
                 print("nothing done")
                 return 1
-        job = queue.resolve(args.job_id, args.action, getattr(args, "from_line", None))
-    elif args.action in ("restart", "skip") or getattr(args, "from_line", None):
-        job = queue.resolve(args.job_id, args.action, getattr(args, "from_line", None))  # says why it cannot
-    else:
-        job = queue.confirm_sheet(args.job_id) if args.action == "confirm" else queue.request(args.job_id, args.action)
-    print(f"job {job.id}: {job.describe()}" + (f" ({args.action} requested)" if job.request else ""))
+    after = runner.act(job_id, args.action, getattr(args, "from_line", None))
+    print(f"job {after['id']}: {after['status']}" + (f" ({args.action} requested)" if after.get("request") else ""))
     return 0

@@ -32,7 +32,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     stream.add_argument("gcode", help="G-code file")
     stream.add_argument("--port", required=True,
                         help="serial device or pyserial URL: /dev/ttyUSB0, socket://HOST:PORT, rfc2217://..., sim://grbl")
-    stream.add_argument("--baud", type=positive(int), default=115200, help="baud rate (default 115200)")
+    stream.add_argument("--baud", type=positive(int), default=115200, help="baud rate, bits per second")
     stream.add_argument("--check", action="store_true", help="run the program through GRBL check mode ($C) first")
     stream.add_argument("--resume", action="store_true", help="continue an interrupted job from its journal")
     stream.add_argument("--restart", action="store_true",
@@ -48,27 +48,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     stream.add_argument("--journal", help="journal file (default: <gcode>.journal)")
     stream.add_argument("--log", help="exchange log (default: <gcode>.link.log)")
     stream.add_argument("--mode", choices=MODES, default="counting",
-                        help="character counting (default) or simple send-response")
-    stream.add_argument("--status-rate", type=float, default=5.0, help="status reports per second (default 5)")
-    stream.add_argument("--connect-timeout", type=positive(float), default=5.0, help="seconds to wait for GRBL (default 5)")
+                        help="character counting or simple send-response")
+    stream.add_argument("--status-rate", type=float, default=5.0, help="status reports per second (Hz)")
+    stream.add_argument("--connect-timeout", type=positive(float), default=5.0, help="seconds to wait for GRBL")
     stream.add_argument("--reconnect-timeout", type=float, default=30.0,
-                        help="seconds to wait for a dropped port to come back (default 30; 0 = stop at once)")
+                        help="seconds to wait for a dropped port to come back (0 = stop at once)")
     stream.set_defaults(func=_stream)
 
     sim = subparsers.add_parser("grbl-sim", help="run a GRBL 1.1h simulator on 127.0.0.1 TCP or a pseudo-terminal")
-    sim.add_argument("--transport", choices=("tcp", "pty"), default="tcp")
-    sim.add_argument("--listen-port", type=int, default=0, help="TCP port on 127.0.0.1 (default: any free port)")
+    sim.add_argument("--transport", choices=("tcp", "pty"), default="tcp", help="TCP socket or pseudo-terminal")
+    sim.add_argument("--listen-port", type=int, default=0, help="TCP port on 127.0.0.1 (0: any free port)")
     sim.add_argument("--log", help="executed-line log (append-only)")
-    sim.add_argument("--time-scale", type=float, default=1.0, help="run motion this many times faster")
+    sim.add_argument("--time-scale", type=float, default=1.0, help="run motion this many times faster (a factor)")
     sim.add_argument("--line-time", type=float, default=0.0,
-                     help="seconds the firmware spends parsing and planning each line (default 0: instant)")
-    sim.add_argument("--baud", type=int, help="pace bytes like a serial line at this rate")
+                     help="seconds the firmware spends parsing and planning each line (0: instant)")
+    sim.add_argument("--baud", type=int, help="pace bytes like a serial line at this rate, bits per second")
     sim.add_argument("--adapter-latency", type=float, default=0.0,
                      help="batch answers like a USB-serial bridge flushing every this many seconds (Uno: 0.004)")
     sim.add_argument("--build-options", default="V",
-                     help="the build's $I option letters (default V, a stock build; VN adds Ln: line numbers)")
-    sim.add_argument("--planner-blocks", type=positive(int), default=15, help="planner size in blocks (default 15)")
-    sim.add_argument("--rx-buffer", type=positive(int), default=128, help="serial receive buffer bytes (default 128)")
+                     help="the build's $I option letters (V: a stock build; VN adds Ln: line numbers)")
+    sim.add_argument("--planner-blocks", type=positive(int), default=15, help="planner size in blocks")
+    sim.add_argument("--rx-buffer", type=positive(int), default=128, help="serial receive buffer, bytes")
     sim.add_argument("--setting", action="append", default=[], metavar="N=VALUE",
                      help="a Grbl $N setting other than its default, e.g. --setting 32=1 for laser mode")
     sim.add_argument("--fault", action="append", default=[], metavar="KEY=VALUE",

@@ -6,6 +6,7 @@ import argparse
 import json
 
 from fabline.cli import positive
+from fabline.cli.units import length_m, size
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
 from fabline.geometry import analyse, lamella_table
@@ -18,19 +19,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     design = subparsers.add_parser("design", help="build an asymptotic network on a minimal surface")
     kinds = design.add_subparsers(dest="design", metavar="SURFACE", required=True)
     enneper = kinds.add_parser("enneper", help="Enneper surface, sized like the reference pavilion by default")
-    enneper.add_argument("--size", type=_size, default=(9.0, 12.0), help="footprint x by y in metres (default 9x12)")
-    enneper.add_argument("--spacing", type=float, default=0.35, help="node spacing along the axes in metres")
-    enneper.add_argument("--k-max", type=float, default=1.1, help="largest principal curvature, 1/m (default 1.1)")
+    enneper.add_argument("--size", type=size("m"), default=(9.0, 12.0), metavar="XxY",
+                         help="footprint x by y, e.g. 9x12 (m) or 9000x12000mm")
+    enneper.add_argument("--spacing", type=length_m, default=0.35, help="node spacing along the axes")
+    enneper.add_argument("--k-max", type=float, default=1.1, help="largest principal curvature, 1/m")
     enneper.add_argument("--boundary", choices=BOUNDARIES, default="ellipse", help="shape of the parameter domain")
     catenoid = kinds.add_parser("catenoid", help="catenoid, axis z, waist circle at z = 0")
-    catenoid.add_argument("--waist", type=float, default=1.0, help="waist radius in metres")
-    catenoid.add_argument("--height", type=float, default=3.0, help="height in metres, centred on the waist")
+    catenoid.add_argument("--waist", type=length_m, default=1.0, help="waist radius")
+    catenoid.add_argument("--height", type=length_m, default=3.0, help="height, centred on the waist")
     catenoid.add_argument("--count", type=int, default=16, help="lamellas per family")
     helicoid = kinds.add_parser("helicoid", help="helicoid: straight rulings and helices")
-    helicoid.add_argument("--pitch", type=float, default=6.0, help="rise per turn in metres")
-    helicoid.add_argument("--radius", type=float, default=3.0, help="outer radius in metres")
+    helicoid.add_argument("--pitch", type=length_m, default=6.0, help="rise per turn")
+    helicoid.add_argument("--radius", type=length_m, default=3.0, help="outer radius")
     helicoid.add_argument("--turns", type=float, default=0.5, help="how many turns the patch spans")
-    helicoid.add_argument("--spacing", type=float, default=0.35, help="node spacing in metres")
+    helicoid.add_argument("--spacing", type=length_m, default=0.35, help="node spacing")
     for sub in (enneper, catenoid, helicoid):
         sub.add_argument("-o", "--output", required=True, help="network JSON to write")
         sub.set_defaults(func=run_design)
@@ -53,8 +55,8 @@ def _register_surface_designs(kinds: argparse._SubParsersAction) -> None:
                         "the middle curve")
     traced.add_argument("--units", choices=sorted(UNIT_TO_MM), help="units of a mesh file that declares none (default m)")
     traced.add_argument("--step", type=positive(float), help="tracing step, model units (default spacing/4)")
-    traced.add_argument("--material", default="steel-s235", help="lamella material for the limits (default steel-s235)")
-    traced.add_argument("--profile", default="100x1.5", help="lamella profile HxT in mm for the limits (default 100x1.5)")
+    traced.add_argument("--material", default="steel-s235", help="lamella material for the limits")
+    traced.add_argument("--profile", default="100x1.5", help="lamella profile HxT in mm for the limits")
     traced.add_argument("--json", action="store_true", help="print the quality report as JSON")
     traced.add_argument("-o", "--output", required=True, help="network JSON to write")
     traced.set_defaults(func=run_asymptotic)
@@ -119,14 +121,6 @@ def run_minimal(args: argparse.Namespace) -> int:
     return 0
 
 
-def _size(text: str) -> tuple[float, float]:
-    try:
-        x, y = (float(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"size must look like 9x12, got {text!r}") from None
-    return x, y
-
-
 def run_design(args: argparse.Namespace) -> int:
     """Build the chosen design and write it."""
     check_outputs(files=(args.output,))
@@ -154,7 +148,7 @@ def run_inspect(args: argparse.Namespace) -> int:
         print(f"{r['lamella']:<10}{r['family']:>4}{r['nodes']:>6}{r['length_m']:>10.3f}{r['max_k_g']:>9.3f}"
               f"{r['max_tau_g']:>10.3f}{r['max_k_n']:>9.2e}{angle:>16}")
     angles = [a for r in rows for a in (r["min_angle"], r["max_angle"]) if a is not None]
-    print(f"\n{len(rows)} lamellas, {len(network.nodes)} nodes, total length {sum(r['length_m'] for r in rows):.2f} m; "
+    print(f"\n{len(rows)} lamellas, {len(network.nodes)} nodes, total length {sum(r['length_m'] for r in rows):.3f} m; "
           f"max k_g {max(r['max_k_g'] for r in rows):.3f} 1/m, max tau_g {max(r['max_tau_g'] for r in rows):.3f} 1/m, "
           f"max k_n {max(r['max_k_n'] for r in rows):.2e} 1/m; crossing angles "
           + (f"{min(angles):.2f}..{max(angles):.2f} deg" if angles else "none"))

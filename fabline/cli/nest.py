@@ -6,9 +6,11 @@ import argparse
 import os
 from pathlib import Path
 
+from fabline.cli import hidden_alias
+from fabline.cli.units import length_mm, size
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
-from fabline.nest import (NestOptions, StockItem, load_nesting, load_stock, nest, parse_sheet_size, parts_path,
+from fabline.nest import (NestOptions, StockItem, load_nesting, load_stock, nest, parts_path,
                           save_nesting, save_stock, stock_after, validate_nesting, write_sheet_svgs)
 from fabline.unroll import load_parts
 
@@ -19,19 +21,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("parts", nargs="?", help="a fabline.parts/1 JSON file")
     parser.add_argument("-o", "--output", help="nesting JSON to write")
     parser.add_argument("--check", metavar="NESTING", help="validate an existing nesting.json and exit")
-    parser.add_argument("--sheet", default="4000x2000", help="sheet size WIDTHxHEIGHT in mm (default 4000x2000)")
-    parser.add_argument("--stock", help="a fabline.stock/1 file of sheet sizes and remnants (overrides --sheet)")
+    sheet = parser.add_argument("--sheet-size", type=size("mm"), default="4000x2000", metavar="WxH",
+                                help="sheet size, e.g. 4000x2000 or 4m x 2m")
+    hidden_alias(parser, sheet, "--sheet")
+    parser.add_argument("--stock", help="a fabline.stock/1 file of sheet sizes and remnants (overrides --sheet-size)")
     parser.add_argument("--stock-out", help="write the stock left after this job (remnants used, leftovers added)")
     parser.add_argument("--remnants-first", action="store_true", help="use the stock's remnants before full sheets")
-    parser.add_argument("--remnant-min", default="400x200", help="smallest leftover kept as a remnant, mm (400x200)")
-    parser.add_argument("--kerf", type=float, default=0.2, help="width the cut burns away, mm (default 0.2)")
-    parser.add_argument("--gap", type=float, default=3.0, help="material left between parts, mm (default 3)")
-    parser.add_argument("--margin", type=float, default=10.0, help="unused border of each sheet, mm (default 10)")
+    parser.add_argument("--remnant-min", type=size("mm"), default="400x200", metavar="WxH",
+                        help="smallest leftover kept as a remnant")
+    parser.add_argument("--kerf", type=length_mm, default=0.2, help="width the cut burns away")
+    parser.add_argument("--gap", type=length_mm, default=3.0, help="material left between parts")
+    margin = parser.add_argument("--sheet-margin", type=length_mm, default=10.0, help="unused border of each sheet")
+    hidden_alias(parser, margin, "--margin")
     parser.add_argument("--rotations", type=int, default=4,
-                        help="rotation steps per full turn for parts without grain (default 4: 0/90/180/270)")
+                        help="rotation steps per full turn for parts without grain (4: 0/90/180/270)")
     parser.add_argument("--common-line", action="store_true", help="neighbouring strips share one cut (no gap)")
     parser.add_argument("--fill-holes", action="store_true", help="allow small parts inside large holes")
-    parser.add_argument("--time-limit", type=float, default=10.0, help="seconds for the strip solver (default 10)")
+    parser.add_argument("--time-limit", type=float, default=10.0, metavar="SECONDS", help="seconds for the strip solver")
     parser.add_argument("--svg", metavar="DIR", help="write one SVG picture per sheet into DIR")
     parser.set_defaults(func=run_nest)
 
@@ -42,15 +48,11 @@ def run_nest(args: argparse.Namespace) -> int:
         return _check(args.check)
     if not args.parts or not args.output:
         raise FablineError("give a parts file and -o nesting.json (or --check nesting.json)")
-    options = NestOptions(kerf=args.kerf, gap=args.gap, margin=args.margin, rotation_steps=args.rotations,
+    options = NestOptions(kerf=args.kerf, gap=args.gap, margin=args.sheet_margin, rotation_steps=args.rotations,
                           common_line=args.common_line, fill_holes=args.fill_holes,
-                          remnants_first=args.remnants_first, time_limit=args.time_limit)
-    try:
-        options.remnant_min = parse_sheet_size(args.remnant_min)
-    except FablineError:
-        raise FablineError(f"--remnant-min {args.remnant_min!r}: expected WIDTHxHEIGHT in mm, e.g. 400x200") from None
+                          remnants_first=args.remnants_first, time_limit=args.time_limit, remnant_min=args.remnant_min)
     check_outputs(files=(args.output, args.stock_out), folders=(args.svg,), inputs=(args.parts, args.stock))
-    stock = load_stock(args.stock) if args.stock else [StockItem("sheet", *parse_sheet_size(args.sheet))]
+    stock = load_stock(args.stock) if args.stock else [StockItem("sheet", *args.sheet_size)]
     partset = load_parts(args.parts)
     relative = os.path.relpath(Path(args.parts).resolve(), Path(args.output).resolve().parent)
     try:
@@ -69,8 +71,8 @@ def run_nest(args: argparse.Namespace) -> int:
           f"area with clearance {bounds['clearance_area']}, strip cutting-stock LP {bounds['strip_lp']}); "
           f"strips: {report['strips']['method']}; {report['runtime_s']:.1f} s")
     for remnant in result.nesting.remnants:
-        print(f"remnant {remnant['id']}: {remnant['width']:.0f} x {remnant['height']:.0f} mm at "
-              f"({remnant['x']:.0f}, {remnant['y']:.0f}) on sheet {remnant['sheet']}")
+        print(f"remnant {remnant['id']}: {remnant['width']:.1f} x {remnant['height']:.1f} mm at "
+              f"({remnant['x']:.1f}, {remnant['y']:.1f}) on sheet {remnant['sheet']}")
     if args.svg:
         written = write_sheet_svgs(result.nesting, partset, args.svg)
         print(f"{len(written)} SVG pictures in {args.svg}")

@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+from fabline.cli import hidden_alias
+from fabline.cli.units import length_mm, parse_length
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
 
@@ -18,42 +20,43 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     tags = commands.add_parser("tags", help="printable tag sheets (SVG, PDF) and the tag map for a model")
     tags.add_argument("--model", required=True, help="fabline.network/1 model file")
     tags.add_argument("-o", "--output", required=True, help="folder for the sheets and tagmap.json")
-    tags.add_argument("--tag-size", type=float, default=65.0, help="edge of the tag's black square, mm (default 65)")
-    tags.add_argument("--mount-offset", type=float, default=20.0,
-                      help="tag face above the node along its normal, mm (default 20)")
-    tags.add_argument("--every", type=int, default=1, help="tag every N-th node (supports always); default 1")
+    tags.add_argument("--tag-size", type=length_mm, default=65.0, help="edge of the tag's black square")
+    tags.add_argument("--mount-offset", type=length_mm, default=20.0, help="tag face above the node along its normal")
+    tags.add_argument("--every", type=int, default=1, help="tag every N-th node (supports always)")
     tags.set_defaults(func=_tags)
 
     detect = commands.add_parser("detect", help="detect AprilTag 36h11 tags in photos (corners, optional poses)")
     detect.add_argument("photos", nargs="+", help="image files")
     detect.add_argument("--camera", help="camera.json, to estimate each tag's pose")
-    detect.add_argument("--tag-size", type=float, help="tag black-square edge in mm, for poses (e.g. 65)")
+    detect.add_argument("--tag-size", type=length_mm, metavar="MM", help="tag black-square edge, mm, for poses (e.g. 65)")
     detect.add_argument("--json", action="store_true", help="print JSON (the default prints a table)")
     detect.set_defaults(func=_detect)
 
     calibrate = commands.add_parser("calibrate", help="camera intrinsics from ChArUco photos")
     calibrate.add_argument("photos", nargs="?", help="folder of ChArUco board photos")
     calibrate.add_argument("-o", "--output", help="camera.json to write")
-    calibrate.add_argument("--board", default="7x5", help="squares across x down (default 7x5)")
-    calibrate.add_argument("--square", type=float, default=40.0, help="square edge, mm (default 40)")
-    calibrate.add_argument("--marker", type=float, default=30.0, help="marker edge, mm (default 30)")
+    calibrate.add_argument("--board", default="7x5", help="squares across x down")
+    calibrate.add_argument("--square", type=length_mm, default=40.0, help="square edge")
+    calibrate.add_argument("--marker", type=length_mm, default=30.0, help="marker edge")
     calibrate.add_argument("--write-board", metavar="PNG", help="write the board image to print, then stop")
     calibrate.set_defaults(func=_calibrate)
 
     simulate = commands.add_parser("simulate", help="render a synthetic photo set of the built structure with known truth")
     simulate.add_argument("--model", required=True, help="fabline.network/1 model file")
     simulate.add_argument("-o", "--output", required=True, help="folder for photos/, camera.json, tagmap.json, truth.json")
-    simulate.add_argument("--photos", type=int, default=32)
-    simulate.add_argument("--size", default="6000x4000", help="image size WxH in px (default 6000x4000, 24 MP)")
+    simulate.add_argument("--photos", type=int, default=32, help="number of photos")
+    resolution = simulate.add_argument("--resolution", default="6000x4000", metavar="WxH",
+                                       help="image size in px (6000x4000: 24 MP)")
+    hidden_alias(simulate, resolution, "--size")
     simulate.add_argument("--focal", type=float, help="focal length in px (default 5/6 of the width)")
-    simulate.add_argument("--sag", type=float, default=25.0, help="sag of the built shell, mm, zero at supports")
+    simulate.add_argument("--sag", type=length_mm, default=25.0, help="sag of the built shell, zero at supports")
     simulate.add_argument("--noise", type=float, default=2.0, help="sensor noise sigma, grey levels")
     simulate.add_argument("--blur", type=float, default=0.7, help="blur sigma, px")
-    simulate.add_argument("--tag-size", type=float, default=65.0, help="tag black-square edge, mm")
+    simulate.add_argument("--tag-size", type=length_mm, default=65.0, help="tag black-square edge")
     simulate.add_argument("--every", type=int, default=1, help="tag every N-th node (supports always)")
     simulate.add_argument("--coverage", type=float, default=0.45,
-                          help="fraction of the model's plan span one photo covers (default 0.45)")
-    simulate.add_argument("--seed", type=int, default=1)
+                          help="fraction of the model's plan span one photo covers")
+    simulate.add_argument("--seed", type=int, default=1, help="random seed of the camera positions and noise")
     simulate.set_defaults(func=_simulate)
 
     measure = commands.add_parser("measure", help="measure every tagged node against the design")
@@ -68,18 +71,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                          help="photo file name -> camera name, for photos EXIF does not group (e.g. two phones)")
     measure.add_argument("--tags", help="tagmap.json (default: ids in model node order, 65 mm tags, 20 mm offset)")
     measure.add_argument("-o", "--output", required=True, help="folder for survey.json and the pictures")
-    measure.add_argument("--tolerance", type=float, default=20.0, help="pass/fail distance, mm (default 20)")
+    measure.add_argument("--tolerance", type=length_mm, default=20.0, help="pass/fail distance")
     measure.add_argument("--k-sigma", type=float, default=2.0, metavar="K",
                          help="pass: deviation + K sigma within the tolerance; fail: deviation - K sigma beyond; "
-                              "uncertain otherwise (default 2)")
+                              "uncertain otherwise")
     measure.add_argument("--reference", default="all",
-                         help="nodes the registration fits: all (default), supports, or comma-separated node ids")
-    measure.add_argument("--min-views", type=int, default=2, help="photos a tag must be seen in (default 2)")
+                         help="nodes the registration fits: all, supports, or comma-separated node ids")
+    measure.add_argument("--min-views", type=int, default=2, help="photos a tag must be seen in")
     measure.add_argument("--scale-bar", nargs=3, action="append", default=[], metavar=("TAG_A", "TAG_B", "DIST_MM"),
-                         help="distance between two tag centres measured on site; fixes the scale (repeatable)")
+                         help="distance between two tag centres measured on site, mm or with a unit (1.2m); fixes "
+                              "the scale (repeatable)")
     measure.add_argument("--scale-min-cell", type=float, default=4.0, metavar="PX",
                          help="tags whose cells are narrower than this in a photo do not set the scale there "
-                              "(their detected size is biased); 0 lets all set it (default 4)")
+                              "(their detected size is biased), px; 0 lets all set it")
     measure.set_defaults(func=_measure)
 
 
@@ -177,13 +181,13 @@ def _simulate(args: argparse.Namespace) -> int:
     from fabline.survey.photos import MAX_PHOTO_PIXELS, MAX_SIMULATED_PHOTOS
 
     try:
-        width, height = (int(v) for v in args.size.lower().split("x"))
+        width, height = (int(v) for v in args.resolution.lower().split("x"))
     except ValueError:
-        raise FablineError(f"--size {args.size!r}: expected WxH in pixels, e.g. 6000x4000") from None
+        raise FablineError(f"--resolution {args.resolution!r}: expected WxH in pixels, e.g. 6000x4000") from None
     if width < 64 or height < 64 or args.photos < 2:
-        raise FablineError("--size must be at least 64x64 and --photos at least 2")
+        raise FablineError("--resolution must be at least 64x64 and --photos at least 2")
     if width * height > MAX_PHOTO_PIXELS or args.photos > MAX_SIMULATED_PHOTOS:
-        raise FablineError(f"--size {args.size} --photos {args.photos}: at most {MAX_PHOTO_PIXELS / 1e6:g} megapixels "
+        raise FablineError(f"--resolution {args.resolution} --photos {args.photos}: at most {MAX_PHOTO_PIXELS / 1e6:g} megapixels "
                            f"per photo and {MAX_SIMULATED_PHOTOS} photos")
     if not 0 < args.coverage <= 2:
         raise FablineError(f"--coverage must be in (0, 2], got {args.coverage}")
@@ -200,9 +204,10 @@ def _simulate(args: argparse.Namespace) -> int:
 def _scale_bar(values: list[str]) -> tuple[int, int, float]:
     """Parse one `--scale-bar TAG_A TAG_B DIST_MM`; a non-number raises naming the bar."""
     try:
-        return int(values[0]), int(values[1]), float(values[2])
+        return int(values[0]), int(values[1]), parse_length(values[2], "mm")
     except ValueError:
-        raise FablineError(f"--scale-bar {' '.join(values)}: expected two tag ids and a distance in mm") from None
+        raise FablineError(f"--scale-bar {' '.join(values)}: expected two tag ids and a distance in mm "
+                           "(or with a unit: 1.2m)") from None
 
 
 def _camera_map(path: str) -> dict[str, str]:
@@ -216,6 +221,7 @@ def _camera_map(path: str) -> dict[str, str]:
 
 
 def _measure(args: argparse.Namespace) -> int:
+    from fabline.jobs.report_shop import mm
     from fabline.model import load_network
     from fabline.survey import MeasureOptions, list_photos, load_camera, load_tag_map, make_tag_map, measure_survey
 

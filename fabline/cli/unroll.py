@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 
+from fabline.cli.units import length_mm
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
 from fabline.model import load_network
@@ -23,25 +24,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     unroll.add_argument("model", help="a fabline.network/1 JSON file")
     unroll.add_argument("-o", "--output", required=True, help="parts JSON to write")
     _material_arguments(unroll)
-    unroll.add_argument("--pair-spacing", type=float, default=25.0, metavar="MM",
-                        help="distance of a pair's two strips (default 25); 0 makes single lamellas")
-    unroll.add_argument("--slot-clearance", type=float, default=1.0, metavar="MM", help="slot depth beyond h/2 (default 1)")
-    unroll.add_argument("--slot-width", type=float, metavar="MM", help="slot width (default twice the thickness)")
-    unroll.add_argument("--overlap", type=float, default=150.0, metavar="MM", help="seam overlap length (default 150)")
-    unroll.add_argument("--min-overlap", type=float, metavar="MM",
-                        help="where no seam fits, overlaps may shorten to this (default two thirds of --overlap)")
-    unroll.add_argument("--screw-hole", type=float, default=5.5, metavar="MM", help="seam screw hole diameter (default 5.5)")
-    unroll.add_argument("--sheet-length", type=float, default=4000.0, metavar="MM", help="sheet length (default 4000)")
-    unroll.add_argument("--sheet-margin", type=float, default=10.0, metavar="MM", help="sheet margin (default 10)")
-    unroll.add_argument("--end-length", type=float, metavar="MM", help="strip beyond its last slot (default h/2)")
+    unroll.add_argument("--pair-spacing", type=length_mm, default=25.0, metavar="MM",
+                        help="distance of a pair's two strips; 0 makes single lamellas")
+    unroll.add_argument("--slot-clearance", type=length_mm, default=1.0, metavar="MM", help="slot depth beyond h/2")
+    unroll.add_argument("--slot-width", type=length_mm, metavar="MM", help="slot width, mm (default twice the thickness)")
+    unroll.add_argument("--overlap", type=length_mm, default=150.0, metavar="MM", help="seam overlap length")
+    unroll.add_argument("--min-overlap", type=length_mm, metavar="MM",
+                        help="where no seam fits, overlaps may shorten to this, mm (default two thirds of --overlap)")
+    unroll.add_argument("--screw-hole", type=length_mm, default=5.5, metavar="MM", help="seam screw hole diameter")
+    unroll.add_argument("--sheet-length", type=length_mm, default=4000.0, metavar="MM",
+                        help="sheet length (the longer side of --sheet-size)")
+    unroll.add_argument("--sheet-margin", type=length_mm, default=10.0, metavar="MM", help="unused border of each sheet")
+    unroll.add_argument("--end-length", type=length_mm, metavar="MM", help="strip beyond its last slot, mm (default h/2)")
     unroll.add_argument("--compensate-twist", action="store_true",
                         help="lengthen node distances by the twisted centre fibre's helix contraction")
     unroll.add_argument("--singularity", choices=SINGULARITY_MODES, default="joint",
-                        help="valence-6 nodes: a separate hexagonal joint (default) or slots for three pairs")
+                        help="valence-6 nodes: a separate hexagonal joint or slots for three pairs")
     unroll.add_argument("--no-hardware", action="store_true", help="leave out washers, clamps and joints")
-    unroll.add_argument("--text-height", type=float, default=6.0, metavar="MM", help="engraved text height (default 6)")
+    unroll.add_argument("--text-height", type=length_mm, default=6.0, metavar="MM", help="engraved text height")
     unroll.add_argument("--min-crossing-angle", type=float, default=30.0, metavar="DEG",
-                        help="smallest crossing angle the slotted joint reaches (default 30)")
+                        help="smallest crossing angle the slotted joint reaches, degrees")
     unroll.add_argument("--strict", action="store_true", help="treat over-stress warnings as errors")
     unroll.add_argument("--svg", metavar="DIR", help="also write one SVG preview per strip into DIR")
     unroll.add_argument("--json", action="store_true", help="print the report as JSON instead of a table")
@@ -51,14 +53,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                   description="A designer's quick check of a strip profile before any model exists "
                                               "(domain.md section 6).")
     _material_arguments(check)
-    check.add_argument("--radius", type=float, metavar="MM", help="also the bending stress at this radius")
+    check.add_argument("--radius", type=length_mm, metavar="MM", help="also the bending stress at this radius, mm")
     check.add_argument("--twist", type=float, metavar="RAD_PER_M", help="also the stresses at this twist")
     check.add_argument("--json", action="store_true", help="print JSON")
     check.set_defaults(func=run_limits)
 
 
 def _material_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--profile", default="100x1.5", help="strip height x thickness in mm (default 100x1.5)")
+    parser.add_argument("--profile", default="100x1.5", help="strip height x thickness in mm")
     parser.add_argument("--material", default="steel-s235", help="material name (built-in: steel-s235, stainless)")
     parser.add_argument("--materials", metavar="FILE", help="TOML file with more materials (E, G, f_y, density)")
 
@@ -93,19 +95,19 @@ def run_unroll(args: argparse.Namespace) -> int:
     s = report["summary"]
     kinds = ", ".join(f"{count} {kind}" for kind, count in s["parts_by_kind"].items())
     print(f"\n{args.output}: {s['parts']} parts ({kinds}) from {s['lamellas']} lamellas, {s['strips']} strips, "
-          f"{s['strip_length_m']:.2f} m of strip; max utilisation {percent(s['max_utilisation'])} "
+          f"{s['strip_length_m']:.3f} m of strip; max utilisation {percent(s['max_utilisation'])} "
           f"({s['governing_check']}, lamella {s['governing_lamella']}); {s['warnings']} warnings")
     return 0
 
 
 def _print_table(rows: list[dict]) -> None:
-    print(f"{'lamella':<10}{'length m':>10}{'min r m':>9}{'twist /m':>10}{'sigma_b':>9}{'tau':>8}{'sigma_H':>9}"
+    print(f"{'lamella':<10}{'length m':>10}{'min r m':>10}{'twist /m':>10}{'sigma_b':>9}{'tau':>8}{'sigma_H':>9}"
           f"{'util %':>8}{'helix top/bot mm':>18}")
     for r in rows:
-        radius = f"{r['min_radius_mm'] / 1000:.2f}" if r["min_radius_mm"] else "inf"
-        print(f"{r['lamella']:<10}{r['length_mm'] / 1000:>10.3f}{radius:>9}{r['max_twist_rad_per_m']:>10.3f}"
+        radius = f"{r['min_radius_mm'] / 1000:.3f}" if r["min_radius_mm"] else "inf"
+        print(f"{r['lamella']:<10}{r['length_mm'] / 1000:>10.3f}{radius:>10}{r['max_twist_rad_per_m']:>10.3f}"
               f"{r['max_bending_stress']:>9.1f}{r['max_shear_stress']:>8.1f}{r['max_helix_stress']:>9.1f}"
-              f"{percent(r['utilisation'])[:-2]:>8}{r['helix_top_edge_extension_mm']:>9.2f}/{r['helix_bottom_edge_extension_mm']:.2f}")
+              f"{percent(r['utilisation'])[:-2]:>8}{r['helix_top_edge_extension_mm']:>9.1f}/{r['helix_bottom_edge_extension_mm']:.1f}")
 
 
 def run_limits(args: argparse.Namespace) -> int:

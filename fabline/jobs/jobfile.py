@@ -43,11 +43,18 @@ _TYPE_NAMES = {str: "a string", int: "an integer", float: "a number", bool: "tru
 
 @dataclass(frozen=True)
 class Key:
-    """One allowed key of a table: its type, whether it must be given, and its default."""
+    """One allowed key of a table: its type, whether it must be given, and its default; a length key (`unit` set)
+    takes a number in that unit or a string with a unit (`"25 cm"`), as the command line's option does."""
 
     kind: type
     required: bool = False
     default: Any = None
+    unit: str | None = None
+
+
+def Length(default: float | None = None) -> Key:
+    """A length key in mm."""
+    return Key(float, default=default, unit="mm")
 
 
 SCHEMA: dict[str, Any] = {
@@ -60,27 +67,30 @@ SCHEMA: dict[str, Any] = {
     "stock": {"sheet": Key(str, default="4000x2000"), "count": Key(int), "file": Key(str)},
     # [unroll], [nest] and [export] hold every option of `fabline unroll`, `nest` and `export` under its own name
     # (--pair-spacing is unroll.pair_spacing); a key left out takes the command's default (None here)
-    "unroll": {"pair_spacing": Key(float), "slot_clearance": Key(float), "slot_width": Key(float),
-               "overlap": Key(float), "min_overlap": Key(float), "screw_hole": Key(float),
-               "sheet_length": Key(float), "sheet_margin": Key(float),
-               "end_length": Key(float), "compensate_twist": Key(bool), "singularity": Key(str),
-               "hardware": Key(bool), "text_height": Key(float), "min_crossing_angle": Key(float),
+    "unroll": {"pair_spacing": Length(), "slot_clearance": Length(), "slot_width": Length(),
+               "overlap": Length(), "min_overlap": Length(), "screw_hole": Length(),
+               "sheet_length": Length(), "sheet_margin": Length(),
+               "end_length": Length(), "compensate_twist": Key(bool), "singularity": Key(str),
+               "hardware": Key(bool), "text_height": Length(), "min_crossing_angle": Key(float),
                "strict": Key(bool), "previews": Key(bool, default=False)},
-    "nest": {"kerf": Key(float, default=0.2), "gap": Key(float, default=3.0), "margin": Key(float, default=10.0),
+    "nest": {"kerf": Length(0.2), "gap": Length(3.0), "sheet_margin": Length(10.0),
              "rotations": Key(int, default=4), "time_limit": Key(float, default=10.0),
              "common_line": Key(bool, default=False), "fill_holes": Key(bool, default=False),
              "remnants_first": Key(bool, default=False), "remnant_min": Key(str, default="400x200"),
              "stock_out": Key(str), "svg": Key(bool, default=False)},
-    "export": {"kerf": Key(float), "lead_in": Key(float, default=0.0), "tabs": Key(int, default=0),
-               "tab_width": Key(float, default=1.0), "optimise": Key(bool, default=True),
+    "export": {"kerf": Length(), "lead_in": Length(0.0), "tabs": Key(int, default=0),
+               "tab_width": Length(1.0), "optimise": Key(bool, default=True),
                "previews": Key(bool, default=True)},
     "machine": {"profile": Key(str, default="grbl-laser"), "port": Key(str), "ports": Key(list),
                 "time_scale": Key(float, default=1.0)},
     "output": {"folder": Key(str, required=True), "report": Key(str, default="report.html")},
     "survey": {"result": Key(str), "simulate": Key(bool, default=False), "photos": Key(int), "resolution": Key(str),
-               "coverage": Key(float), "sag_mm": Key(float), "seed": Key(int), "tolerance_mm": Key(float),
+               "coverage": Key(float), "sag_mm": Length(), "seed": Key(int), "tolerance_mm": Length(),
                "reference": Key(str), "scale_bars": Key(int)},
 }
+
+ALIASES = {"nest": {"margin": "sheet_margin"}}
+"""Old key names that still work, per table: old -> canonical (the command line's option name)."""
 
 SIMULATED_SURVEY_DEFAULTS = {"photos": 12, "resolution": "3600x2400", "coverage": 0.7, "sag_mm": 25.0, "seed": 1,
                              "tolerance_mm": 20.0, "reference": "all", "scale_bars": 0}
@@ -179,6 +189,7 @@ def _check_table(raw: Any, schema: dict[str, Any], where: str, prefix: str) -> d
     """Unknown keys, wrong types and missing required keys of one table, recursively; defaults filled in."""
     if not isinstance(raw, dict):
         raise FablineError(f"{where}: {prefix.rstrip('.')}: expected a table, got {_type_name(raw)}")
+    raw = _renamed(raw, ALIASES.get(prefix.rstrip("."), {}), where, prefix)
     for key in raw:
         if key not in schema:
             raise FablineError(f"{where}: {prefix}{key}: unknown key (allowed: {', '.join(schema)})")
@@ -193,12 +204,31 @@ def _check_table(raw: Any, schema: dict[str, Any], where: str, prefix: str) -> d
                 raise FablineError(f"{where}: {key_path}: missing (required)")
             checked[key] = rule.default.copy() if isinstance(rule.default, (list, dict)) else rule.default
             continue
-        checked[key] = _typed(raw[key], rule.kind, where, key_path)
+        checked[key] = _typed(raw[key], rule.kind, where, key_path, rule.unit)
     return checked
 
 
-def _typed(value: Any, kind: type, where: str, key_path: str) -> Any:
-    """`value` if it is of `kind` (an integer is accepted as a number), else a FablineError naming the key."""
+def _renamed(raw: dict[str, Any], aliases: dict[str, str], where: str, prefix: str) -> dict[str, Any]:
+    """`raw` with its old key names replaced by the canonical ones; both names of one key is a FablineError."""
+    renamed = dict(raw)
+    for old, new in aliases.items():
+        if old in renamed:
+            if new in renamed:
+                raise FablineError(f"{where}: {prefix}{old}: the old name of {prefix}{new}; give only {prefix}{new}")
+            renamed[new] = renamed.pop(old)
+    return renamed
+
+
+def _typed(value: Any, kind: type, where: str, key_path: str, unit: str | None = None) -> Any:
+    """`value` if it is of `kind` (an integer is accepted as a number; a length also as a string with a unit, in
+    `unit` after), else a FablineError naming the key."""
+    if unit is not None and isinstance(value, (str, int, float)) and not isinstance(value, bool):
+        from fabline.cli.units import job_length
+
+        try:
+            return job_length(value, unit)
+        except FablineError as exc:
+            raise FablineError(f"{where}: {key_path}: {exc}") from None
     if kind is float and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
     if isinstance(value, kind) and not (kind is not bool and isinstance(value, bool)):
@@ -326,7 +356,7 @@ def nest_options(nest: dict[str, Any]) -> "NestOptions":
         remnant_min = parse_sheet_size(nest["remnant_min"])
     except FablineError as exc:
         raise FablineError(f"nest.remnant_min: {exc}") from None
-    return NestOptions(kerf=nest["kerf"], gap=nest["gap"], margin=nest["margin"], rotation_steps=nest["rotations"],
+    return NestOptions(kerf=nest["kerf"], gap=nest["gap"], margin=nest["sheet_margin"], rotation_steps=nest["rotations"],
                        time_limit=nest["time_limit"], common_line=nest["common_line"], fill_holes=nest["fill_holes"],
                        remnants_first=nest["remnants_first"], remnant_min=remnant_min)
 
@@ -334,7 +364,7 @@ def nest_options(nest: dict[str, Any]) -> "NestOptions":
 def unroll_options(lamella: dict[str, Any], unroll: dict[str, Any], stock: dict[str, Any],
                    nest: dict[str, Any]) -> "UnrollOptions":
     """The unroll stage's options from a job's tables, checked (a FablineError names the key): profile and material
-    from [lamella], the strip length limit from the sheet's longer side and nest.margin unless [unroll] sets them."""
+    from [lamella], the strip length limit from the sheet's longer side and nest.sheet_margin unless [unroll] sets them."""
     from fabline.nest.stock import parse_sheet_size
     from fabline.unroll.materials import get_material, parse_profile
     from fabline.unroll.options import UnrollOptions
@@ -348,7 +378,7 @@ def unroll_options(lamella: dict[str, Any], unroll: dict[str, Any], stock: dict[
             given["sheet_length"] = max(sheets[0].width, sheets[0].height) if sheets else 0.0
         else:
             given["sheet_length"] = max(parse_sheet_size(stock["sheet"]))
-    given.setdefault("sheet_margin", nest["margin"])
+    given.setdefault("sheet_margin", nest["sheet_margin"])
     options = UnrollOptions(profile=parse_profile(lamella["profile"]),
                             material=get_material(lamella["material"], lamella["materials_file"]), **given)
     return options.check(name=lambda key: f"unroll.{key}")

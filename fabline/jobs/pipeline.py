@@ -42,9 +42,16 @@ class JobResult:
     timings: dict[str, float] = field(default_factory=dict)
     report_path: Path | None = None
 
-    def sheet_programs(self) -> list[tuple[str, str, str]]:
-        """(sheet id, G-code path, labelled sheet SVG path) per sheet, in cutting order, for the runner."""
-        return [(s["sheet"], s["gcode"], s["svg"]) for s in self.sheet_files]
+    def sheet_programs(self) -> list[tuple[str, str, str, dict]]:
+        """(sheet id, G-code path, labelled sheet SVG path, what the operator loads: `load_facts`) per sheet, in
+        cutting order, for the runner."""
+        return [(s["sheet"], s["gcode"], s["svg"], load_facts(s)) for s in self.sheet_files]
+
+
+def load_facts(sheet: dict) -> dict[str, Any]:
+    """What the operator needs to load a sheet: its size, material, thickness, part count and picture."""
+    return {**{key: sheet[key] for key in ("width_mm", "height_mm", "material", "thickness_mm", "parts")},
+            "picture": sheet["svg"]}
 
 
 def build_network(spec: JobSpec) -> "Network":
@@ -92,10 +99,10 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
 
 
 def run_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None,
-            confirm_sheet: Callable[[int, int, str], None] | None = None, resume: bool = False,
+            confirm_sheet: Callable[[int, int, dict], None] | None = None, resume: bool = False,
             restart: bool = False) -> JobResult:
     """The whole job: prepare, then stream every sheet (asking `confirm_sheet(k, n, sheet)` before each one
-    when given), then the survey, then the report with the streaming log and the survey. `resume` continues
+    when given, `sheet` its entry of `sheet_files`: id, files and `load_facts`), then the survey, then the report with the streaming log and the survey. `resume` continues
     an interrupted run from the sheets' journals (finished sheets are not cut again); otherwise every sheet
     is cut afresh, which an interrupted earlier run refuses unless `restart` says so. The caller holds the
     output folder's lock (`fabline.locks`), so no other run touches these journals meanwhile."""
@@ -180,6 +187,7 @@ def _export(result: JobResult) -> None:
     spec = result.spec
     profile = load_machine(spec.machine["profile"])
     parts = {p.id: p for p in result.partset.parts}
+    material, thickness = spec.lamella["material"], float(result.partset.profile.get("t", 0.0))
     result.export = export_job(result.nesting, parts, profile, toolpath_options(spec.export, profile.kerf),
                                dxf_dir=spec.output("dxf"), gcode_dir=spec.output("gcode"), name=spec.name,
                                source=str(spec.output("nesting.json")), cutlist=spec.output("cutlist.csv"),
@@ -192,6 +200,8 @@ def _export(result: JobResult) -> None:
             handle.write(sheet_svg(sheet, parts))
         preview = next((f for f in made.files if f.endswith(PREVIEW_SUFFIX)), None)
         result.sheet_files.append({"sheet": sheet.id, "gcode": gcode, "svg": str(svg_path), "parts": made.parts,
+                                   "width_mm": sheet.width, "height_mm": sheet.height, "material": material,
+                                   "thickness_mm": thickness,
                                    **({"preview": preview} if preview else {}),
                                    "cut_length_mm": made.summary.cut_length, "time_s": made.summary.time})
 
@@ -245,7 +255,7 @@ def _refuse_over_an_interrupted_run(spec: JobSpec) -> None:
                            "or cut every sheet afresh with --restart")
 
 
-def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, str], None] | None,
+def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, dict], None] | None,
                 resume: bool) -> None:
     """Cut every sheet: each machine takes the next sheet when it is free (one sheet at a time per machine);
     after a failure no new sheet starts, the ones running finish, and the first error is raised. Each sheet
@@ -271,7 +281,7 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
                 k, sheet = sheets.pop(0)
                 try:
                     if confirm_sheet is not None:
-                        confirm_sheet(k, count, sheet["sheet"])
+                        confirm_sheet(k, count, sheet)
                 except FablineError as exc:  # nobody confirmed the sheet: it is not cut, nor any after it
                     errors.append(exc)
                     return

@@ -70,6 +70,7 @@ CREATE TABLE IF NOT EXISTS sheets (
     name TEXT NOT NULL,
     program TEXT NOT NULL,
     svg TEXT NOT NULL DEFAULT '',
+    facts TEXT NOT NULL DEFAULT '{}',
     lines INTEGER NOT NULL DEFAULT 0,
     done_lines INTEGER NOT NULL DEFAULT 0,
     machine TEXT,
@@ -102,7 +103,8 @@ CREATE TABLE IF NOT EXISTS events (
 
 @dataclass(frozen=True)
 class SheetRow:
-    """One sheet of a job: its program file, an SVG picture of it, and how far it has been cut."""
+    """One sheet of a job: its program file, an SVG picture of it, what the operator loads (`facts`: size,
+    material, thickness, part count; {} for programs submitted alone) and how far it has been cut."""
 
     job_id: int
     k: int
@@ -119,6 +121,21 @@ class SheetRow:
     resume: int = 0
     from_line: int | None = None
     skipped: int = 0
+    facts: str = "{}"
+
+    def load_facts(self) -> dict[str, Any]:
+        """The sheet's facts for the load prompt (JSON in the database)."""
+        return json.loads(self.facts or "{}")
+
+
+def describe_load(name: str, k: int, count: int, facts: dict[str, Any]) -> str:
+    """The load prompt's line: which sheet, its size, material, thickness and parts (what is known of them)."""
+    said = [f"{facts['width_mm']:g} x {facts['height_mm']:g} mm"] if "width_mm" in facts else []
+    if facts.get("material"):
+        said.append(facts["material"] + (f" {facts['thickness_mm']:g} mm thick" if facts.get("thickness_mm") else ""))
+    if "parts" in facts:
+        said.append(f"{facts['parts']} parts")
+    return f"sheet {k + 1} of {count}: {name}" + (f" ({', '.join(said)})" if said else "")
 
 
 @dataclass(frozen=True)
@@ -211,9 +228,10 @@ class JobQueue:
 
     # --- jobs -------------------------------------------------------------------------------------------
 
-    def submit(self, name: str, job_file: str | None = None, programs: list[tuple[str, str, str]] | None = None,
+    def submit(self, name: str, job_file: str | None = None, programs: list[tuple] | None = None,
                error: str | None = None) -> int:
-        """Queue a job file (state queued, prepared by the runner) or ready programs [(sheet name, path, svg)];
+        """Queue a job file (state queued, prepared by the runner) or ready programs [(sheet name, path, svg[,
+        load facts])];
         with `error`, record a job file that cannot run as failed, so the operator sees why."""
         now = time.time()
         with self.transaction() as db:
@@ -226,12 +244,13 @@ class JobQueue:
             self._event(db, job_id, None, f"job {job_id} {name} submitted ({state}{': ' + error if error else ''})")
         return job_id
 
-    def _add_sheets(self, db: sqlite3.Connection, job_id: int, programs: list[tuple[str, str, str]]) -> None:
+    def _add_sheets(self, db: sqlite3.Connection, job_id: int, programs: list[tuple]) -> None:
         if not programs:
             raise FablineError(f"job {job_id}: no sheets to cut")
-        for k, (name, program, svg) in enumerate(programs):
-            db.execute("INSERT INTO sheets (job_id, k, name, program, svg, lines) VALUES (?, ?, ?, ?, ?, ?)",
-                       (job_id, k, name, str(program), svg, _count_lines(program)))
+        for k, (name, program, svg, *facts) in enumerate(programs):
+            db.execute("INSERT INTO sheets (job_id, k, name, program, svg, facts, lines) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                       (job_id, k, name, str(program), svg, json.dumps(facts[0] if facts else {}),
+                        _count_lines(program)))
         db.execute("UPDATE jobs SET sheets = ? WHERE id = ?", (len(programs), job_id))
 
     def job(self, job_id: int) -> JobRow:
@@ -279,7 +298,7 @@ class JobQueue:
             self._move(db, job, "preparing")
         return self.job(job.id)
 
-    def prepared(self, job_id: int, programs: list[tuple[str, str, str]], report: str | None,
+    def prepared(self, job_id: int, programs: list[tuple], report: str | None,
                  output: str | None = None) -> None:
         """A job's sheet programs are made (in its output folder): preparing -> ready (unless it was paused or
         cancelled meanwhile)."""
@@ -448,6 +467,19 @@ class JobQueue:
             self._event(db, job_id, job.machine, f"job {job_id}: operator asked to {action}")
         return self.job(job_id)
 
+    def act(self, job_id: int, action: str, from_line: int | None = None) -> dict[str, Any]:
+        """One operator action (the page's buttons, `fabline runner ACTION`): confirm the sheet, pause, resume,
+        cancel, frame, restart or skip a sheet, resume from a file line, or requeue; the job's state after it."""
+        if action == "requeue":
+            return {"id": self.requeue(job_id), "requeued": job_id}
+        if action == "confirm":
+            job = self.confirm_sheet(job_id)
+        elif action in ("restart", "skip") or from_line is not None:
+            job = self.resolve(job_id, action, from_line)
+        else:
+            job = self.request(job_id, action)
+        return {"id": job.id, "state": job.state, "status": job.describe(), "request": job.request}
+
     def take_request(self, job_id: int) -> str | None:
         """The pending operator request of a cutting job, cleared as it is taken."""
         with self.transaction() as db:
@@ -505,7 +537,7 @@ class JobQueue:
         job = self.job(job_id)
         if job.state not in ("failed", "cancelled"):
             raise FablineError(f"job {job_id}: only a failed or cancelled job can be queued again ({job.describe()})")
-        programs = None if job.job_file else [(s.name, s.program, s.svg) for s in self.sheets(job_id)]
+        programs = None if job.job_file else [(s.name, s.program, s.svg, s.load_facts()) for s in self.sheets(job_id)]
         new = self.submit(job.name, job_file=job.job_file, programs=programs)
         self.log(job_id, None, f"job {job_id} queued again as job {new}")
         return new
@@ -561,7 +593,9 @@ class JobQueue:
             status = job.describe() + (f" ({skipped} sheet(s) skipped)" if skipped else "")
             jobs.append({**job.__dict__, "status": status, "checkpoint": job.checkpoint(),
                          "sheet_list": [{"k": s.k, "name": s.name, "lines": s.lines, "done_lines": s.done_lines,
-                                         "machine": s.machine, "skipped": bool(s.skipped)} for s in sheets]})
+                                         "machine": s.machine, "skipped": bool(s.skipped), "facts": s.load_facts(),
+                                         "load": describe_load(s.name, s.k, len(sheets), s.load_facts())}
+                                        for s in sheets]})
         return {"jobs": jobs, "machines": self.machines(), "events": self.events(limit=20)}
 
 

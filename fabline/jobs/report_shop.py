@@ -11,6 +11,8 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
+from fabline.cli.units import duration
+
 ZOOM_STYLE = """
 .zoom{overflow:auto;max-height:85vh}.zoom>label{cursor:zoom-in;display:block}.zoom input{display:none}
 .zoom input:checked+label{cursor:zoom-out}.zoom input:checked+label>svg{width:400%;max-width:none}
@@ -32,11 +34,6 @@ def mass(kg: float) -> str:
     """A mass as the report shows it: tonnes to 0.01 from a tonne up, kilograms to 0.1 below."""
     return f"{kg / 1000:.2f} t" if kg >= 1000 else f"{kg:.1f} kg"
 
-
-def duration(seconds: float) -> str:
-    """h:mm:ss."""
-    minutes, secs = divmod(round(seconds), 60)
-    return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}"
 
 
 def bill_of_materials(result: Any) -> dict | None:

@@ -98,18 +98,9 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
             from_line = await _from_line(request)
             if job_id >= _LARGEST_ID:
                 raise FablineError(f"job {job_id}: no such job")
-            if action == "requeue":
-                new = queue.requeue(job_id)
-                return JSONResponse({"id": new, "requeued": job_id})
-            if action == "confirm":
-                job = queue.confirm_sheet(job_id)
-            elif action in ("restart", "skip") or from_line is not None:
-                job = queue.resolve(job_id, action, from_line)
-            else:
-                job = queue.request(job_id, action)
+            return JSONResponse(queue.act(job_id, action, from_line))
         except FablineError as exc:
             return JSONResponse({"error": str(exc)}, status_code=409)
-        return JSONResponse({"id": job.id, "state": job.state, "status": job.describe()})
 
     async def report(request: Request) -> Response:
         job_id = int(request.path_params["job"])

@@ -59,10 +59,10 @@ class NestOptions:
     def check(self, name: Callable[[str], str] = lambda key: "--" + key.replace("_", "-")) -> None:
         """Reject nonsensical settings with a one-line message naming the setting as `name(key)` gives it (the
         command line's option by default; a job file names its own keys)."""
-        for key in ("kerf", "gap", "margin"):
+        for key, option in (("kerf", "kerf"), ("gap", "gap"), ("margin", "sheet_margin")):
             value = getattr(self, key)
             if not (math.isfinite(value) and value >= 0):
-                raise FablineError(f"{name(key)}: must be a finite number, not negative, got {value}")
+                raise FablineError(f"{name(option)}: must be a finite number, not negative, got {value}")
         if self.rotation_steps not in ROTATION_STEPS:
             raise FablineError(f"{name('rotations')}: must be one of {', '.join(map(str, ROTATION_STEPS))}, "
                                f"got {self.rotation_steps}")

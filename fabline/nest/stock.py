@@ -43,13 +43,16 @@ def usable_extent(sheet_side: float, margin: float) -> float:
 
 
 def parse_sheet_size(text: str) -> tuple[float, float]:
-    """'4000x2000' -> (4000.0, 2000.0); a malformed or non-positive size is a FablineError."""
+    """'4000x2000', '4m x 2m', '4000x2000mm' -> (4000.0, 2000.0) in mm; a malformed or non-positive size is a
+    FablineError."""
+    from fabline.cli.units import parse_size
+
     try:
-        width, height = (float(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise FablineError(f"--sheet {text!r}: expected WIDTHxHEIGHT in mm, e.g. 4000x2000") from None
+        width, height = parse_size(text, "mm")
+    except ValueError as exc:
+        raise FablineError(f"--sheet-size {text!r}: {exc}") from None
     if not (0 < width <= MAX_MM and 0 < height <= MAX_MM):
-        raise FablineError(f"--sheet {text!r}: width and height must be positive, at most {MAX_MM:g} mm")
+        raise FablineError(f"--sheet-size {text!r}: width and height must be positive, at most {MAX_MM:g} mm")
     return width, height
 
 
