@@ -11,7 +11,8 @@ import pytest
 
 from conftest import without_usage
 from fabline.cli import STAGE_COMMANDS, build_parser, main
-from fabline.cli.units import length_m, length_mm, parse_length, parse_size
+from fabline.cli.units import length_m, length_mm
+from fabline.units import parse_length, parse_size
 from fabline.jobs.jobfile import job_from_dict
 from test_jobs_jobfile import GOOD
 

@@ -211,7 +211,8 @@ def test_sheet_picture_labels_stay_on_the_sheet():
 
 
 def test_report_numbers_have_a_sensible_precision():
-    from fabline.jobs.report_shop import duration, mass, mm
+    from fabline.jobs.report_shop import mass
+    from fabline.units import duration, mm
 
     assert (mm(10.3431), mm(None), mass(1611.6), mass(85.34), duration(161206)) == ("10.3", "-", "1.61 t", "85.3 kg",
                                                                                    "44:46:46")

@@ -6,7 +6,8 @@ import argparse
 import math
 from pathlib import Path
 
-from fabline.cli.units import duration, length_mm, metres
+from fabline.cli.units import length_mm
+from fabline.units import duration, metres
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
 from fabline.export import ToolpathOptions, check_gcode, export_nesting, load_machine

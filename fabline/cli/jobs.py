@@ -12,7 +12,7 @@ import threading
 from pathlib import Path
 
 from fabline.cli import hidden_alias, positive
-from fabline.cli.units import duration
+from fabline.units import duration
 from fabline.errors import FablineError
 
 RUNNER_ACTIONS = ("pause", "resume", "cancel", "confirm", "restart", "skip", "requeue", "frame")

@@ -22,6 +22,7 @@ except ImportError:  # Python 3.10
 
 from fabline.errors import FablineError
 from fabline.fileio import check_regular_file, read_text
+from fabline.units import job_length
 
 if TYPE_CHECKING:  # the nesting stage pulls in shapely; a job file is read before any stage runs
     from fabline.export import ToolpathOptions
@@ -223,8 +224,6 @@ def _typed(value: Any, kind: type, where: str, key_path: str, unit: str | None =
     """`value` if it is of `kind` (an integer is accepted as a number; a length also as a string with a unit, in
     `unit` after), else a FablineError naming the key."""
     if unit is not None and isinstance(value, (str, int, float)) and not isinstance(value, bool):
-        from fabline.cli.units import job_length
-
         try:
             return job_length(value, unit)
         except FablineError as exc:

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, Callable
 from fabline.errors import FablineError
 from fabline.fileio import OutputSet, atomic_output, check_outputs, write_json
 from fabline.jobs.jobfile import JobSpec, load_job_file, nest_options, toolpath_options, unroll_options
+from fabline.units import mm
 
 if TYPE_CHECKING:  # the model stage pulls in scipy; the runner imports this package and must start fast
     from fabline.model import Network
@@ -207,7 +208,6 @@ def _export(result: JobResult) -> None:
 
 
 def _survey(result: JobResult, say: Say) -> None:
-    from fabline.jobs.report_shop import mm
     from fabline.jobs.survey_stage import SURVEY_FOLDER, simulate_and_measure
 
     spec = result.spec

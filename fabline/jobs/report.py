@@ -18,7 +18,7 @@ from typing import Any
 
 from fabline.jobs import report_shop
 from fabline.jobs.pictures import model_svg
-from fabline.jobs.report_shop import mm
+from fabline.units import mm
 from fabline.unroll.structure import CHECKS, VERDICT_RULE, percent
 
 REPORT_SCHEMA = "fabline.report/1"

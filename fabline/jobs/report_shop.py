@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-from fabline.cli.units import duration
+from fabline.units import duration
 
 ZOOM_STYLE = """
 .zoom{overflow:auto;max-height:85vh}.zoom>label{cursor:zoom-in;display:block}.zoom input{display:none}
@@ -23,11 +23,6 @@ def zoomable(svg: str, key: str) -> str:
     (scrolling) and another click back: zoom without a script (the report has none)."""
     box = html.escape(f"zoom-{key}", quote=True)
     return f'<input type=checkbox id="{box}"><label for="{box}">{svg}</label>'
-
-
-def mm(value: float | None) -> str:
-    """A length in mm as the report shows it: to 0.1 mm (a survey's 10.3431 is 10.3), '-' for none."""
-    return "-" if value is None else f"{value:.1f}"
 
 
 def mass(kg: float) -> str:

@@ -45,7 +45,7 @@ def usable_extent(sheet_side: float, margin: float) -> float:
 def parse_sheet_size(text: str) -> tuple[float, float]:
     """'4000x2000', '4m x 2m', '4000x2000mm' -> (4000.0, 2000.0) in mm; a malformed or non-positive size is a
     FablineError."""
-    from fabline.cli.units import parse_size
+    from fabline.units import parse_size
 
     try:
         width, height = parse_size(text, "mm")
