@@ -248,11 +248,10 @@ def edge_options(options: UnrollOptions) -> UnrollOptions:
                                compensate_twist=False)
 
 
-def edge_strips(curves: list[BoundaryCurve], options: UnrollOptions) -> tuple[list[Strip], list[LamellaGeometry]]:
-    """Top and bottom strips of every edge member, offset (h + t)/2 from the surface along its normal, each bar
+def edge_strips(curves: list[BoundaryCurve], offset: float) -> tuple[list[Strip], list[LamellaGeometry]]:
+    """Top and bottom strips of every edge member, `offset` from the surface either side along its normal, each bar
     bent in plane by the boundary's turning over its own arc length (k_g ds / ds_offset); and the centre geometries."""
     strips, geometries = [], []
-    offset = (options.profile.h + options.profile.t) / 2.0
     for curve in curves:
         geo = edge_geometry(curve)
         geometries.append(geo)
@@ -265,6 +264,11 @@ def edge_strips(curves: list[BoundaryCurve], options: UnrollOptions) -> tuple[li
 
 
 def edge_parts(network: Network, options: UnrollOptions, bolt_hole: float) -> tuple[list[Part], dict]:
+    """The edge members of a network: `curve_parts` of its `boundary_curves`."""
+    return curve_parts(boundary_curves(network), options, bolt_hole)
+
+
+def curve_parts(curves: list[BoundaryCurve], options: UnrollOptions, bolt_hole: float) -> tuple[list[Part], dict]:
     """The edge members' parts (a `bolt_hole` at every node) and their report: per bar its nodes, length, segments,
     seams, and the structural check of the bar (weak-axis bending by k_n, twist by tau_g)."""
     bar = edge_options(options)
@@ -272,8 +276,8 @@ def edge_parts(network: Network, options: UnrollOptions, bolt_hole: float) -> tu
         bar.check()
     except FablineError as exc:
         raise FablineError(f"edge members ({bar.profile.h:g} x {bar.profile.t:g} mm bars): {exc}") from None
-    curves = boundary_curves(network)
-    strips, geometries = edge_strips(curves, bar)
+    # the bars lie on the lamellas' top and bottom edges: h/2 from the surface, plus half their own thickness
+    strips, geometries = edge_strips(curves, (options.profile.h + bar.profile.t) / 2.0)
     parts, rows, avoid = [], [], {}
     for strip in strips:
         taken = avoid.setdefault(strip.lamella, set())
