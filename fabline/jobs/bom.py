@@ -48,10 +48,12 @@ def hardware(parts: list[Part], screw_hole_mm: float | None) -> list[dict[str, A
             {"item": "cable clamp", "count": len(clamps),
              "per": f"{cable_holes / len(clamps):g} cable holes each: the two diagonal cables pass through it"
              if clamps else "no clamps"}]
-    edge_nodes = {(p.lamella, node["id"]) for p in parts if p.meta.get("member") == "edge" for node in p.nodes}
+    # one bolt per edge node, also where two edge members meet at a corner node (through all four bars)
+    edge_nodes = {node["id"] for p in parts if p.meta.get("member") == "edge" for node in p.nodes}
     if edge_nodes:
         rows.append({"item": "edge bolt with nut and spacer tube", "count": len(edge_nodes),
-                     "per": "1 per lamella end on an edge member: through the top bar, a spacer tube and the bottom bar"})
+                     "per": "1 per lamella end on the edge members: through the top bars, a spacer tube and the "
+                            "bottom bars"})
     return rows
 
 

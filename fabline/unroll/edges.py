@@ -62,7 +62,7 @@ class BoundaryCurve:
 def boundary_chains(network: Network) -> list[tuple[list[str], bool]]:
     """The lamella ends of the network grouped into boundaries, each in order along it: (node ids, closed), split at
     corners; a FablineError names the lamella and node where no boundary can be found."""
-    network = network.in_mm()
+    network = _in_mm(network)
     owner: dict[str, str] = {}
     links: dict[str, set[str]] = {}
     for lam in network.lamellas:
@@ -111,6 +111,11 @@ def boundary_chains(network: Network) -> list[tuple[list[str], bool]]:
             chain = chain[first:] + chain[:first]
         chains.extend(_corners(chain, closed, network))
     return sorted(chains, key=lambda item: item[0][0])
+
+
+def _in_mm(network: Network) -> Network:
+    """The network in millimetres, itself when it is already (the unroller's is: no copy of every node)."""
+    return network if network.units == "mm" else network.in_mm()
 
 
 def _end_hops(ids: list[str], index: dict[str, int], links: dict[str, set[str]]) -> list[dict[int, int]]:
@@ -180,7 +185,7 @@ def boundary_curves(network: Network) -> list[BoundaryCurve]:
     """Every edge member's curve of the network (mm), ids E1, E2, ...: on the exact surface of a built-in design,
     else a cubic spline through the boundary nodes and their normals."""
     exact = design_surface(network)
-    mm = network.in_mm()
+    mm = _in_mm(network)
     return [_sample(f"E{k}", chain, closed, mm, exact) for k, (chain, closed) in enumerate(boundary_chains(network), 1)]
 
 
