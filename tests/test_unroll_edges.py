@@ -350,3 +350,11 @@ def test_the_command_line_and_the_job_file_switch_edge_members(cli, tmp_path, ca
     assert code == 2 and "--edge-width: must be positive, got -3" in err and len(err.strip().splitlines()) == 1
     spec = load_job_file(__import__("pathlib").Path(__file__).resolve().parent.parent / "jobs" / "pavilion.toml")
     assert spec.unroll["edge_members"] is True
+
+
+def test_the_job_report_lists_the_edge_members_check(catenoid_edges):
+    from fabline.jobs.report import _edge_table
+
+    html = _edge_table(catenoid_edges.report["edges"])
+    assert html.startswith("<h2>Edge members</h2>") and html.count("<tr class=ok>") == 2
+    assert "4 bars of 100 x 1.5 mm" in html and "16 (loop)" in html and _edge_table(None) == ""
