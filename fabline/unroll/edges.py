@@ -204,8 +204,9 @@ def _sample(curve_id: str, chain: list[str], closed: bool, network: Network, exa
     else:
         normals = np.array([network.nodes[nid].normal for nid in nodes], dtype=float)
         values = np.hstack([loop, np.vstack([normals, normals[:1]]) if closed else normals])
-    drift = (values[-1] - values[0]) if closed else np.zeros(values.shape[1])
-    spline = CubicSpline(t, values - np.outer(t / t[-1], drift),
+    # a loop's values may grow once round it (the catenoid's period): a periodic spline of the rest, the drift added
+    slope = (values[-1] - values[0]) / t[-1] if closed else np.zeros(values.shape[1])
+    spline = CubicSpline(t, values - np.outer(t, slope),
                          bc_type="periodic" if closed else ("not-a-knot" if len(t) > 3 else "natural"),
                          extrapolate="periodic" if closed else True)
     knots = np.concatenate([t[-2:-1] - t[-1], t, t[-1] + t[1:2]]) if closed else t
@@ -215,8 +216,9 @@ def _sample(curve_id: str, chain: list[str], closed: bool, network: Network, exa
     node_at = knots[1:-1] if closed else knots
     rows = np.searchsorted(tau, node_at - 1e-9)
 
-    def value(x, derivative=0):
-        return spline(x, derivative) + (drift / t[-1] if derivative == 1 else (np.outer(x / t[-1], drift) if not derivative else 0.0))
+    def value(x: np.ndarray, derivative: int = 0) -> np.ndarray:
+        """The interpolated values at parameters x, or their first derivative."""
+        return spline(x, 1) + slope if derivative else spline(x) + np.outer(x, slope)
 
     if exact is not None:
         a, b = value(tau).T
