@@ -7,7 +7,8 @@ the unroll of the model read back from network.json, as `fabline unroll` gets it
 (`save_parts`, `load_parts`; the 20k model's 317 MB file once), and the whole `fabline unroll` command on the saved
 model in a new process (one run). The goal is under 2 s for the unroll of the 20,000-node model. CPU seconds
 (time.process_time) are the figure to judge by on a shared machine: wall time grows with other people's load.
-`--profile` adds where the largest model's unroll spends its time (cProfile, fabline's functions only).
+`--profile` adds where the largest model's unroll spends its time (cProfile, fabline's functions only). The
+"+ edge members" row adds the boundary bars (`--edge-members`): its difference to "+ hardware" is what they cost.
 """
 
 from __future__ import annotations
@@ -64,6 +65,11 @@ def main() -> None:
                                ("  unroll, + hardware", UnrollOptions())):
             parts, wall, cpu, first = timed(unroll_network, network, options, geometry, repeat=args.repeat)
             print(f"{'':<36}{label:<22}{len(parts.parts):>7}{wall:>9.2f}{cpu:>9.2f}{first:>9.2f}")
+        # edge members are extra work on top of the lamellas: their own row, the difference to "+ hardware" their cost
+        edges, wall, cpu, first = timed(unroll_network, network, UnrollOptions(edge_members=True), geometry,
+                                        repeat=args.repeat)
+        print(f"{'':<36}{'  + edge members':<22}{len(edges.parts):>7}{wall:>9.2f}{cpu:>9.2f}{first:>9.2f}")
+        del edges
         from_file = read_back(network)
         again, wall, cpu, first = timed(unroll_network, from_file, UnrollOptions(), analyse(from_file),
                                         repeat=args.repeat)

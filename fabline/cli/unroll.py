@@ -41,6 +41,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     unroll.add_argument("--singularity", choices=SINGULARITY_MODES, default="joint",
                         help="valence-6 nodes: a separate hexagonal joint or slots for three pairs")
     unroll.add_argument("--no-hardware", action="store_true", help="leave out washers, clamps and joints")
+    unroll.add_argument("--edge-members", action=argparse.BooleanOptionalAction, default=False,
+                        help="also the boundary curves as flat curved bars, top and bottom, a bolt hole at each "
+                             "lamella end")
+    unroll.add_argument("--edge-width", type=length_mm, metavar="MM",
+                        help="edge member bar width in mm (none: the profile height)")
     unroll.add_argument("--text-height", type=length_mm, default=6.0, metavar="MM", help="engraved text height")
     unroll.add_argument("--min-crossing-angle", type=float, default=30.0, metavar="DEG",
                         help="smallest crossing angle the slotted joint reaches, degrees")
@@ -76,7 +81,8 @@ def run_unroll(args: argparse.Namespace) -> int:
         sheet_length=args.sheet_length, sheet_margin=args.sheet_margin, end_length=args.end_length,
         compensate_twist=args.compensate_twist,
         singularity=args.singularity, hardware=not args.no_hardware, text_height=args.text_height,
-        min_crossing_angle=args.min_crossing_angle, strict=args.strict)
+        min_crossing_angle=args.min_crossing_angle, strict=args.strict, edge_members=args.edge_members,
+        edge_width=args.edge_width)
     try:
         partset = unroll_network(network, options)
     except FablineError as exc:
@@ -97,6 +103,12 @@ def run_unroll(args: argparse.Namespace) -> int:
     print(f"\n{args.output}: {s['parts']} parts ({kinds}) from {s['lamellas']} lamellas, {s['strips']} strips, "
           f"{s['strip_length_m']:.3f} m of strip; max utilisation {percent(s['max_utilisation'])} "
           f"({s['governing_check']}, lamella {s['governing_lamella']}); {s['warnings']} warnings")
+    if "edges" in report:
+        edges = report["edges"]
+        worst = max(edges["members"], key=lambda row: row["utilisation"], default=None)
+        print(f"edge members: {len(edges['members'])} boundary curves, {len(edges['bars'])} bars "
+              f"{edges['width_mm']:g} x {edges['thickness_mm']:g} mm, {edges['bolt_hole_mm']:g} mm bolt holes"
+              + (f"; max utilisation {percent(worst['utilisation'])} ({worst['governing']}, {worst['edge']})" if worst else ""))
     return 0
 
 

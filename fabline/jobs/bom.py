@@ -5,7 +5,8 @@ Masses are sheet area x thickness x the material's density; the parts' share is 
 holes and inner cuts) over the sheet's. Hardware is counted from what parts.json says of each part: a washer pair
 (`meta.node`) is one crossing node with one carriage bolt and nut; a singularity joint's plates share a bolt per
 bolt hole; strips meet at seams (`meta.joins`), screwed through the holes of the seam's overlap; a clamp has a
-square bolt hole and a cable hole at each arm's end.
+square bolt hole and a cable hole at each arm's end; an edge member's node is one bolt through its top and bottom
+bars and a spacer tube between them (the thesis's edge detail).
 """
 
 from __future__ import annotations
@@ -47,7 +48,22 @@ def hardware(parts: list[Part], screw_hole_mm: float | None) -> list[dict[str, A
             {"item": "cable clamp", "count": len(clamps),
              "per": f"{cable_holes / len(clamps):g} cable holes each: the two diagonal cables pass through it"
              if clamps else "no clamps"}]
+    # one bolt per edge node, also where two edge members meet at a corner node (through all four bars)
+    edge_nodes = {node["id"] for p in parts if p.meta.get("member") == "edge" for node in p.nodes}
+    if edge_nodes:
+        rows.append({"item": "edge bolt with nut and spacer tube", "count": len(edge_nodes),
+                     "per": "1 per lamella end on the edge members: through the top bars, a spacer tube and the "
+                            "bottom bars"})
     return rows
+
+
+def edge_members(parts: list[Part], thickness: float, kg_per_mm3: float) -> dict[str, Any] | None:
+    """The edge members' bars (cut with the sheets): how many, their length along the bar and their mass."""
+    bars = [p for p in parts if p.meta.get("member") == "edge"]
+    if not bars:
+        return None
+    return {"bars": len(bars), "length_m": round(sum(p.meta["length_mm"] for p in bars) / 1000.0, 3),
+            "mass_kg": round(sum(net_area(p) for p in bars) * thickness * kg_per_mm3, 2)}
 
 
 def bill_of_materials(nesting: Nesting, partset: PartSet, material: Material) -> dict[str, Any]:
@@ -71,6 +87,11 @@ def bill_of_materials(nesting: Nesting, partset: PartSet, material: Material) ->
               "cost": None if material.price_per_kg is None else round(mass * material.price_per_kg, 2),
               "currency": material.currency}
     screw_hole = (partset.report.get("options") or {}).get("screw_hole_mm")
+    rows = hardware(partset.parts, screw_hole)
+    edges = edge_members(partset.parts, thickness, kg_per_mm3)
+    if edges:
+        rows.append({"item": "edge member bars (cut with the sheets)", "count": edges["bars"],
+                     "per": f"{edges['length_m']:.1f} m of bar, {edges['mass_kg']:.1f} kg"})
     return {"material": material.name, "density_kg_m3": material.density, "thickness_mm": thickness,
             "price_per_kg": material.price_per_kg, "sheets": sheets, "totals": totals,
-            "hardware": hardware(partset.parts, screw_hole)}
+            "hardware": rows, "edge_members": edges}

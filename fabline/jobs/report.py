@@ -58,6 +58,7 @@ def report_data(result: Any) -> dict[str, Any]:
                    "by_kind": dict(Counter(p.kind for p in result.partset.parts))} if result.partset else None),
         "structure": {"lamellas": structure, "max_utilisation": max((r["utilisation"] for r in structure), default=None),
                       "failing": failing, "passes": not failing, "rule": VERDICT_RULE},
+        "edge_members": result.partset.report.get("edges") if result.partset else None,
         "nesting": ({"sheets": sheets, "summary": result.nesting.summary} if result.nesting else None),
         "machine_time_s": result.export.totals().time if result.export else None,
         "bill_of_materials": report_shop.bill_of_materials(result),
@@ -93,6 +94,7 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
     parts.append("</div>")
     parts.append(report_shop.bom_section(data["bill_of_materials"]))
     parts.append(_structure_table(data["structure"]))
+    parts.append(_edge_table(data["edge_members"]))
     estimates = {s["id"]: s["time_s"] for s in data["nesting"]["sheets"] if "time_s" in s} if data["nesting"] else {}
     parts.append(report_shop.stream_table(data["stream"], estimates))
     parts.append(_survey_section(data["survey"]))
@@ -129,6 +131,28 @@ def _structure_table(structure: dict[str, Any]) -> str:
             f"lamella {html.escape(worst['lamella'])}; allowed radius {first['min_allowed_radius_mm']:.0f} mm, "
             f"twist {first['max_allowed_twist_rad_per_m']:.3f} rad/m).</p><p class=note>Rule: "
             f"{html.escape(structure['rule'])}</p><table id=strips>{head}{''.join(body)}</table>")
+
+
+def _edge_table(edges: dict[str, Any] | None) -> str:
+    """The edge members: per boundary its bars' weak-axis bending and twist against the limits (a warning, not a
+    verdict on the job: the thesis bent and twisted them on site, off any optimised path)."""
+    if not edges:
+        return ""
+    head = ("<tr><th>edge</th><th>nodes</th><th>length m</th><th>min radius mm</th><th>max twist rad/m</th>"
+            "<th>in-plane curvature 1/m</th><th>utilisation %</th><th>governing</th></tr>")
+    body = []
+    for row in edges["members"]:
+        radius = f"{row['min_radius_mm']:.0f}" if row["min_radius_mm"] else "straight"
+        body.append(f"<tr class={'ok' if row['passes'] else 'fail'}><td>{html.escape(row['edge'])}</td>"
+                    f"<td>{len(set(row['nodes']))}{' (loop)' if row['closed'] else ''}</td>"
+                    f"<td>{row['length_mm'] / 1000:.3f}</td><td>{radius}</td><td>{row['max_twist_rad_per_m']:.3f}</td>"
+                    f"<td>{row['max_in_plane_curvature_per_m']:.3f}</td><td>{percent(row['utilisation'])[:-2]}</td>"
+                    f"<td>{row['governing']}</td></tr>")
+    return (f"<h2>Edge members</h2><p>The boundary as {len(edges['bars'])} bars of {edges['width_mm']:g} x "
+            f"{edges['thickness_mm']:g} mm, top and bottom, curved in the sheet by the boundary's geodesic curvature, "
+            f"a {edges['bolt_hole_mm']:g} mm bolt hole at every lamella end; bent on site about their weak axis by the "
+            f"normal curvature and twisted by the geodesic torsion. Over a limit is a warning, as the thesis bent them "
+            f"regardless ({len(edges['warnings'])} warnings).</p><table id=edges>{head}{''.join(body)}</table>")
 
 
 def _survey_section(survey: dict[str, Any] | None) -> str:

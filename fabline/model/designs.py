@@ -338,4 +338,31 @@ def helicoid_network(pitch: float = 6.0, radius: float = 3.0, turns: float = 0.5
                            {"design": "helicoid", "pitch_m": pitch, "radius_m": radius, "turns": turns, "spacing_m": spacing})
 
 
+def design_surface(network: Network) -> tuple[AsymptoticSurface, dict[str, tuple[float, float]], float | None] | None:
+    """The exact surface (metres) of a built-in design's network, every node's grid parameters (a, b) from its id
+    N{i}-{j} and meta["grid"], and the parameters' period (the catenoid's 2 pi, shifting a and b together; else None).
+    None for any other network, or one whose nodes no longer lie where the meta puts them (edited since)."""
+    meta, grid = network.meta, network.meta.get("grid") or {}
+    builders = {"enneper": ("scale_m_per_unit", enneper_surface), "catenoid": ("waist_m", catenoid_surface),
+                "helicoid": ("pitch_m", helicoid_surface)}
+    key, build = builders.get(meta.get("design"), (None, None))
+    if key is None or key not in meta or "a" not in grid or "b" not in grid:
+        return None
+    surface, a_values, b_values = build(float(meta[key])), np.asarray(grid["a"]), np.asarray(grid["b"])
+    params = {}
+    for nid in network.nodes:
+        try:
+            i, j = (int(x) for x in nid[1:].split("-"))
+        except ValueError:
+            return None
+        if not (nid.startswith("N") and 0 <= i < len(a_values) and 0 <= j < len(b_values)):
+            return None
+        params[nid] = (float(a_values[i]), float(b_values[j]))
+    ab = np.array(list(params.values()))
+    xyz = np.array([network.nodes[nid].xyz for nid in params], dtype=float) * network.mm_per_unit / 1000.0
+    if np.abs(surface.point(ab[:, 0], ab[:, 1]) - xyz).max() > 1e-5:
+        return None
+    return surface, params, 2 * np.pi if meta["design"] == "catenoid" else None
+
+
 DESIGNS = {"enneper": enneper_network, "catenoid": catenoid_network, "helicoid": helicoid_network}

@@ -45,6 +45,8 @@ class UnrollOptions:
     min_crossing_angle: float = 30.0    # the slotted joint rotates up to 60 degrees from square
     straight_tolerance: float = 0.01    # a strip within this of straight is cut as a rectangle
     strict: bool = False                # structural warnings become errors
+    edge_members: bool = False          # the boundary curves as flat curved bars, top and bottom (unroll.edges)
+    edge_width: float | None = None     # width of an edge member's bar; default the lamella height h
 
     @property
     def slot(self) -> float:
@@ -92,9 +94,10 @@ class UnrollOptions:
         """Raise a FablineError naming, as `name(field)` gives it, the first setting that cannot work (the command
         line's option by default; a job file names its own keys, which are these fields' names)."""
         positive = ("overlap", "screw_hole", "sheet_length", "text_height", "bolt_square", "slot_width", "end_length",
-                    "straight_tolerance")
+                    "straight_tolerance", "edge_width")
         for key in positive:
-            value = {"slot_width": self.slot, "end_length": self.end}.get(key, getattr(self, key))
+            value = {"slot_width": self.slot, "end_length": self.end,
+                     "edge_width": self.profile.h if self.edge_width is None else self.edge_width}.get(key, getattr(self, key))
             if not 0 < value < math.inf:
                 raise FablineError(f"{name(key)}: must be positive, got {value:g}")
         for key in ("pair_spacing", "slot_clearance", "sheet_margin", "min_web"):

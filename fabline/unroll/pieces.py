@@ -24,8 +24,9 @@ ARROW_LENGTH = 3.0  # the label's orientation arrow, in cap heights
 LABEL_TIE_MM = 1e-6  # free stretches this close in width count as equal: the label takes the first
 
 
-def segment_part(segment: Segment, options: UnrollOptions) -> Part:
-    """The flat part of one strip segment, in its own frame: x from 0 along the chord, centreline at y = 0."""
+def segment_part(segment: Segment, options: UnrollOptions, node_hole: float = 0.0) -> Part:
+    """The flat part of one strip segment, in its own frame: x from 0 along the chord, centreline at y = 0; with
+    `node_hole` (a diameter) a bolt hole on the centreline at every node (edge members' lamella connections)."""
     strip, a, b = segment.strip, segment.start, segment.end
     h, width, depth = options.profile.h, options.slot, options.slot_depth
     xs = strip.curve.s_at_samples
@@ -69,6 +70,8 @@ def segment_part(segment: Segment, options: UnrollOptions) -> Part:
     text += _label(centre, label, a, b, blocked, sign, slot_end_y, edge_y, height)
 
     holes = circles(_seam_holes(centre, segment, options), options.screw_hole / 2.0)
+    if node_hole and len(marks_at):
+        holes += circles(centre.place(marks_at, 0.0, 0.0), node_hole / 2.0)
     nodes = [{"id": nid, "s": round(x - a, 4)} for nid, x in in_nodes]
     kind = "strip" if centre.straight else "curved-strip"
     return Part(segment.id, kind, outline, lamella=strip.lamella, holes=holes, slots=slots, marks=marks,

@@ -22,7 +22,7 @@ from fabline.unroll.structure import helix_strains
 
 NEWTON_STEPS = 3  # from the tangent-plane guess (error ~ k d^2 < 1 mm) each step gains a factor ~100
 CROSSING_GAP_MM = 1.0  # two strips whose offset curves pass farther apart than this at a node do not cross there
-FAMILY_EDGE = {"A": "top", "B": "bottom"}
+FAMILY_EDGE = {"A": "top", "B": "bottom", "E": "top"}  # E: edge members, no slots, engraved from the bottom
 OTHER_EDGE = {"top": "bottom", "bottom": "top"}
 
 

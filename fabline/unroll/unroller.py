@@ -61,6 +61,13 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
         raise FablineError(warnings[0] + more)
     if options.hardware:
         parts.extend(hardware_parts(geometry, options, sizes))
+    edges = None
+    if options.edge_members:
+        from fabline.unroll.edges import edge_parts
+
+        edge_list, edges = edge_parts(geometry.network, options, sizes.bolt_hole)
+        parts.extend(edge_list)
+        warnings = warnings + edges["warnings"]
     lamella_rows = [check.summary(options.material, options.profile) for check in checks]
     report = {
         "summary": _summary(parts, lamella_rows, strip_rows, warnings),
@@ -70,6 +77,8 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
         "strips": strip_rows,
         "warnings": warnings,
     }
+    if edges is not None:
+        report["edges"] = edges
     profile = {"h": options.profile.h, "t": options.profile.t, "name": str(options.profile)}
     return PartSet(parts, profile, options.material.name, network.name, report)
 
@@ -185,5 +194,6 @@ def _options_row(options: UnrollOptions) -> dict:
         "overlap_mm": options.overlap, "min_overlap_mm": options.shortest_overlap, "screw_hole_mm": options.screw_hole, "usable_length_mm": options.usable_length,
         "end_length_mm": options.end, "compensate_twist": options.compensate_twist,
         "singularity": options.singularity, "hardware": options.hardware, "text_height_mm": options.engrave_height,
-        "min_crossing_angle_deg": options.min_crossing_angle,
+        "min_crossing_angle_deg": options.min_crossing_angle, "edge_members": options.edge_members,
+        "edge_width_mm": (options.profile.h if options.edge_width is None else options.edge_width) if options.edge_members else None,
     }
