@@ -12,6 +12,7 @@ from scipy.optimize import fsolve
 
 from fabline.errors import FablineError
 from fabline.model.surfaces import design_asymptotic
+from fabline.model.surfaces import minimal
 from fabline.model.surfaces.minimal import catenoid_waist, coaxial_circles, minimal_surface
 
 
@@ -181,3 +182,37 @@ def test_three_dxf_loops_then_network_then_parts(tmp_path, cli):
     assert network["meta"]["quality"]["crossing_angles"]["min"] > 75
     code, stdout, stderr = cli("unroll", tmp_path / "shell.network.json", "-o", tmp_path / "parts.json")
     assert code == 0 and (tmp_path / "parts.json").exists(), stderr
+
+
+def steep_annulus(monkeypatch, rounds: int) -> trimesh.Trimesh:
+    """The annulus between z = 1 and z = 0.2 on the catenoid r = cosh z, whose flat start is stretched five times near
+    the inner ring (the surface rises steeply there), with `rounds` remeshing rounds."""
+    monkeypatch.setattr(minimal, "REMESH_ROUNDS", rounds)
+    return minimal_surface([np.array(circle((0, 0), np.cosh(z), z, 720))[:-1] for z in (1.0, 0.2)], 0.05)
+
+
+def boundary_vertices(mesh: trimesh.Trimesh) -> np.ndarray:
+    """Positions of the vertices on edges that have one face, sorted; and asserts every other edge has two."""
+    edges, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    assert set(counts) == {1, 2}  # manifold: no edge in three faces
+    points = mesh.vertices[np.unique(edges[counts == 1])]
+    return points[np.lexsort(points.T)]
+
+
+def test_remeshing_keeps_triangles_well_shaped_where_the_start_tears_them(monkeypatch):
+    rounds = minimal.REMESH_ROUNDS
+    torn, remeshed = steep_annulus(monkeypatch, 0), steep_annulus(monkeypatch, rounds)
+    angles = {name: np.degrees(trimesh.triangles.angles(mesh.triangles)) for name, mesh in (("torn", torn), ("remeshed", remeshed))}
+    assert (angles["torn"].min(axis=1) < 30).mean() > 0.05 and angles["torn"].max() > 130  # the case needs remeshing
+    assert (angles["remeshed"].min(axis=1) < 30).mean() < 0.01 and angles["remeshed"].min() > 20
+    assert angles["remeshed"].max() < 110
+    edges = remeshed.edges_unique_length
+    assert np.percentile(edges, 5) > 0.8 * 0.05 * 0.8 and np.percentile(edges, 95) < 4 / 3 * 0.05
+    # a manifold, consistently oriented annulus (Euler number 0) whose boundary is the given rings' points, untouched
+    assert remeshed.is_winding_consistent
+    assert len(remeshed.vertices) - len(remeshed.edges_unique) + len(remeshed.faces) == 0
+    rim = boundary_vertices(remeshed)
+    assert np.array_equal(rim, boundary_vertices(torn))
+    assert set(np.round(rim[:, 2], 12)) == {0.2, 1.0}
+    assert np.abs(np.hypot(rim[:, 0], rim[:, 1]) - np.cosh(rim[:, 2])).max() < 1e-4  # on the 720-gons
+    assert catenoid_distance(torn.vertices, 1.0).max() > 0.001 > catenoid_distance(remeshed.vertices, 1.0).max()

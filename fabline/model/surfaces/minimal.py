@@ -33,6 +33,7 @@ MAX_ITERATIONS = 400
 RELAX_SWEEPS = 2
 REMESH_ROUNDS = 6  # splits, collapses and flips, each round followed by STEPS_PER_ROUND area steps
 STEPS_PER_ROUND = 8
+SETTLED_FRACTION = 0.01  # a remeshing round that changes fewer edges than this fraction of the faces ends the rounds
 CONVERGED_FRACTION = 1e-6  # of the mesh size: the largest normal move that counts as converged
 CLOSED_FRACTION = 1e-6  # ends of a curve closer than this fraction of its length: closed
 
@@ -79,16 +80,24 @@ def minimal_surface(boundaries: list[np.ndarray], mesh_size: float, source: str 
 
 
 def _minimise(vertices: np.ndarray, faces: np.ndarray, fixed: np.ndarray, mesh_size: float) -> tuple[np.ndarray, np.ndarray]:
-    """Rounds of remeshing towards `mesh_size` and area steps, then area steps alone until the normal moves vanish."""
+    """Rounds of remeshing towards `mesh_size` and area steps with tangential relaxation (until a round hardly changes
+    the mesh), then plain area steps until the normal moves vanish."""
     for _ in range(REMESH_ROUNDS):
-        vertices, faces, fixed, _ = remesh(vertices, faces, fixed, mesh_size)
-        vertices = _area_steps(vertices, faces, fixed, mesh_size, STEPS_PER_ROUND)
-    return _area_steps(vertices, faces, fixed, mesh_size, MAX_ITERATIONS), faces
+        vertices, faces, fixed, changes = remesh(vertices, faces, fixed, mesh_size)
+        if changes < SETTLED_FRACTION * len(faces):
+            break
+        vertices = _area_steps(vertices, faces, fixed, mesh_size, STEPS_PER_ROUND, RELAX_SWEEPS)
+    return _area_steps(vertices, faces, fixed, mesh_size, MAX_ITERATIONS, 0), faces
 
 
-def _area_steps(vertices: np.ndarray, faces: np.ndarray, fixed: np.ndarray, mesh_size: float, steps: int) -> np.ndarray:
-    """Up to `steps` cotangent-Laplace steps with the boundary fixed (each vertex moved along its normal by the
-    solve's move), each followed by tangential relaxation; stops early once the normal moves vanish."""
+def _area_steps(vertices: np.ndarray, faces: np.ndarray, fixed: np.ndarray, mesh_size: float, steps: int, sweeps: int
+                ) -> np.ndarray:
+    """Up to `steps` cotangent-Laplace solves with the boundary fixed, each followed by `sweeps` of tangential
+    relaxation; stops early once no vertex moves along its normal.
+
+    With sweeps the vertices take the solve's positions (Pinkall and Polthier's step); without, only its move along
+    their normals, so that vertices do not drift along the surface and the iteration settles on the shape.
+    """
     free = np.flatnonzero(~fixed)
     neighbours = igl.adjacency_matrix(faces).astype(float)
     uniform = sp.diags(1.0 / np.asarray(neighbours.sum(axis=1)).ravel()) @ neighbours
@@ -97,11 +106,14 @@ def _area_steps(vertices: np.ndarray, faces: np.ndarray, fixed: np.ndarray, mesh
         laplacian = igl.cotmatrix(vertices, faces).tocsr()
         inner = laplacian[free][:, free].tocsc()
         rhs = -laplacian[free][:, fixed] @ vertices[fixed]
-        solved = splu(inner).solve(rhs)
+        solved = splu(inner, permc_spec="MMD_AT_PLUS_A").solve(rhs)  # the ordering for a symmetric matrix
         normals = igl.per_vertex_normals(vertices, faces)[free]
         along = np.einsum("ij,ij->i", solved - vertices[free], normals)
-        vertices[free] += along[:, None] * normals
-        for _ in range(RELAX_SWEEPS):
+        if sweeps:
+            vertices[free] = solved
+        else:
+            vertices[free] += along[:, None] * normals
+        for _ in range(sweeps):
             normals = igl.per_vertex_normals(vertices, faces)[free]
             delta = (uniform @ vertices)[free] - vertices[free]
             vertices[free] += 0.5 * (delta - np.einsum("ij,ij->i", delta, normals)[:, None] * normals)
