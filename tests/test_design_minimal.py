@@ -152,7 +152,7 @@ def test_three_loops_span_a_minimal_surface_that_converges_under_refinement():
     rim = fine.edges_sorted[trimesh.grouping.group_rows(fine.edges_sorted, require_count=1)]
     assert len(np.unique(rim)) == len(rim)  # three closed boundary loops, no pinched vertex
     h_coarse, h_fine = mean_curvature(coarse)[interior(coarse)], mean_curvature(fine)[interior(fine)]
-    assert h_fine.mean() < 0.5 * h_coarse.mean() and h_fine.mean() < 0.002 and h_fine.max() < 0.1  # 1/m; k1 reaches ~2 1/m
+    assert h_fine.mean() < 0.5 * h_coarse.mean() and h_fine.mean() < 0.002 and h_fine.max() < 0.1  # 1/m
     # the same surface at both sizes, and it keeps the arrangement's two mirror symmetries
     y = np.linspace(-1.4, 1.4, 15)
     probes = np.r_[np.c_[np.zeros_like(y), y], np.c_[y, np.full_like(y, 0.45)], np.c_[y, np.full_like(y, -0.45)]]
@@ -161,8 +161,8 @@ def test_three_loops_span_a_minimal_surface_that_converges_under_refinement():
     assert np.abs(fine_z - heights(coarse, probes)).max() < 0.002
     assert np.abs(fine_z - heights(fine, probes * [-1, 1])).max() < 0.001
     assert np.abs(fine_z - heights(fine, probes * [1, -1])).max() < 0.001
-    flat = np.c_[fine.vertices[:, :2], np.zeros(len(fine.vertices))]
-    assert mean_curvature(trimesh.Trimesh(flat + [0, 0, 1] * (fine.vertices[:, 2:] * 0.5), fine.faces))[interior(fine)].mean() > 10 * h_fine.mean()
+    squashed = trimesh.Trimesh(fine.vertices * [1, 1, 0.5], fine.faces, process=False)  # not minimal: the measure sees it
+    assert mean_curvature(squashed)[interior(fine)].mean() > 10 * h_fine.mean()
 
 
 def test_three_dxf_loops_then_network_then_parts(tmp_path, cli):

@@ -1,12 +1,13 @@
 """`design minimal`: a discrete minimal surface spanning closed boundary curves, as a mesh the tracer takes.
 
-One curve spans a disc (a Delaunay triangulation of its best-fit-plane projection), two curves a tube
-between them (rows of points between the two resampled curves). The interior then minimises area with
-the boundary fixed: each step solves the cotangent Laplace equation of the current mesh for the
-interior vertices (Pinkall and Polthier's iteration, libigl's cotangent matrix), and a few sweeps of
-tangential relaxation move vertices towards their neighbours' centroid within the tangent plane, so the
-triangles stay well shaped while the surface converges. It stops when no vertex moves along the normal
-by more than a micrometre-scale tolerance.
+Curves whose projections onto their mean plane nest (an outer curve, any number of openings or inner
+rings inside it) start as the planar region between them, triangulated and lifted harmonically; two
+curves that do not nest (coaxial rings) start as a tube of rows between them. The interior then
+minimises area with the boundary fixed: rounds of isotropic remeshing (fabline.model.surfaces.remesh)
+alternate with steps that solve the cotangent Laplace equation of the current mesh for the interior
+vertices (Pinkall and Polthier's iteration, libigl's cotangent matrix) and relax them tangentially
+towards their neighbours' centroid, so the triangles stay well shaped while the surface converges;
+last, steps along the normals only until no vertex moves by more than a micrometre-scale tolerance.
 """
 
 from __future__ import annotations
@@ -16,11 +17,11 @@ from pathlib import Path
 import igl
 import numpy as np
 import scipy.sparse as sp
+import shapely
 import trimesh
 from scipy.optimize import brentq
 from scipy.sparse.linalg import splu
 from scipy.spatial import Delaunay
-import shapely
 from shapely.geometry import Polygon
 
 from fabline.errors import FablineError
