@@ -1,12 +1,15 @@
 """Design from surfaces: traced asymptotic networks against the closed forms, tracing speed, minimal-surface speed.
 
-Usage: python benchmarks/design_bench.py [--sizes 5000,20000,80000] [--big 100000] [--minimal 20000] [--dir DIR]
+Usage: python benchmarks/design_bench.py [--sizes 5000,20000,80000] [--noisy 20000] [--noise 0.5] [--big 100000]
+       [--minimal 20000] [--dir DIR]
 Table 1: for the pavilion's Enneper patch (9 x 12 m, k_max 1.1 1/m), a catenoid patch (waist 1 m) and a
 helicoid (pitch 6 m), each meshed irregularly at every size, the traced network (spacing 0.35 m, seed
 as the closed form's) against the closed-form rail grid: node count, mean and max node distance, max
-k_n along the curves, smallest crossing angle. Table 2: the whole `design_asymptotic` on a
+k_n along the curves, smallest crossing angle; then the same at the `--noisy` sizes with `--noise` mm of
+normal noise on the vertices (goal: 2 mm mean, 10 mm max). Table 2: the whole `design_asymptotic` on a
 `--big`-triangle Enneper mesh (goal < 10 s). Table 3: `minimal_surface` from two coaxial circles
-(radius 1 m, 1 m apart) at about `--minimal` triangles (goal < 30 s) and its distance to the catenoid.
+(radius 1 m, 1 m apart) at about `--minimal` triangles (goal < 30 s) and its distance to the catenoid, then
+three circles (an outer one with two openings) at the same count.
 Wall time depends on what else runs on the machine, so this process's CPU time is printed too.
 """
 
@@ -37,13 +40,15 @@ def timed(function, *args, **kwargs):
     return result, time.perf_counter() - wall, time.process_time() - cpu
 
 
-def accuracy_table(sizes: list[int], folder: Path) -> None:
+def accuracy_table(sizes: list[int], folder: Path, noise_mm: float = 0.0) -> None:
+    if noise_mm:
+        print(f"\nthe same with {noise_mm:g} mm of normal noise on the vertices (the mesh is denoised before its jets are fitted)")
     print(f"{'surface':<10}{'triangles':>10}{'nodes':>7}{'ref':>6}{'mean mm':>9}{'max mm':>8}{'max k_n':>9}{'min angle':>10}{'wall s':>8}{'cpu s':>7}")
     for name, case in closed_form_cases().items():
         truth = rail_grid(case.surface, case.seed, SPACING, case.inside)
         for size in sizes:
             path = folder / f"{name}-{size}.ply"
-            mesh = case.mesh(size, seed=1)
+            mesh = case.mesh(size, seed=1, noise=noise_mm / 1000)
             mesh.export(path)
             design, wall, cpu = timed(design_asymptotic, path, SPACING, seed=case.seed_point())
             network = design.network
@@ -70,6 +75,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default="5000,20000,80000", help="triangle counts for the accuracy table")
     parser.add_argument("--big", type=int, default=100_000, help="triangles of the speed run")
+    parser.add_argument("--noisy", default="20000", help="triangle counts for the noisy accuracy table (empty: skip)")
+    parser.add_argument("--noise", type=float, default=0.5, help="standard deviation of the noisy table's normal noise, mm")
     parser.add_argument("--minimal", type=int, default=20_000, help="triangles of the minimal surface run (0: skip)")
     parser.add_argument("--dir", help="folder for the meshes (default: a temporary one)")
     args = parser.parse_args()
@@ -77,12 +84,16 @@ def main() -> None:
         folder = Path(args.dir or scratch)
         folder.mkdir(parents=True, exist_ok=True)
         accuracy_table([int(s) for s in args.sizes.split(",")], folder)
+        if args.noisy:
+            accuracy_table([int(s) for s in args.noisy.split(",")], folder, args.noise)
         speed_table(args.big, folder)
         if args.minimal:
             minimal_table(args.minimal, folder)
 
 
 def minimal_table(triangles: int, folder: Path) -> None:
+    import trimesh
+
     from fabline.model.surfaces.minimal import catenoid_waist, coaxial_circles, minimal_surface
 
     circles = coaxial_circles(1.0, 1.0)
@@ -95,6 +106,15 @@ def minimal_table(triangles: int, folder: Path) -> None:
     print(f"\nminimal surface between two circles (r 1 m, 1 m apart), mesh size {size * 1000:.1f} mm: {len(mesh.faces):,} triangles "
           f"in {wall:.2f} s wall, {cpu:.2f} s cpu (goal < {MINIMAL_GOAL_SECONDS:g} s); distance to the catenoid "
           f"(waist {waist:.6f} m): {error.mean() * 1000:.3f} mm mean, {error.max() * 1000:.3f} mm max")
+    angle = np.linspace(0.0, 2 * np.pi, 720, endpoint=False)
+    ring = np.stack([np.cos(angle), np.sin(angle), np.zeros_like(angle)], axis=1)
+    loops = [1.5 * ring, 0.3 * ring + [-0.6, 0, 0.4], 0.3 * ring + [0.6, 0, 0.4]]
+    size = float(np.sqrt(4 * np.pi * (1.5 ** 2 - 2 * 0.3 ** 2) / (np.sqrt(3) * triangles)))
+    mesh, wall, cpu = timed(minimal_surface, loops, size)
+    smallest = np.degrees(trimesh.triangles.angles(mesh.triangles)).min(axis=1)
+    print(f"minimal surface spanning three circles (r 1.5 m, two 0.3 m openings 0.4 m up), mesh size {size * 1000:.1f} mm: "
+          f"{len(mesh.faces):,} triangles in {wall:.2f} s wall, {cpu:.2f} s cpu; smallest angle {smallest.min():.1f} deg, "
+          f"{(smallest < 30).mean() * 100:.2f} % of the triangles under 30 deg")
 
 
 if __name__ == "__main__":

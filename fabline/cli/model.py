@@ -60,7 +60,7 @@ def _register_surface_designs(kinds: argparse._SubParsersAction) -> None:
     traced.add_argument("--json", action="store_true", help="print the quality report as JSON")
     traced.add_argument("-o", "--output", required=True, help="network JSON to write")
     traced.set_defaults(func=run_asymptotic)
-    minimal = kinds.add_parser("minimal", help="discrete minimal surface spanning one or two closed boundary curves")
+    minimal = kinds.add_parser("minimal", help="discrete minimal surface spanning closed boundary curves")
     minimal.add_argument("--boundary", required=True, help="closed curves: .dxf (polylines, circles, splines) or .json")
     minimal.add_argument("--mesh-size", type=positive(float), required=True, help="triangle size, model units")
     minimal.add_argument("--units", choices=sorted(UNIT_TO_MM), help="units of a file that declares none (default m)")
@@ -113,8 +113,8 @@ def run_minimal(args: argparse.Namespace) -> int:
     """Compute the minimal surface and write it as a mesh."""
     from fabline.model.surfaces.minimal import minimal_surface, read_boundaries, write_mesh
 
-    curves, units = read_boundaries(args.boundary, args.units)
-    mesh = minimal_surface(curves, args.mesh_size, args.boundary)
+    curves, names, units = read_boundaries(args.boundary, args.units)
+    mesh = minimal_surface(curves, args.mesh_size, args.boundary, names)
     write_mesh(mesh, args.output)
     print(f"{args.output}: minimal surface spanning {len(curves)} boundary curve{'s' * (len(curves) > 1)}, "
           f"{len(mesh.faces)} triangles, area {mesh.area:.4g} {units}2 (units {units})")

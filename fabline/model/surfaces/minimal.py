@@ -1,12 +1,13 @@
 """`design minimal`: a discrete minimal surface spanning closed boundary curves, as a mesh the tracer takes.
 
-One curve spans a disc (a Delaunay triangulation of its best-fit-plane projection), two curves a tube
-between them (rows of points between the two resampled curves). The interior then minimises area with
-the boundary fixed: each step solves the cotangent Laplace equation of the current mesh for the
-interior vertices (Pinkall and Polthier's iteration, libigl's cotangent matrix), and a few sweeps of
-tangential relaxation move vertices towards their neighbours' centroid within the tangent plane, so the
-triangles stay well shaped while the surface converges. It stops when no vertex moves along the normal
-by more than a micrometre-scale tolerance.
+Curves whose projections onto their mean plane nest (an outer curve, any number of openings or inner
+rings inside it) start as the planar region between them, triangulated and lifted harmonically; two
+curves that do not nest (coaxial rings) start as a tube of rows between them. The interior then
+minimises area with the boundary fixed: rounds of isotropic remeshing (fabline.model.surfaces.remesh)
+alternate with steps that solve the cotangent Laplace equation of the current mesh for the interior
+vertices (Pinkall and Polthier's iteration, libigl's cotangent matrix) and relax them tangentially
+towards their neighbours' centroid, so the triangles stay well shaped while the surface converges;
+last, steps along the normals only until no vertex moves by more than a micrometre-scale tolerance.
 """
 
 from __future__ import annotations
@@ -16,30 +17,35 @@ from pathlib import Path
 import igl
 import numpy as np
 import scipy.sparse as sp
+import shapely
 import trimesh
 from scipy.optimize import brentq
 from scipy.sparse.linalg import splu
-from scipy.spatial import Delaunay, cKDTree
-from shapely.geometry import Point, Polygon
+from scipy.spatial import Delaunay
+from shapely.geometry import Polygon
 
 from fabline.errors import FablineError
 from fabline.fileio import atomic_output
 from fabline.model.surfaces.curves import read_curves
-from fabline.model.surfaces.mesh import xyz_text
+from fabline.model.surfaces.mesh import tangent_basis, xyz_text
+from fabline.model.surfaces.remesh import remesh
 
 MAX_ITERATIONS = 400
 RELAX_SWEEPS = 2
+REMESH_ROUNDS = 6  # splits, collapses and flips, each round followed by STEPS_PER_ROUND area steps
+STEPS_PER_ROUND = 8
+SETTLED_FRACTION = 0.01  # a remeshing round that changes fewer edges than this fraction of the faces ends the rounds
 CONVERGED_FRACTION = 1e-6  # of the mesh size: the largest normal move that counts as converged
 CLOSED_FRACTION = 1e-6  # ends of a curve closer than this fraction of its length: closed
 
 
-def read_boundaries(path: str | Path, units: str | None = None) -> tuple[list[np.ndarray], str]:
-    """Closed boundary curves from a DXF or JSON file (fabline.model.surfaces.curves), and their units.
+def read_boundaries(path: str | Path, units: str | None = None) -> tuple[list[np.ndarray], list[str], str]:
+    """Closed boundary curves from a DXF or JSON file (fabline.model.surfaces.curves), where each is (for messages), and the units.
 
     A JSON curve is closed when its last point repeats its first; a DXF polyline by its closed flag too.
     """
     curves, units = read_curves(path, units)
-    return [_closed(points, where) for points, where in curves], units
+    return [_closed(points, where) for points, where in curves], [where for _, where in curves], units
 
 
 def _closed(points: np.ndarray, where: str) -> np.ndarray:
@@ -52,42 +58,67 @@ def _closed(points: np.ndarray, where: str) -> np.ndarray:
     return points[:-1]
 
 
-def minimal_surface(boundaries: list[np.ndarray], mesh_size: float, source: str = "boundary") -> trimesh.Trimesh:
-    """A discrete minimal surface with triangles about `mesh_size` across, spanning one or two closed curves."""
+def minimal_surface(boundaries: list[np.ndarray], mesh_size: float, source: str = "boundary",
+                    names: list[str] | None = None) -> trimesh.Trimesh:
+    """A discrete minimal surface with triangles about `mesh_size` across, spanning closed curves.
+
+    Curves whose projections onto their mean plane nest (one outer curve, the others inside it and apart)
+    span the planar domain between them; two curves that do not nest (coaxial rings) span a tube.
+    `names` (default "curve k") say which curve a message is about.
+    """
     if not (0 < mesh_size < np.inf):
         raise FablineError(f"--mesh-size must be a positive number, got {mesh_size:g}")
-    lengths = [float(np.linalg.norm(np.diff(np.vstack([c, c[:1]]), axis=0), axis=1).sum()) for c in boundaries]
+    names = names or [f"{source}: curve {k}" for k in range(len(boundaries))]
+    lengths = [_length(c) for c in boundaries]
     if min(lengths) < 3 * mesh_size:
-        raise FablineError(f"{source}: mesh size {mesh_size:g} is too coarse for a boundary curve {min(lengths):.4g} long")
-    if len(boundaries) == 1:
-        vertices, faces, fixed = _disc(boundaries[0], mesh_size, source)
-    elif len(boundaries) == 2:
-        vertices, faces, fixed = _tube(boundaries[0], boundaries[1], mesh_size)
-    else:
-        raise FablineError(f"{source}: {len(boundaries)} boundary curves; one (a disc) or two (a tube between them) are "
-                           "supported")
-    return trimesh.Trimesh(_minimise(vertices, faces, fixed, mesh_size), faces, process=False)
+        short = int(np.argmin(lengths))
+        raise FablineError(f"{names[short]}: mesh size {mesh_size:g} is too coarse for a boundary curve {lengths[short]:.4g} long")
+    rims = [_resample(c, max(8, int(np.ceil(length / mesh_size)))) for c, length in zip(boundaries, lengths)]
+    domain = _planar_domain(rims, mesh_size, source, names, tube_instead=len(rims) == 2)
+    vertices, faces, fixed = domain if domain is not None else _tube(boundaries[0], boundaries[1], mesh_size)
+    vertices, faces = _minimise(vertices, faces, fixed, mesh_size)
+    return trimesh.Trimesh(vertices, faces, process=False)
 
 
-def _minimise(vertices: np.ndarray, faces: np.ndarray, fixed: np.ndarray, mesh_size: float) -> np.ndarray:
-    """Cotangent-Laplace steps with the boundary fixed, and tangential relaxation, until the normal moves vanish."""
+def _minimise(vertices: np.ndarray, faces: np.ndarray, fixed: np.ndarray, mesh_size: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rounds of remeshing towards `mesh_size` and area steps with tangential relaxation (until a round hardly changes
+    the mesh), then plain area steps until the normal moves vanish."""
+    for _ in range(REMESH_ROUNDS):
+        vertices, faces, fixed, changes = remesh(vertices, faces, fixed, mesh_size)
+        if changes < SETTLED_FRACTION * len(faces):
+            break
+        vertices = _area_steps(vertices, faces, fixed, mesh_size, STEPS_PER_ROUND, RELAX_SWEEPS)
+    return _area_steps(vertices, faces, fixed, mesh_size, MAX_ITERATIONS, 0), faces
+
+
+def _area_steps(vertices: np.ndarray, faces: np.ndarray, fixed: np.ndarray, mesh_size: float, steps: int, sweeps: int
+                ) -> np.ndarray:
+    """Up to `steps` cotangent-Laplace solves with the boundary fixed, each followed by `sweeps` of tangential
+    relaxation; stops early once no vertex moves along its normal.
+
+    With sweeps the vertices take the solve's positions (Pinkall and Polthier's step); without, only its move along
+    their normals, so that vertices do not drift along the surface and the iteration settles on the shape.
+    """
     free = np.flatnonzero(~fixed)
     neighbours = igl.adjacency_matrix(faces).astype(float)
     uniform = sp.diags(1.0 / np.asarray(neighbours.sum(axis=1)).ravel()) @ neighbours
     vertices = vertices.copy()
-    for _ in range(MAX_ITERATIONS):
+    for _ in range(steps):
         laplacian = igl.cotmatrix(vertices, faces).tocsr()
         inner = laplacian[free][:, free].tocsc()
         rhs = -laplacian[free][:, fixed] @ vertices[fixed]
-        solved = splu(inner).solve(rhs)
+        solved = splu(inner, permc_spec="MMD_AT_PLUS_A").solve(rhs)  # the ordering for a symmetric matrix
         normals = igl.per_vertex_normals(vertices, faces)[free]
-        moved = np.abs(np.einsum("ij,ij->i", solved - vertices[free], normals)).max()
-        vertices[free] = solved
-        for _ in range(RELAX_SWEEPS):
+        along = np.einsum("ij,ij->i", solved - vertices[free], normals)
+        if sweeps:
+            vertices[free] = solved
+        else:
+            vertices[free] += along[:, None] * normals
+        for _ in range(sweeps):
             normals = igl.per_vertex_normals(vertices, faces)[free]
             delta = (uniform @ vertices)[free] - vertices[free]
             vertices[free] += 0.5 * (delta - np.einsum("ij,ij->i", delta, normals)[:, None] * normals)
-        if moved < CONVERGED_FRACTION * mesh_size:
+        if np.abs(along).max() < CONVERGED_FRACTION * mesh_size:
             break
     return vertices
 
@@ -100,37 +131,79 @@ def _resample(curve: np.ndarray, count: int) -> np.ndarray:
     return np.stack([np.interp(t, s, closed[:, i]) for i in range(3)], axis=1)
 
 
-def _disc(curve: np.ndarray, size: float, source: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A triangulated disc inside the curve's projection onto its best-fit plane, the interior flat in that plane."""
-    length = float(np.linalg.norm(np.diff(np.vstack([curve, curve[:1]]), axis=0), axis=1).sum())
-    rim = _resample(curve, max(8, int(np.ceil(length / size))))
-    centre = rim.mean(axis=0)
-    _, _, axes = np.linalg.svd(rim - centre)
-    flat = (rim - centre) @ axes[:2].T
-    outline = Polygon(flat)
-    if not outline.is_valid:
-        raise FablineError(f"{source}: the boundary curve crosses itself seen along its best-fit plane's normal; "
-                           "one closed curve must bound a disc")
-    lo, hi = flat.min(axis=0), flat.max(axis=0)
+def _length(curve: np.ndarray) -> float:
+    """Length of a closed polyline."""
+    return float(np.linalg.norm(np.diff(np.vstack([curve, curve[:1]]), axis=0), axis=1).sum())
+
+
+def _planar_domain(rims: list[np.ndarray], size: float, source: str, names: list[str], tube_instead: bool
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The region between the curves' projections onto their mean plane, triangulated and lifted harmonically.
+
+    The plane's normal is the largest curve's vector area. The largest projection is the outer boundary; the
+    others must lie inside it and apart from each other by at least half a triangle (holes). Interior points
+    (a triangular lattice kept 0.6 `size` from every rim segment, so every rim edge is a Delaunay edge) are
+    triangulated with the rims, and lifted by the Laplace equation of the flat triangulation with the rims
+    fixed at their heights. When the projections do not nest, None if `tube_instead`, else refused.
+    """
+    centre = np.vstack(rims).mean(axis=0)
+    areas = [0.5 * np.cross(r - centre, np.roll(r, -1, axis=0) - centre).sum(axis=0) for r in rims]
+    largest = int(np.argmax([np.linalg.norm(a) for a in areas]))
+    normal = areas[largest] / np.linalg.norm(areas[largest])
+    t1, t2 = tangent_basis(normal[None])
+    axes = np.vstack([t1, t2])
+    flats = [(r - centre) @ axes.T for r in rims]
+    outlines = [Polygon(f) for f in flats]
+    for k, outline in enumerate(outlines):
+        if not outline.is_valid:
+            raise FablineError(f"{names[k]}: the boundary curve crosses itself seen along its mean plane's normal "
+                               f"({xyz_text(normal)}); a spanned curve must not")
+    outer = int(np.argmax([o.area for o in outlines]))
+    holes = [k for k in range(len(rims)) if k != outer]
+    clash = _clash(outlines, outer, holes, 0.5 * size)
+    if clash is not None:
+        if tube_instead:
+            return None
+        first, second = (names[k].removeprefix(f"{source}: ") for k in clash)
+        raise FablineError(f"{source}: {first} and {second}: their projections onto the curves' mean plane (normal "
+                           f"({xyz_text(normal)})) cross, overlap or come within {0.5 * size:.4g} of each other; the curves "
+                           "can be spanned when one encloses the others, which lie apart inside it, or two form a tube")
+    region = Polygon(flats[outer], [flats[k] for k in holes])
+    lo, hi = flats[outer].min(axis=0), flats[outer].max(axis=0)
     rows = np.arange(lo[1], hi[1], size * np.sqrt(3) / 2)
-    lattice = np.array([(x + (k % 2) * size / 2, y) for k, y in enumerate(rows) for x in np.arange(lo[0], hi[0], size)])
-    keep = np.array([outline.contains(Point(p)) for p in lattice]) if len(lattice) else np.zeros(0, bool)
-    lattice = lattice[keep] if len(lattice) else lattice.reshape(0, 2)
-    if len(lattice):
-        lattice = lattice[cKDTree(flat).query(lattice)[0] > 0.6 * size]
-    points = np.vstack([flat, lattice])
+    lattice = np.array([(x + (k % 2) * size / 2, y) for k, y in enumerate(rows) for x in np.arange(lo[0], hi[0], size)]).reshape(-1, 2)
+    lattice = lattice[shapely.contains_xy(region, lattice[:, 0], lattice[:, 1])]
+    lattice = lattice[shapely.distance(shapely.points(lattice), region.boundary) > 0.6 * size]
+    rim_points = np.vstack([flats[outer]] + [flats[k] for k in holes])
+    points = np.vstack([rim_points, lattice])
     faces = Delaunay(points).simplices
     centroids = points[faces].mean(axis=1)
-    faces = faces[[outline.contains(Point(c)) for c in centroids]]
-    vertices = np.vstack([rim, centre + lattice @ axes[:2]])
+    faces = faces[shapely.contains_xy(region, centroids[:, 0], centroids[:, 1])]
+    vertices = np.vstack([rims[outer]] + [rims[k] for k in holes] + [centre + lattice @ axes])
     fixed = np.zeros(len(vertices), dtype=bool)
-    fixed[:len(rim)] = True
+    fixed[:len(rim_points)] = True
+    flat = np.c_[points, np.zeros(len(points))]
+    laplacian = igl.cotmatrix(flat, faces).tocsr()
+    free = np.flatnonzero(~fixed)
+    vertices[free] = splu(laplacian[free][:, free].tocsc()).solve(-laplacian[free][:, fixed] @ vertices[fixed])
     return vertices, faces, fixed
+
+
+def _clash(outlines: list[Polygon], outer: int, holes: list[int], gap: float) -> tuple[int, int] | None:
+    """The first pair of curves that keep the holes from lying inside the outer outline and `gap` apart, or None."""
+    for k in holes:
+        if not outlines[outer].contains(outlines[k]) or outlines[k].distance(outlines[outer].exterior) < gap:
+            return outer, k
+    for i, first in enumerate(holes):
+        for second in holes[i + 1:]:
+            if outlines[first].distance(outlines[second]) < gap:
+                return first, second
+    return None
 
 
 def _tube(first: np.ndarray, second: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rows of points between two closed curves (aligned in start and direction), triangulated as a strip."""
-    longer = max(np.linalg.norm(np.diff(np.vstack([c, c[:1]]), axis=0), axis=1).sum() for c in (first, second))
+    longer = max(_length(c) for c in (first, second))
     count = max(8, int(np.ceil(longer / size)))
     a, b = _resample(first, count), _resample(second, count)
     options = [np.roll(candidate, -shift, axis=0) for candidate in (b, b[::-1]) for shift in range(count)]
