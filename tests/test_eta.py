@@ -46,6 +46,7 @@ HAND = [
     (["G1X50F600", "G1Y50"], corner_time()),
     (["G1X100Y100F6000"], math.hypot(100, 100) / 100 + 100 / (A * math.sqrt(2))),  # diagonal: a sqrt 2 per axis limit
     (["G4P1.5", "G1X100F600"], 1.5 + 100 / 10 + 10 / A),
+    (["G0X100Y100"], 1.0 + 100 / A),   # a diagonal rapid: 100 mm/s per axis is 141 mm/s along it, a sqrt 2 too
 ]
 
 

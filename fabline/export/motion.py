@@ -125,8 +125,9 @@ def move_times(table: np.ndarray, acceleration: float, junction_deviation: float
     unit = chord / length[:, None]
     axis = np.maximum(np.abs(unit).max(axis=1), 1e-12)    # limit_value_by_axis_maximum for equal X and Y limits
     accel = acceleration / axis
-    feed = table[owner, FEED]
-    nominal = np.minimum(feed, max_rate / axis) / 60.0
+    feed, limit_rate = table[owner, FEED], max_rate / axis
+    rapid = table[owner, RAPID] > 0   # Grbl's rapid rate is the axis-limited maximum, above $110 on a diagonal
+    nominal = np.where(rapid & np.isfinite(limit_rate), limit_rate, np.minimum(feed, limit_rate)) / 60.0
     turn = unit[1:] - unit[:-1]
     cos_theta = -np.einsum("ij,ij->i", unit[:-1], unit[1:])
     turn_axis = np.abs(turn).max(axis=1) / np.maximum(np.hypot(turn[:, 0], turn[:, 1]), 1e-12)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from fabline.errors import FablineError
@@ -65,9 +65,15 @@ class Program:
     machine: str | None = None
     """The machine profile named in the header comments before the first command (`; machine NAME (...)`)."""
 
+    _plans: dict = field(default_factory=dict, compare=False, repr=False)
+    """The last plan made (a program is checked, then streamed, from the same start): one parse, not two."""
+
     def plan(self, modal: ModalState, position: Vector, build: BuildInfo = STOCK_BUILD) -> list[Block]:
         """The block each line becomes when the program starts in `modal` state at work `position` on a controller
         of `build`; every line the firmware would refuse is listed (a refused line changes nothing, as in Grbl)."""
+        key = (modal, tuple(position), build)
+        if key in self._plans:
+            return list(self._plans[key])
         blocks, refused = [], []
         for line in self.lines:
             try:
@@ -79,6 +85,8 @@ class Program:
             modal, position = block.modal, block.position
         if refused:
             raise FablineError(listing(refused, f"{len(refused)} lines the controller would refuse"))
+        self._plans.clear()
+        self._plans[key] = tuple(blocks)
         return blocks
 
 

@@ -69,7 +69,7 @@ class Faults:
     stall_seconds: float = 0.0
 
 
-@dataclass
+@dataclass(slots=True)
 class _Pending:
     """A parsed line waiting for planner room, or (spindle, coolant, dwell changes) for the planner to empty."""
 
@@ -83,7 +83,7 @@ class _Pending:
     """Motion blocks still to go into the planner (an arc's chords wait for room one by one, as in Grbl's mc_arc)."""
 
 
-@dataclass
+@dataclass(slots=True)
 class _Planned:
     """A line queued for execution: a motion, a dwell, or a zero-time modal change."""
 
@@ -478,7 +478,7 @@ class GrblSimulator:
         block = pending.block
         if pending.pieces is None:
             segment = block.segment if block.segment is not None and block.segment.length > 0 else None
-            pending.pieces = self._chords(segment) if segment is not None else []
+            pending.pieces = self._chords(segment)[::-1] if segment is not None else []  # next chord last
             if segment is None:
                 planned = _Planned(text=pending.line, line_number=block.line_number, jog=jog, pause=pending.pause,
                                    spindle=block.modal.spindle, speed=block.modal.speed, dwell=block.dwell)
@@ -488,7 +488,7 @@ class GrblSimulator:
                 return True
         programmed = block.modal.feed * (25.4 if block.modal.units == "G20" else 1.0)
         while pending.pieces and (jog or len(self._moves) < self.build.planner_blocks):
-            piece = pending.pieces.pop(0)
+            piece = pending.pieces.pop()
             planned = _Planned(text=pending.line, line_number=block.line_number, jog=jog, pause=pending.pause,
                                spindle=block.modal.spindle, speed=block.modal.speed, segment=piece,
                                programmed_rate=programmed, final=not pending.pieces)
@@ -502,30 +502,43 @@ class GrblSimulator:
         it (motion_control.c, mc_arc: floor(length / sqrt(tol (2 r - tol))) chords, the last ending on target)."""
         if segment.center is None:
             return [segment]
-        a, b, _ = segment.plane
-        radius = math.hypot(segment.start[a] - segment.center[a], segment.start[b] - segment.center[b])
+        a, b, c = segment.plane
+        radius, angle0, sweep = segment._arc()
         tolerance = self.settings[12]
         chord = math.sqrt(tolerance * (2 * radius - tolerance)) if 2 * radius > tolerance > 0 else 0.0
-        count = int(segment.length / chord) if chord > 0 else 1
+        count = int(math.hypot(radius * sweep, segment.end[c] - segment.start[c]) / chord) if chord > 0 else 1
         if count <= 1:
             return [Segment(segment.start, segment.end, segment.rapid)]
-        points = [segment.start] + [segment.point_at(i / count) for i in range(1, count)] + [segment.end]
-        return [Segment(p, q, segment.rapid) for p, q in zip(points, points[1:])]
+        points = [segment.start]
+        centre_a, centre_b, start_c, rise = segment.center[a], segment.center[b], segment.start[c], segment.end[c] - segment.start[c]
+        for i in range(1, count):
+            point = [0.0, 0.0, 0.0]
+            angle = angle0 + sweep * i / count
+            point[a], point[b] = centre_a + radius * math.cos(angle), centre_b + radius * math.sin(angle)
+            point[c] = start_c + rise * i / count
+            points.append(tuple(point))
+        points.append(segment.end)
+        return [Segment(p, q, False) for p, q in zip(points, points[1:])]
 
     def _axis_limit(self, first_setting: int, unit: tuple[float, float, float]) -> float:
         """Grbl's limit_value_by_axis_maximum: the largest value along `unit` with no axis over its own setting."""
-        limit = math.inf
-        for axis, component in enumerate(unit):
-            if component:
-                limit = min(limit, self.settings[first_setting + axis] / abs(component))
+        settings, limit = self.settings, math.inf
+        x, y, z = unit
+        if x:
+            limit = settings[first_setting] / abs(x)
+        if y:
+            limit = min(limit, settings[first_setting + 1] / abs(y))
+        if z:
+            limit = min(limit, settings[first_setting + 2] / abs(z))
         return limit
 
     def _plan(self, block: _Planned) -> None:
         """Add a motion block to the planner (planner.c, plan_buffer_line) and replan the buffer."""
         segment = block.segment
-        span = [e - s for s, e in zip(segment.start, segment.end)]
-        length = math.sqrt(span[0] * span[0] + span[1] * span[1] + span[2] * span[2])
-        unit = (span[0] / length, span[1] / length, span[2] / length)
+        start, end = segment.start, segment.end
+        dx, dy, dz = end[0] - start[0], end[1] - start[1], end[2] - start[2]
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        unit = (dx / length, dy / length, dz / length)
         rapid_rate = self._axis_limit(110, unit)
         block.rate = (rapid_rate if segment.rapid else min(block.programmed_rate, rapid_rate)) / 60.0
         block.length, block.unit, block.accel = length, unit, self._axis_limit(120, unit)
@@ -534,16 +547,16 @@ class GrblSimulator:
             block.max_entry2 = 0.0  # the planner is empty: the machine stands still
         else:
             previous = self._moves[-1]
-            prior = previous.unit
-            cos_theta = -(prior[0] * unit[0] + prior[1] * unit[1] + prior[2] * unit[2])
+            px, py, pz = previous.unit
+            cos_theta = -(px * unit[0] + py * unit[1] + pz * unit[2])
             if cos_theta > 0.999999:
                 junction2 = 0.0  # a full reversal
             elif cos_theta < -0.999999:
                 junction2 = math.inf  # straight on
             else:
-                turn = [u - p for u, p in zip(unit, prior)]
-                norm = math.sqrt(turn[0] * turn[0] + turn[1] * turn[1] + turn[2] * turn[2])
-                accel = self._axis_limit(120, tuple(t / norm for t in turn))
+                tx, ty, tz = unit[0] - px, unit[1] - py, unit[2] - pz
+                norm = math.sqrt(tx * tx + ty * ty + tz * tz)
+                accel = self._axis_limit(120, (tx / norm, ty / norm, tz / norm))
                 sin_half = math.sqrt(0.5 * (1.0 - cos_theta))
                 junction2 = accel * self.settings[11] * sin_half / (1.0 - sin_half)
             block.max_entry2 = min(junction2, nominal2, previous.rate * previous.rate)
@@ -626,7 +639,8 @@ class GrblSimulator:
             if block.progress >= block.length - 1e-9:
                 self.machine_time = clock + spent
                 self._complete()
-                self._process_input()  # the main loop refills the planner while the steppers run
+                if self._pending is not None or self._rx:
+                    self._process_input()  # the main loop refills the planner while the steppers run
                 if single:
                     break
             else:
