@@ -86,8 +86,7 @@ def program_extent(blocks: Sequence[Block], origin: Vector) -> tuple[list[float]
         segment = block.segment
         if segment is None:
             continue
-        points = [segment.end] if segment.center is None else [segment.point_at(i / _ARC_SAMPLES)
-                                                               for i in range(1, _ARC_SAMPLES + 1)]
+        points = [segment.end] if segment.center is None else segment.points(_ARC_SAMPLES)
         for point in points:
             for axis in range(3):
                 low[axis] = min(low[axis], point[axis])

@@ -35,6 +35,7 @@ BANNER = f"Grbl {VERSION} ['$' for help]"
 HELP = "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]"
 LINE_BUFFER_SIZE = 80
 _REALTIME_BYTES = (b"?", b"!", b"~", b"\x18")
+_BLANK = bytes(range(33))  # what the protocol loop drops from a line: control characters and space
 _INT_SETTINGS = {0, 1, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 26, 30, 31, 32}
 DEFAULT_SETTINGS: dict[int, float] = {
     0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010, 12: 0.002, 13: 0, 20: 0, 21: 0, 22: 0,
@@ -413,6 +414,8 @@ class GrblSimulator:
                 continue
             if not self._rx:
                 return
+            if not self._comment and self._take_plain_text():
+                continue
             char = chr(self._rx.pop(0))
             if char == "\n" or char == "\r":
                 line, overflow = self._line.decode("ascii", errors="replace"), self._line_overflow
@@ -432,6 +435,23 @@ class GrblSimulator:
                 self._line_overflow = True
             else:
                 self._line += char.upper().encode("ascii", errors="replace")
+
+    def _take_plain_text(self) -> bool:
+        """Move the received characters before the next line end into the line buffer at once, as the loop below
+        would one by one (whitespace and control characters dropped, letters uppercased, overflow past 79), when
+        they hold no comment; False (nothing taken) when they do or a line end comes first."""
+        rx = self._rx
+        ends = [index for index in (rx.find(b"\n"), rx.find(b"\r")) if index >= 0]
+        end = min(ends) if ends else len(rx)
+        if end == 0 or rx.find(b"(", 0, end) >= 0:
+            return False
+        text = bytes(rx[:end]).translate(None, _BLANK).upper()
+        del rx[:end]
+        room = LINE_BUFFER_SIZE - 1 - len(self._line)
+        if len(text) > room:
+            text, self._line_overflow = text[:max(room, 0)], True
+        self._line += text
+        return True
 
     def _finish_line(self, line: str, overflow: bool) -> None:
         """Answer a complete input line: error:11 if it overflowed the line buffer, else execute it."""
@@ -502,22 +522,14 @@ class GrblSimulator:
         it (motion_control.c, mc_arc: floor(length / sqrt(tol (2 r - tol))) chords, the last ending on target)."""
         if segment.center is None:
             return [segment]
-        a, b, c = segment.plane
-        radius, angle0, sweep = segment._arc()
+        a, b, _ = segment.plane
+        radius = math.hypot(segment.start[a] - segment.center[a], segment.start[b] - segment.center[b])
         tolerance = self.settings[12]
         chord = math.sqrt(tolerance * (2 * radius - tolerance)) if 2 * radius > tolerance > 0 else 0.0
-        count = int(math.hypot(radius * sweep, segment.end[c] - segment.start[c]) / chord) if chord > 0 else 1
+        count = int(segment.length / chord) if chord > 0 else 1
         if count <= 1:
             return [Segment(segment.start, segment.end, segment.rapid)]
-        points = [segment.start]
-        centre_a, centre_b, start_c, rise = segment.center[a], segment.center[b], segment.start[c], segment.end[c] - segment.start[c]
-        for i in range(1, count):
-            point = [0.0, 0.0, 0.0]
-            angle = angle0 + sweep * i / count
-            point[a], point[b] = centre_a + radius * math.cos(angle), centre_b + radius * math.sin(angle)
-            point[c] = start_c + rise * i / count
-            points.append(tuple(point))
-        points.append(segment.end)
+        points = [segment.start, *segment.points(count)[:-1], segment.end]
         return [Segment(p, q, False) for p, q in zip(points, points[1:])]
 
     def _axis_limit(self, first_setting: int, unit: tuple[float, float, float]) -> float:
