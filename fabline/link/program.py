@@ -90,8 +90,14 @@ class Program:
         return blocks
 
 
+_PLAIN = re.compile(r"[^()?!~$;\x00-\x08\x0a-\x1f]*")
+"""A line with no comment and nothing to refuse: stripped in one step, as the loop below would."""
+
+
 def strip_line(text: str, where: str) -> str:
     """Remove comments `( )` and `;`, whitespace and `%` marks; uppercase; refuse what GRBL cannot take."""
+    if _PLAIN.fullmatch(text):
+        return _LEADING_N.sub("", "".join(text.split()).replace("%", "").upper())
     out, depth = [], 0
     for column, char in enumerate(text, 1):
         if depth:
