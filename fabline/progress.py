@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 import urllib.parse
 from dataclasses import dataclass
-from typing import Iterable, TypeVar
+from typing import Callable, Iterable, TypeVar
 
 from tqdm import tqdm
 
@@ -26,7 +26,7 @@ class StreamBar:
 
     def __init__(self, desc: str = "", position: int = 0, leave: bool = True, unit: str = "line"):
         self.bar = tqdm(total=None, unit=unit, desc=desc, position=position, leave=leave, dynamic_ncols=True,
-                        disable=not sys.stderr.isatty(), bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} {postfix}")
+                        disable=not sys.stderr.isatty(), bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt}{postfix}")
 
     def show(self, done: int, total: int, eta: "Eta | None", status: str = "", desc: str | None = None) -> None:
         """Redraw with `done` of `total` lines, the time and `status` (and a new `desc`)."""
@@ -43,6 +43,14 @@ class StreamBar:
 
     def close(self) -> None:
         self.bar.close()
+
+
+def above_bars(say: Callable[[str], None]) -> Callable[[str], None]:
+    """`say` that prints its line above the progress bars on a terminal instead of through them."""
+    def said(text: str) -> None:
+        with tqdm.external_write_mode():
+            say(text)
+    return said
 
 
 def progress(items: Iterable[T], desc: str, total: int | None = None) -> Iterable[T]:

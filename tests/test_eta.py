@@ -197,3 +197,26 @@ def test_the_runner_page_eta_of_a_job(tmp_path):
     assert eta["job"]["remaining_s"] == pytest.approx(whole.remaining, abs=1.5)
     assert eta["job"]["finish_at"] == pytest.approx(now + whole.remaining, abs=2)
     assert job_eta(Queue(), {**job, "state": "queued"}, machines, timelines) is None
+
+
+def test_the_stream_bar_shows_lines_elapsed_and_remaining_on_a_terminal(monkeypatch):
+    """The bar `fabline stream` and each machine of `fabline run` show: lines done of all, the ETA, the status."""
+    import io
+    import sys
+
+    from fabline.progress import StreamBar
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    terminal = Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    bar = StreamBar("grbl-1")
+    bar.show(50, 200, estimate(400.0, 100.0, 130.0), "Run @ 1.00,2.00 line 57", desc="grbl-1 S003")
+    bar.close()
+    shown = terminal.getvalue().replace("\r", "\n").splitlines()
+    last = [line for line in shown if line.strip()][-1]
+    remaining = 300 * (130 + 20) / (100 + 20)  # planned rest x pace shrunk by a prior of 5 % of 400 s: 6:15
+    assert last.startswith("grbl-1 S003:  25%") and remaining == 375
+    assert last.endswith("| 50/200, elapsed 0:02:10, remaining 0:06:15; Run @ 1.00,2.00 line 57"), last

@@ -20,7 +20,7 @@ from fabline.errors import FablineError
 from fabline.fileio import OutputSet, atomic_output, check_outputs, write_json
 from fabline.jobs.jobfile import JobSpec, load_job_file, nest_options, toolpath_options, unroll_options
 from fabline.jobs.report_shop import machine_seconds
-from fabline.progress import Eta, StreamBar, clock as clock_text, estimate, simulated_speedup
+from fabline.progress import Eta, StreamBar, above_bars, clock as clock_text, estimate, simulated_speedup
 
 if TYPE_CHECKING:  # the model stage pulls in scipy; the runner imports this package and must start fast
     from fabline.model import Network
@@ -287,6 +287,7 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
     ports = machine_ports(result.spec)
     clock = _JobClock([sheet.get("time_s", 0.0) / simulated_speedup(ports[0]) for sheet in result.sheet_files], len(ports))
     job_bar = StreamBar("job", position=0, unit="sheet")
+    say = above_bars(say)
     bars = {port: StreamBar(port.split("?", 1)[0], position=slot + 1, leave=False) for slot, port in enumerate(ports)}
 
     def job_eta_text() -> str:
