@@ -310,6 +310,8 @@ class Streamer:
                 raise StreamInterrupted(str(exc), "undecided", previous.done) from None
         if problems is None:  # read now that the controller stands still (a held one was first let finish)
             problems = self._check_controller()
+        if self.on_progress is not None:
+            self.timeline()  # before anything moves: computing it must not delay the stream loop's first answers
         self.journal = Journal(self.journal_path, sync_interval=COMMIT_INTERVAL).open(fresh=previous is None)
         try:
             return self._journaled_job(previous, executed, identity, problems)
