@@ -70,8 +70,8 @@ def metres(millimetres: float) -> str:
 
 
 def duration(seconds: float) -> str:
-    """A time for a summary line as h:mm:ss (`44:46:46`), as every command prints durations."""
-    minutes, secs = divmod(round(seconds), 60)
+    """A time for a summary line as h:mm:ss, hours unbounded (`44:46:46`), as every command prints durations."""
+    minutes, secs = divmod(round(max(seconds, 0.0)), 60)
     return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}"
 
 

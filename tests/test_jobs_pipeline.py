@@ -369,3 +369,27 @@ def test_ctrl_c_or_a_service_stop_stops_every_machine_safely_and_resume_cuts_eac
     executed = executed_program_lines(Path(f"{log}1")) + executed_program_lines(Path(f"{log}2"))
     assert 0 < done < len(executed)  # the interrupted run cut part of the job, the resumed one the rest
     assert sorted(executed) == sorted(line for lines in wires.values() for line in lines)  # none twice, none skipped
+
+
+def test_run_summary_and_report_give_planned_machine_time_and_the_time_remaining(run):
+    """Each sheet's line and the stream summary of `fabline run` give the planner's time (the streamer's, from the
+    G-code, agreeing with the export's estimate) and the job's elapsed and remaining time; the report's streaming
+    table has planned and remaining per sheet and a job row."""
+    from fabline.jobs.report_shop import machine_seconds
+    from fabline.units import duration
+
+    data = json.loads((run["dir"] / "report.json").read_text())
+    sheets = data["stream"]["sheets"]
+    exported = {s["id"]: s["time_s"] for s in data["nesting"]["sheets"]}
+    for k, sheet in enumerate(sheets):
+        assert sheet["planned_s"] == pytest.approx(exported[sheet["sheet"]], rel=1e-3, abs=0.2)
+        assert sheet["planned_done_s"] == sheet["planned_s"]
+        line = next(text for text in run["out"].splitlines() if text.startswith(f"stream: sheet {k + 1} of "))
+        assert re.search(r"finished in \d+\.\d s \(planned \d+\.\d s\); job: elapsed \d+:\d\d:\d\d, remaining \d+:\d\d:\d\d$",
+                         line), line
+    planned, taken = sum(s["planned_s"] for s in sheets), sum(machine_seconds(s) for s in sheets)
+    assert f"machine time planned {duration(planned)}, taken {duration(taken)}" in run["out"]
+    html = (run["dir"] / "report.html").read_text()
+    stream = html[html.index("<table id=stream>"):html.index("</table>", html.index("<table id=stream>"))]
+    assert "<th>planned</th><th>remaining</th>" in stream
+    assert f"<tr class=total><th>job</th>" in stream and f"<td>{duration(planned)}</td>" in stream

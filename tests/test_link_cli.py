@@ -213,3 +213,27 @@ def test_check_mode_parses_arcs_from_the_previous_target(cli, simulator, tmp_pat
     url, _ = simulator
     code, out, err = cli("stream", program, "--port", url(), "--check")
     assert code == 0, err
+
+
+def test_a_stopped_stream_prints_a_resume_command_quoted_for_any_shell(cli, gcode, simulator):
+    """A sim:// URL's ? and & would make a shell glob or background the pasted command: the hint quotes them."""
+    import shlex
+    import signal
+    import threading
+
+    url, log = simulator
+    slow = url().replace("time_scale=500", "time_scale=1")
+
+    def interrupt() -> None:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and not (log.is_file() and log.read_text().strip()):
+            time.sleep(0.02)
+        os.kill(os.getpid(), signal.SIGINT)  # the stream's handler stops the machine safely
+
+    thread = threading.Thread(target=interrupt)
+    thread.start()
+    code, _, err = cli("stream", gcode, "--port", slow)
+    thread.join()
+    assert code == 1, err
+    hint = err.split("continue with: ", 1)[1].strip()
+    assert shlex.quote(slow) in hint and shlex.split(hint) == ["fabline", "stream", str(gcode), "--port", slow, "--resume"]

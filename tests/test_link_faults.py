@@ -236,7 +236,9 @@ def test_a_new_run_never_overwrites_an_interrupted_one_by_accident(job, sim_url)
     over with a fresh journal, and a later --resume continues the latest run, not an older, longer one."""
     program, log = job
     lines = load_program(program).lines
-    late, early = lines[len(lines) * 2 // 3].file_line, lines[len(lines) // 4].file_line
+    # both in a contour's G1 cuts: a rejected M5 right after an arc is parsed only once the arc's chords are all
+    # planned, and the hold then carries the machine past it into the next G0 (the streamer rightly refuses to guess)
+    late, early = lines[len(lines) * 2 // 3 - 10].file_line, lines[len(lines) // 4].file_line
     with pytest.raises(StreamInterrupted):
         Streamer(sim_url(error_line=late), status_interval=0.05).run(program)
     with pytest.raises(FablineError, match=r"stopped after file line \d+ without finishing; continue it with --resume"):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -117,3 +118,30 @@ def test_journal_errors_are_one_line_messages(tmp_path):
     bad.write_text('{"event":"start","sha256":"a","lines":1}\nnot json\n{"event":"finished"}\n')
     with pytest.raises(FablineError, match=r"bad.journal:2: malformed journal record"):
         read_journal(bad)
+
+
+def test_plain_lines_are_stripped_as_the_character_loop_strips_them():
+    """strip_line's one-step path for lines without comments or refused characters gives what its character loop
+    gives (or the same error), over random lines of G-code letters, whitespace (Unicode's too), % and specials."""
+    import random
+
+    from fabline.link import program
+
+    def by_loop(text: str) -> str:
+        saved, program._PLAIN = program._PLAIN, re.compile(r"(?!)")
+        try:
+            return program.strip_line(text, "w")
+        finally:
+            program._PLAIN = saved
+
+    rng = random.Random(1)
+    alphabet = "G0123456789XYZ. \t%-+nNfF\x7f\x0b\u00e9;()?$\u00a0\u2028"
+    for _ in range(20000):
+        text = "".join(rng.choice(alphabet) for _ in range(rng.randint(0, 12)))
+        outcomes = []
+        for strip in (lambda t: program.strip_line(t, "w"), by_loop):
+            try:
+                outcomes.append(strip(text))
+            except FablineError as exc:
+                outcomes.append(f"error: {exc}")
+        assert outcomes[0] == outcomes[1], repr(text)

@@ -103,9 +103,9 @@ def test_simulator_replays_the_real_firmware_transcript(host):
 
 
 def test_status_report_values_follow_the_motion(host):
-    for line in (b"$10=3\n", b"$32=1\n", b"M4S500\n", b"G1X10Y10F3000\n"):
-        host.simulator.receive(line)
-    assert host.read(4) == ["ok"] * 4
+    for line in (b"$10=3\n", b"$32=1\n", b"$120=1000\n", b"$121=1000\n", b"M4S500\n", b"G1X10Y10F3000\n"):
+        host.simulator.receive(line)  # 1000 mm/s^2: at full speed after 6 ms, the status shows the nominal feed
+    assert host.read(6) == ["ok"] * 6
     time.sleep(0.3)
     report = classify(host.status()).status
     assert report.state == "Run"
@@ -281,18 +281,24 @@ def test_feed_hold_while_idle_is_a_completed_hold(host):
 
 def test_a_hold_that_outlasts_the_last_planned_block_completes():
     """Decelerating into a hold, the machine may reach the end of the last block it holds: it stands still then,
-    and Grbl reports Hold:0 (a Hold:1 forever kept a halting host waiting for an hour)."""
-    simulator = GrblSimulator(time_scale=1.0, settings={120: 0.5})  # 0.5 mm/s^2: stopping takes seconds
+    and Grbl reports Hold:0 (a Hold:1 forever kept a halting host waiting for an hour). Machine time is stepped."""
+    simulator = GrblSimulator(settings={120: 0.5}, threaded=False)  # 0.5 mm/s^2: a 2 mm move is a 4 s triangle
     try:
         simulator.attach()
         host = Host(simulator)
-        simulator.receive(b"G1X2F600\n")  # 10 mm/s; 2 mm end long before a 0.5 mm/s^2 stop
-        assert host.read(1) == ["ok"]
-        assert wait_for(host, "<Run").startswith("<Run")
+        simulator.receive(b"G1X2F600\n")
+        simulator.step(0.0)
+        assert host.read(1, quiet=0) == ["ok"]
+        simulator.step(2.5)  # past the peak (1 mm/s at X1): braking already, to stop at X2
+        assert host.status().startswith("<Run")
         simulator.receive(b"!")
-        assert wait_for(host, "<Hold:0", timeout=5).startswith("<Hold:0|MPos:2.000,0.000")
+        simulator.step(1.0)
+        assert host.status().startswith("<Hold:1|MPos:1.9")  # still slowing down, 1.5 s to go
+        simulator.step(1.0)
+        assert host.status().startswith("<Hold:0|MPos:2.000,0.000")
         simulator.receive(b"~")
-        assert wait_for(host, "<Idle").startswith("<Idle")
+        simulator.step(0.1)
+        assert host.status().startswith("<Idle")
     finally:
         simulator.close()
 

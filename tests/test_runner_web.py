@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import socket
 import time
 
@@ -119,6 +120,10 @@ def test_page_in_headless_chromium_confirm_sheets_and_watch_progress_reach_done(
             confirm.click()
             progress = page.locator(".machine .sheet-progress")
             sync_api.expect(progress).to_contain_text(f"cutting sheet {k + 1} of 2", timeout=20000)
+            eta = page.locator(".machine .eta")  # planned machine time corrected by the pace: sheet and job
+            sync_api.expect(eta).to_contain_text(re.compile(r"^sheet: elapsed \d+:\d\d:\d\d, remaining \d+:\d\d:\d\d, "
+                                                            r"done about .+; job: elapsed \d+:\d\d:\d\d, remaining"),
+                                                 timeout=20000)
             picture = page.locator(".machine img")
             sync_api.expect(picture).to_be_visible()
             page.wait_for_function("() => { const i = document.querySelector('.machine img');"

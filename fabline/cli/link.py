@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import os
 import select
+import shlex
 import signal
 import sys
 import termios
@@ -13,13 +14,12 @@ import threading
 import tty
 import urllib.parse
 
-from tqdm import tqdm
-
 from fabline.cli import positive
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
 from fabline.link import STOP_SIGNALS, Progress, Streamer, default_journal_path
 from fabline.link.streamer import MODES
+from fabline.progress import StreamBar
 
 KEYS_HELP = "keys: p = pause/resume (feed hold), q = abort safely"
 STOPPED = 1
@@ -85,8 +85,7 @@ def _stream(args: argparse.Namespace) -> int:
     journal = args.journal or default_journal_path(args.gcode)
     check_outputs(files=(args.log or f"{args.gcode}.link.log", journal), inputs=(args.gcode,))
     interactive = sys.stdin.isatty() and sys.stderr.isatty()
-    bar = tqdm(total=None, unit="line", disable=not sys.stderr.isatty(), dynamic_ncols=True,
-               bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}<{remaining}] {postfix}")
+    bar = StreamBar()
     if interactive:
         print(KEYS_HELP, file=sys.stderr)
 
@@ -97,13 +96,10 @@ def _stream(args: argparse.Namespace) -> int:
             shown[0] = progress.message
             if progress.message:
                 how = "press p" if interactive else f"send SIGUSR1 to process {os.getpid()}"
-                bar.write(f"{args.gcode}: {progress.message} ({how})", file=sys.stderr)
-        bar.total = progress.total
-        bar.n = progress.acked
+                bar.write(f"{args.gcode}: {progress.message} ({how})")
         position = ",".join(f"{v:.2f}" for v in progress.position) if progress.position else "?"
         state = "Paused" if streamer.paused and progress.state != "Hold" else progress.state
-        bar.set_postfix_str(f"{state} @ {position} line {progress.file_line or '-'}", refresh=False)
-        bar.refresh()
+        bar.show(progress.acked, progress.total, progress.eta, f"{state} @ {position} line {progress.file_line or '-'}")
 
     with _keyboard(streamer, interactive), _abort_on_interrupt(streamer):
         try:
@@ -114,7 +110,8 @@ def _stream(args: argparse.Namespace) -> int:
             bar.close()
     if not result.completed:
         print(f"stopped ({result.reason}) with {result.executed} of {result.total} lines executed; "
-              f"continue with: fabline stream {args.gcode} --port {args.port} --resume", file=sys.stderr)
+              f"continue with: {shlex.join(['fabline', 'stream', args.gcode, '--port', args.port, '--resume'])}",
+              file=sys.stderr)
         return STOPPED
     rate = result.total / result.elapsed if result.elapsed > 0 else float("inf")
     print(f"{args.gcode}: {result.total} lines streamed to {args.port} in {result.elapsed:.1f} s ({rate:.0f} lines/s)")

@@ -1,12 +1,15 @@
-"""The export stage: nested sheets to DXF drawings and G-code programs, and a checker for G-code files."""
+"""The export stage: nested sheets to DXF drawings and G-code programs, and a checker for G-code files.
 
-from fabline.export.check import CheckReport, check_gcode, check_program
-from fabline.export.job import ExportResult, SheetExport, export_job, export_nesting, load_job
-from fabline.export.machine import OPERATIONS, MachineProfile, Operation, available_machines, load_machine
-from fabline.export.motion import MotionSummary, MoveLog, estimate_time, summarise
-from fabline.export.toolpath import Toolpath, ToolpathOptions, order_paths, sheet_toolpaths, travel_length
+The public names load their modules on first use (`fabline.lazy`): the link stage reads a machine profile
+for every sheet it streams, and must not pay for the DXF writer, ezdxf and scipy to do it.
+"""
 
-__all__ = ["OPERATIONS", "CheckReport", "ExportResult", "MachineProfile", "MotionSummary", "MoveLog", "Operation",
-           "SheetExport", "Toolpath", "ToolpathOptions", "available_machines", "check_gcode", "check_program",
-           "estimate_time", "export_job", "export_nesting", "load_job", "load_machine", "order_paths",
-           "sheet_toolpaths", "summarise", "travel_length"]
+from fabline.lazy import lazy_surface
+
+__getattr__, __all__ = lazy_surface(__name__, {
+    "check": ("CheckReport", "check_gcode", "check_program"),
+    "job": ("ExportResult", "SheetExport", "export_job", "export_nesting", "load_job"),
+    "machine": ("OPERATIONS", "MachineProfile", "Operation", "available_machines", "load_machine"),
+    "motion": ("MotionSummary", "MoveLog", "estimate_time", "summarise"),
+    "toolpath": ("Toolpath", "ToolpathOptions", "order_paths", "sheet_toolpaths", "travel_length"),
+})

@@ -87,7 +87,7 @@ def check_program(text: str, profile: MachineProfile, source: str = "program",
             continue
         state.apply(block, where, report.problems)
     state.finish()
-    report.summary = summarise(state.moves, profile.acceleration, profile.junction_deviation)
+    report.summary = summarise(state.moves, profile.acceleration, profile.junction_deviation, profile.rapid_rate)
     return report
 
 

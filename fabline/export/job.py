@@ -150,7 +150,7 @@ def _export_sheet(sheet: Sheet, number: int, count: int, profile: MachineProfile
     paths = sheet_toolpaths(sheet, parts, options, source)
     _check_bed(paths, profile, f"{source}: sheet {sheet.id}")
     body, moves = sheet_program(paths, profile)
-    summary = summarise(moves, profile.acceleration, profile.junction_deviation)
+    summary = summarise(moves, profile.acceleration, profile.junction_deviation, profile.rapid_rate)
     header = _header(name, sheet, number, count, profile, options, summary)
     program = header_block(header, profile) + body
     order = (cut_order_svg(program.encode("ascii"), f"{name}_{sheet_file_stem(sheet.id)}.gcode", sheet.width, sheet.height,

@@ -12,6 +12,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+ARC_TOLERANCE = 0.002
+"""Grbl's default $12 (mm): how far an arc's chords may stray from it."""
+PLANNER_BLOCKS = 15
+"""The planner buffer of a stock Grbl 1.1h build (16 blocks, one kept free)."""
+
 # columns of a MoveLog row
 X0, Y0, X1, Y1, CX, CY, CLOCKWISE, FEED, RAPID, TOOL_ON, MARK, STOP, DWELL = range(13)
 
@@ -80,49 +85,107 @@ def move_geometry(table: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return length, radius, t_start, t_end
 
 
-def summarise(log: MoveLog, acceleration: float, junction_deviation: float) -> MotionSummary:
-    """Cut, mark and travel lengths and the run time; tool-on engrave moves count as marks, other tool-on moves as cuts."""
+def summarise(log: MoveLog, acceleration: float, junction_deviation: float, max_rate: float = math.inf) -> MotionSummary:
+    """Cut, mark and travel lengths and the run time; tool-on engrave moves count as marks, other tool-on moves as cuts.
+    `max_rate` (mm/min) is every axis's maximum rate ($110, $111)."""
     table = log.table()
     length, _, _, _ = move_geometry(table)
     on, mark = table[:, TOOL_ON] > 0, table[:, MARK] > 0
     return MotionSummary(
         cut_length=float(length[on & ~mark].sum()), mark_length=float(length[on & mark].sum()),
-        travel=float(length[~on].sum()), time=estimate_time(table, acceleration, junction_deviation),
+        travel=float(length[~on].sum()), time=estimate_time(table, acceleration, junction_deviation, max_rate=max_rate),
         moves=len(table))
 
 
-def estimate_time(table: np.ndarray, acceleration: float, junction_deviation: float) -> float:
-    """Run time in seconds: trapezoidal speed profiles, junction speeds from Grbl's junction-deviation rule.
+def estimate_time(table: np.ndarray, acceleration: float, junction_deviation: float, *, max_rate: float = math.inf,
+                  arc_tolerance: float = ARC_TOLERANCE, planner_blocks: int = PLANNER_BLOCKS) -> float:
+    """Run time in seconds of a move table on a Grbl controller kept fed by its host (see `move_times`)."""
+    return float(move_times(table, acceleration, junction_deviation, max_rate=max_rate, arc_tolerance=arc_tolerance,
+                            planner_blocks=planner_blocks).sum())
 
-    `acceleration` is in mm/s^2, feeds in mm/min; arcs are limited to the speed where the centripetal
-    acceleration equals `acceleration`. The machine starts and ends at rest, and stops where a move says so.
-    """
+
+def move_times(table: np.ndarray, acceleration: float, junction_deviation: float, *, max_rate: float = math.inf,
+               arc_tolerance: float = ARC_TOLERANCE, planner_blocks: int = PLANNER_BLOCKS) -> np.ndarray:
+    """Seconds each move of a table takes (its dwell included), planned as Grbl 1.1h plans it: arcs split into
+    chords by the $12 `arc_tolerance`, trapezoidal speed profiles with the X/Y `acceleration` (mm/s^2) and
+    `max_rate` (mm/min) limited per axis, junction speeds by the $11 `junction_deviation` rule, and a look-ahead
+    of the `planner_blocks` the planner buffer holds (the newest block must end at rest). The machine starts
+    and ends at rest, and stops where a move says so."""
     count = len(table)
+    times = table[:, DWELL].astype(float).copy() if count else np.zeros(0)
     if count == 0:
-        return 0.0
-    a = float(acceleration)
-    length, radius, t_start, t_end = move_geometry(table)
-    v_max = np.minimum(table[:, FEED] / 60.0, np.sqrt(a * radius))
-    junction = np.zeros(count + 1)             # junction[i]: speed entering move i; junction[count] = 0
-    cos_theta = -np.einsum("ij,ij->i", t_end[:-1], t_start[1:])
+        return times
+    start, end, owner, stop = _chords(table, arc_tolerance)
+    chord = end - start
+    length = np.hypot(chord[:, 0], chord[:, 1])
+    moving = length > 0                                   # Grbl drops blocks of no steps
+    start, chord, length, owner, stop = start[moving], chord[moving], length[moving], owner[moving], stop[moving]
+    if len(length) == 0:
+        return times
+    unit = chord / length[:, None]
+    axis = np.maximum(np.abs(unit).max(axis=1), 1e-12)    # limit_value_by_axis_maximum for equal X and Y limits
+    accel = acceleration / axis
+    feed, limit_rate = table[owner, FEED], max_rate / axis
+    rapid = table[owner, RAPID] > 0   # Grbl's rapid rate is the axis-limited maximum, above $110 on a diagonal
+    nominal = np.where(rapid & np.isfinite(limit_rate), limit_rate, np.minimum(feed, limit_rate)) / 60.0
+    turn = unit[1:] - unit[:-1]
+    cos_theta = -np.einsum("ij,ij->i", unit[:-1], unit[1:])
+    turn_axis = np.abs(turn).max(axis=1) / np.maximum(np.hypot(turn[:, 0], turn[:, 1]), 1e-12)
     sin_half = np.sqrt(np.clip(0.5 * (1.0 - cos_theta), 0.0, 1.0))
     with np.errstate(divide="ignore", invalid="ignore"):
-        v = np.sqrt(a * junction_deviation * sin_half / (1.0 - sin_half))
-    v = np.where(cos_theta > 0.999999, 0.0, np.where(cos_theta < -0.999999, np.inf, v))
-    v = np.minimum(v, np.minimum(v_max[:-1], v_max[1:]))
-    moving = (length[:-1] > 0) & (length[1:] > 0) & (table[1:, STOP] == 0)
-    junction[1:count] = np.where(moving, v, 0.0)
-    junction = np.sqrt(np.maximum(_reachable(junction ** 2, 2 * a * length), 0.0))   # >= 0 whatever the rounding
-    v0, v1 = junction[:-1], junction[1:]
-    accel_dist = (v_max ** 2 - v0 ** 2) / (2 * a)
-    decel_dist = (v_max ** 2 - v1 ** 2) / (2 * a)
-    cruise = length - accel_dist - decel_dist
+        junction = acceleration / np.maximum(turn_axis, 1e-12) * junction_deviation * sin_half / (1.0 - sin_half)
+    junction = np.where(cos_theta > 0.999999, 0.0, np.where(cos_theta < -0.999999, np.inf, junction))
+    limit = np.zeros(len(length) + 1)                      # squared entry speed of chord i; limit[-1]: the end
+    limit[1:-1] = np.minimum(junction, np.minimum(nominal[:-1], nominal[1:]) ** 2)
+    limit[:-1][stop] = 0.0
+    gain = 2.0 * accel * length
+    window = max(int(planner_blocks) - 1, 1)               # chords after a junction that are in the planner with it
+    travelled = np.concatenate([[0.0], np.cumsum(gain)])
+    ahead = travelled[np.minimum(np.arange(len(length) + 1) + window, len(length))] - travelled
+    entry2 = np.maximum(_reachable(np.minimum(limit, ahead), gain), 0.0)
+    v0, v1 = np.sqrt(entry2[:-1]), np.sqrt(entry2[1:])
     with np.errstate(divide="ignore", invalid="ignore"):
-        trapezoid = (v_max - v0) / a + (v_max - v1) / a + np.where(v_max > 0, cruise / v_max, 0.0)
-        peak = np.sqrt(np.maximum((2 * a * length + v0 ** 2 + v1 ** 2) / 2.0, 0.0))
-        triangle = (peak - v0) / a + (peak - v1) / a
-    times = np.where(cruise >= 0, trapezoid, triangle)
-    return float(np.sum(times[length > 0]) + table[:, DWELL].sum())
+        cruise = length - (nominal ** 2 - v0 ** 2) / (2 * accel) - (nominal ** 2 - v1 ** 2) / (2 * accel)
+        trapezoid = (nominal - v0) / accel + (nominal - v1) / accel + cruise / nominal
+        peak = np.sqrt(np.maximum((2 * accel * length + v0 ** 2 + v1 ** 2) / 2.0, 0.0))
+        triangle = (peak - v0) / accel + (peak - v1) / accel
+    np.add.at(times, owner, np.where(cruise >= 0, trapezoid, triangle))
+    return times
+
+
+def _chords(table: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The planner blocks of a move table: lines as they are, arcs split as Grbl's mc_arc splits them
+    (floor(length / sqrt(tol (2 r - tol))) equal-angle chords). Returns chord starts and ends, the row each
+    chord belongs to, and whether the machine stops before it (a row's stop applies to its first chord)."""
+    length, radius, _, _ = move_geometry(table)
+    arc = np.isfinite(radius) & (length > 0)
+    with np.errstate(invalid="ignore"):
+        chord = np.sqrt(np.maximum(tolerance * (2 * radius - tolerance), 0.0))
+        pieces = np.where(arc & (chord > 0), np.floor(np.where(chord > 0, length / chord, 1.0)), 1.0)
+    pieces = np.maximum(pieces, 1).astype(np.int64)
+    owner = np.repeat(np.arange(len(table)), pieces)
+    first = np.concatenate([[0], np.cumsum(pieces)[:-1]])
+    index = np.arange(len(owner)) - first[owner]           # chord number within its row
+    fraction0, fraction1 = index / pieces[owner], (index + 1) / pieces[owner]
+    start = table[owner][:, [X0, Y0]] + fraction0[:, None] * (table[owner][:, [X1, Y1]] - table[owner][:, [X0, Y0]])
+    end = table[owner][:, [X0, Y0]] + fraction1[:, None] * (table[owner][:, [X1, Y1]] - table[owner][:, [X0, Y0]])
+    if np.any(arc):
+        rows = arc[owner]
+        centre = table[owner[rows]][:, [CX, CY]]
+        r0 = table[owner[rows]][:, [X0, Y0]] - centre
+        angle0 = np.arctan2(r0[:, 1], r0[:, 0])
+        sweep = length[owner[rows]] / radius[owner[rows]] * np.where(table[owner[rows], CLOCKWISE] > 0, -1.0, 1.0)
+        rad = radius[owner[rows]][:, None]
+        for points, fraction in ((start, fraction0), (end, fraction1)):
+            angle = angle0 + sweep * fraction[rows]
+            points[rows] = centre + rad * np.column_stack([np.cos(angle), np.sin(angle)])
+        last = rows & (index == pieces[owner] - 1)       # the last chord ends on the programmed target
+        end[last] = table[owner[last]][:, [X1, Y1]]
+        head = rows & (index == 0)
+        start[head] = table[owner[head]][:, [X0, Y0]]
+    stop = (table[owner, STOP] > 0) & (index == 0)
+    stop[0] = True
+    return start, end, owner, stop
 
 
 def _reachable(limit: np.ndarray, gain: np.ndarray) -> np.ndarray:
@@ -136,3 +199,45 @@ def _reachable(limit: np.ndarray, gain: np.ndarray) -> np.ndarray:
     travelled = np.concatenate([[0.0], np.cumsum(gain)])          # travelled[j] - travelled[i]: gain of moves i..j-1
     backward = np.minimum.accumulate((limit + travelled)[::-1])[::-1] - travelled
     return np.minimum.accumulate(backward - travelled) + travelled
+
+
+def line_timeline(blocks, settings: dict[int, float], planner_blocks: int = PLANNER_BLOCKS) -> np.ndarray:
+    """Planned machine seconds from the start to the end of each line of a program, the lines given as the
+    interpreter's blocks (`fabline.link.gcode.Block`, one per line) and the controller as its Grbl `$N`
+    settings ($11, $12, $110, $111, $120, $121). The machine stops where Grbl syncs: before a spindle or
+    coolant change, a dwell, a program pause or end (an S change alone does not stop it, as in laser mode)."""
+    rows, stop, previous = [], True, None
+    owners: list[int] = []
+    for index, block in enumerate(blocks):
+        modal = block.modal
+        if previous is not None and (modal.spindle != previous.spindle or modal.coolant != previous.coolant):
+            stop = True
+        previous = modal
+        if block.dwell > 0:
+            rows.append((math.nan,) * 4 + (math.nan, math.nan, 0, 1.0, 1, 0, 0, 1, block.dwell))
+            owners.append(index)
+            stop = True
+        for segment in (block.approach, block.segment):
+            if segment is None or segment.length <= 0:
+                continue
+            centre = segment.center if segment.center is not None else (math.nan, math.nan)
+            feed = settings[110] if segment.rapid else block.feed_rate
+            rows.append((segment.start[0], segment.start[1], segment.end[0], segment.end[1], centre[0], centre[1],
+                         segment.clockwise, feed, segment.rapid, 0, 0, stop, 0.0))
+            owners.append(index)
+            stop = False
+        if block.pause or block.program_end:
+            stop = True
+    per_line = np.zeros(len(blocks))
+    if rows:
+        table = np.array(rows, dtype=float)
+        idle = np.isnan(table[:, X0])
+        times = np.zeros(len(table))
+        times[idle] = table[idle, DWELL]
+        moves = table[~idle]
+        if len(moves):
+            times[~idle] = move_times(moves, min(settings[120], settings[121]), settings[11],
+                                      max_rate=min(settings[110], settings[111]), arc_tolerance=settings.get(12, ARC_TOLERANCE),
+                                      planner_blocks=planner_blocks)
+        np.add.at(per_line, np.array(owners), times)
+    return np.cumsum(per_line)

@@ -19,7 +19,9 @@ from typing import TYPE_CHECKING, Any, Callable
 from fabline.errors import FablineError
 from fabline.fileio import OutputSet, atomic_output, check_outputs, write_json
 from fabline.jobs.jobfile import JobSpec, load_job_file, nest_options, toolpath_options, unroll_options
-from fabline.units import mm
+from fabline.jobs.report_shop import machine_seconds
+from fabline.progress import Eta, StreamBar, above_bars, estimate, simulated_speedup
+from fabline.units import duration, mm
 
 if TYPE_CHECKING:  # the model stage pulls in scipy; the runner imports this package and must start fast
     from fabline.model import Network
@@ -255,6 +257,29 @@ def _refuse_over_an_interrupted_run(spec: JobSpec) -> None:
                            "or cut every sheet afresh with --restart")
 
 
+class _JobClock:
+    """The job's time while its sheets stream on several machines: planned seconds per sheet (the export's planner
+    estimate on this machine, a simulator's time scale applied), what each running sheet reports, and the job's
+    elapsed and remaining time by `fabline.progress.estimate` (the work left shared by the machines)."""
+
+    def __init__(self, planned: list[float], machines: int):
+        self.planned, self.machines = planned, max(machines, 1)
+        self.started = time.perf_counter()
+        self.finished: dict[int, float] = {}       # sheet -> wall seconds it took
+        self.running: dict[int, Eta | None] = {}
+
+    def eta(self) -> Eta:
+        """The whole job: elapsed wall time, remaining by the pace of the work done so far."""
+        done = sum(self.planned[k] for k in self.finished)
+        worked = sum(self.finished.values())
+        for k, eta in self.running.items():
+            if eta is not None:
+                done, worked = done + min(eta.planned_done, self.planned[k]), worked + eta.elapsed
+        work = estimate(sum(self.planned), done, worked)
+        return Eta(time.perf_counter() - self.started, work.remaining / self.machines, work.planned / self.machines,
+                   work.pace, work.planned_done / self.machines)
+
+
 def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, dict], None] | None,
                 resume: bool) -> None:
     """Cut every sheet: each machine takes the next sheet when it is free (one sheet at a time per machine);
@@ -271,9 +296,18 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
     running: set = set()
     lock = threading.Lock()
     context = multiprocessing.get_context("spawn")  # no fork of a process that runs threads
+    ports = machine_ports(result.spec)
+    clock = _JobClock([sheet.get("time_s", 0.0) / simulated_speedup(ports[0]) for sheet in result.sheet_files], len(ports))
+    job_bar = StreamBar("job", position=0, unit="sheet")
+    say = above_bars(say)
+    bars = {port: StreamBar(port.split("?", 1)[0], position=slot + 1, leave=False) for slot, port in enumerate(ports)}
+
+    def job_eta_text() -> str:
+        return f"job: {clock.eta().describe()}"
 
     def machine(port: str) -> None:
         shown = port.split("?", 1)[0]  # sim:// options (time scale, controller settings) are in the report
+        bar = bars[port]
         while True:
             with lock:
                 if not sheets or errors:
@@ -294,11 +328,30 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
                 link.start()
                 signal.pthread_sigmask(signal.SIG_UNBLOCK, set(STOP_SIGNALS))
                 running.add(link)
+            final = None
+            with lock:
+                clock.running[k] = None
+            while final is None and (link.is_alive() or receiver.poll()):
+                if not receiver.poll(0.1):
+                    continue
+                try:
+                    message = receiver.recv()
+                except EOFError:
+                    break
+                if message[0] == "result":
+                    final = message[1:]
+                else:
+                    _, done, lines, eta = message
+                    with lock:
+                        clock.running[k] = eta
+                        job_bar.show(len(clock.finished), count, clock.eta())
+                    bar.show(done, lines, eta, desc=f"{shown} {sheet['sheet']}")
             link.join()
             with lock:
                 running.discard(link)
-            if receiver.poll():
-                outcome, summary = receiver.recv()
+                clock.running.pop(k, None)
+            if final is not None:
+                outcome, summary = final
             else:
                 outcome = f"stopped: the link process ended with exit code {link.exitcode}"
                 summary = journal_summary(port, sheet["gcode"])
@@ -306,12 +359,15 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
                      "seconds": round(time.perf_counter() - started, 3), **summary}
             with lock:
                 entries[k] = entry
+                clock.finished[k] = entry["seconds"]
                 if outcome != "finished":
                     errors.append(FablineError(f"stream: sheet {sheet['sheet']} on {shown}: {outcome}"))
+                job_bar.show(len(clock.finished), count, clock.eta())
+            planned = f" (planned {clock.planned[k]:.1f} s)" if clock.planned[k] else ""
             say(f"stream: sheet {k + 1} of {count} ({sheet['sheet']}) on {shown}: {entry['executed']} of {entry['lines']} lines "
-                f"{outcome} in {entry['seconds']:.1f} s")
+                f"{outcome} in {entry['seconds']:.1f} s{planned}; {job_eta_text()}")
 
-    threads = [threading.Thread(target=machine, args=(port,), daemon=True) for port in machine_ports(result.spec)]
+    threads = [threading.Thread(target=machine, args=(port,), daemon=True) for port in ports]
     for thread in threads:
         thread.start()
     try:
@@ -326,6 +382,12 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
             thread.join()
         result.stream = [entries[k] for k in sorted(entries)]
         raise
+    finally:
+        for bar in (*bars.values(), job_bar):
+            bar.close()
     result.stream = [entries[k] for k in sorted(entries)]
+    planned = sum(s.get("planned_s", 0.0) for s in result.stream)
+    say(f"stream: {len(result.stream)} sheet(s) on {len(ports)} machine(s) in {clock.eta().elapsed:.1f} s; machine time "
+        f"planned {duration(planned)}, taken {duration(sum(machine_seconds(s) for s in result.stream))}")
     if errors:
         raise errors[0]

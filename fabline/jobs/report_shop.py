@@ -9,8 +9,8 @@ from __future__ import annotations
 import html
 from pathlib import Path
 from typing import Any
-from urllib.parse import parse_qs, urlsplit
 
+from fabline.progress import estimate, simulated_speedup
 from fabline.units import duration
 
 ZOOM_STYLE = """
@@ -129,27 +129,38 @@ def short_port(port: str) -> str:
 
 def machine_seconds(entry: dict[str, Any]) -> float:
     """The time a sheet took at the machine's own speed: a simulator's wall seconds times its time scale."""
-    scale = parse_qs(urlsplit(entry["port"]).query).get("time_scale", ["1"])[0]
-    try:
-        return entry["seconds"] * float(scale)
-    except ValueError:
-        return entry["seconds"]
+    return entry["seconds"] * simulated_speedup(entry["port"])
 
 
 def stream_table(stream: dict[str, Any], estimates: dict[str, float]) -> str:
-    """Per streamed sheet: lines, outcome, the time at machine speed against the export's estimate, the port."""
+    """Per streamed sheet and for the job: lines, outcome, the time at machine speed, the planner's time for the
+    program (the streamer's, else the export's estimate) and the time remaining by `fabline.progress.estimate`
+    (the planned rest at the pace the machine kept), the wall seconds and the port."""
     e = html.escape
     if not stream["sheets"]:
         return "<h2>Streaming</h2><p>Not streamed in this run.</p>"
     head = ("<tr><th>sheet</th><th>lines</th><th>executed</th><th>outcome</th><th>machine time</th>"
-            "<th>estimated</th><th>wall s</th><th>port</th></tr>")
-    body = "".join(f"<tr class={'ok' if s['outcome'] == 'finished' else 'fail'}><td>{e(s['sheet'])}</td>"
-                   f"<td>{s['lines']}</td><td>{s['executed']}</td><td>{e(s['outcome'])}</td>"
-                   f"<td>{duration(machine_seconds(s))}</td>"
-                   f"<td>{duration(estimates[s['sheet']]) if s['sheet'] in estimates else ''}</td>"
-                   f"<td>{s['seconds']:.1f}</td><td>{e(short_port(s['port']))}</td></tr>" for s in stream["sheets"])
+            "<th>planned</th><th>remaining</th><th>wall s</th><th>port</th></tr>")
+    rows, sums = [], [0.0, 0.0, 0.0]
+    for s in stream["sheets"]:
+        planned = s.get("planned_s", estimates.get(s["sheet"]))
+        eta = None
+        if planned is not None:
+            done = s.get("planned_done_s", planned if s["outcome"] == "finished" else 0.0)
+            eta = estimate(planned, done, machine_seconds(s))
+            sums = [sums[0] + machine_seconds(s), sums[1] + planned, sums[2] + eta.remaining]
+        rows.append(f"<tr class={'ok' if s['outcome'] == 'finished' else 'fail'}><td>{e(s['sheet'])}</td>"
+                    f"<td>{s['lines']}</td><td>{s['executed']}</td><td>{e(s['outcome'])}</td>"
+                    f"<td>{duration(machine_seconds(s))}</td><td>{duration(planned) if planned is not None else ''}</td>"
+                    f"<td>{duration(eta.remaining) if eta else ''}</td>"
+                    f"<td>{s['seconds']:.1f}</td><td>{e(short_port(s['port']))}</td></tr>")
+    rows.append(f"<tr class=total><th>job</th><td>{stream['lines']}</td><td>{stream['executed']}</td><td></td>"
+                f"<td>{duration(sums[0])}</td><td>{duration(sums[1])}</td><td>{duration(sums[2])}</td>"
+                f"<td>{sum(s['seconds'] for s in stream['sheets']):.1f}</td><td></td></tr>")
     scaled = any("time_scale=" in s["port"] for s in stream["sheets"])
     note = (" Simulated machines run faster than real ones: machine time is the wall time times the simulator's "
             "time scale." if scaled else "")
     return (f"<h2>Streaming</h2><p>{stream['executed']} of {stream['lines']} lines executed"
-            f"{' - every sheet finished' if stream['finished'] else ''}.{note}</p><table id=stream>{head}{body}</table>")
+            f"{' - every sheet finished' if stream['finished'] else ''}.{note} Planned: the planner's machine time "
+            f"for the program; remaining: the planned rest at the pace the machine kept.</p>"
+            f"<table id=stream>{head}{''.join(rows)}</table>")

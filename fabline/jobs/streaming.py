@@ -14,11 +14,13 @@ import os
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Callable
 
 from fabline.errors import FablineError
 from fabline.link import STOP_SIGNALS, Progress, Streamer, default_journal_path, load_program, read_journal
+from fabline.progress import Eta, simulated_speedup
 
 OnProgress = Callable[[int, "tuple[float, ...] | None", "str | None"], None]
 
@@ -44,6 +46,8 @@ class SheetStream:
         self.executed = 0
         self.total = 0
         self.resumed_from: int | None = None
+        self.eta: Eta | None = None
+        """The last progress report's time: elapsed, remaining, the planned seconds (see `fabline.progress`)."""
 
     def run(self) -> str:
         """Stream to the end: 'finished', or 'aborted' after `cancel()`/`stop()` (the journal resumes the rest).
@@ -64,7 +68,7 @@ class SheetStream:
         self.resumed_from = previous.done if resume else None
 
         def progress(report: Progress) -> None:
-            self.executed = report.acked
+            self.executed, self.eta = report.acked, report.eta or self.eta
             self.on_progress(report.acked, report.position, report.message)
 
         result = self.streamer.run(program, on_progress=progress, journal=self.journal_path, resume=resume,
@@ -92,20 +96,36 @@ class SheetStream:
 
     def summary(self) -> dict:
         """The streaming log's figures for the report."""
-        return {"port": self.port, "lines": self.total, "executed": self.executed, "journal": str(self.journal_path),
-                "resumed_from": self.resumed_from}
+        summary = {"port": self.port, "lines": self.total, "executed": self.executed, "journal": str(self.journal_path),
+                   "resumed_from": self.resumed_from}
+        timeline = self.streamer.timeline() if getattr(self.streamer, "blocks", None) is not None else None
+        if timeline is not None and len(timeline):  # machine seconds (a simulator's time scale undone)
+            speedup = simulated_speedup(self.port)
+            done = float(timeline[self.executed - 1]) if self.executed else 0.0
+            summary.update(planned_s=round(float(timeline[-1]) * speedup, 1), planned_done_s=round(done * speedup, 1))
+        return summary
+
+
+PROGRESS_INTERVAL = 0.2
+"""Seconds between the progress messages a sheet's process sends to `fabline run`."""
 
 
 def stream_in_process(port: str, program: str, resume: bool, identity: dict[str, str], connection) -> None:
     """Process target: stream one sheet (continuing its journal with `resume`), stop it safely on any of
-    STOP_SIGNALS (feed hold, reset, journal kept) and send (outcome in words, summary) through `connection`.
+    STOP_SIGNALS (feed hold, reset, journal kept). Sends ("progress", lines done, lines, Eta or None) through
+    `connection` at most every PROGRESS_INTERVAL s, then ("result", outcome in words, summary).
     A program pause (M0) is said on standard error; SIGUSR1 continues it (cycle start)."""
     shown: list[str | None] = [None]
+    sent = [0.0]
 
     def progress(done: int, position, message: str | None) -> None:
         if message and message != shown[0]:
             print(f"{Path(program).name}: {message} (send SIGUSR1 to process {os.getpid()})", file=sys.stderr, flush=True)
         shown[0] = message
+        now = time.monotonic()
+        if now - sent[0] >= PROGRESS_INTERVAL:
+            sent[0] = now
+            connection.send(("progress", done, stream.total, stream.eta))
 
     stream = SheetStream(port, program, progress, resume=resume, identity=identity)
     for number in STOP_SIGNALS:
@@ -116,7 +136,7 @@ def stream_in_process(port: str, program: str, resume: bool, identity: dict[str,
         outcome = stream.run()
     except FablineError as exc:
         outcome = f"stopped: {exc}"
-    connection.send((outcome, stream.summary()))
+    connection.send(("result", outcome, stream.summary()))
 
 
 def journal_summary(port: str, program: str | os.PathLike) -> dict:
@@ -165,3 +185,17 @@ def checkpoint(program: str | os.PathLike, journal: str | os.PathLike | None, re
     except FablineError as exc:
         entry["reason"] = f"{reason}; {exc}"
     return entry
+
+
+def program_timeline(program: str | os.PathLike):
+    """Planned machine seconds from the start of a sheet program to the end of each of its lines, on the machine
+    its header names (`; machine grbl-laser ...`; a stock Grbl 1.1h's default settings without one)."""
+    from fabline.export.motion import line_timeline
+    from fabline.link.compat import program_machine
+    from fabline.link.gcode import ModalState
+    from fabline.link.simulator import DEFAULT_SETTINGS
+
+    loaded = load_program(program)
+    profile = program_machine(loaded, None)
+    settings = {**DEFAULT_SETTINGS, **(profile.controller_settings() if profile is not None else {})}
+    return line_timeline(loaded.plan(ModalState(), (0.0, 0.0, 0.0)), settings)

@@ -13,8 +13,13 @@ from __future__ import annotations
 import asyncio
 import hmac
 import json
+import os
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 from starlette.applications import Starlette
 from starlette.middleware import Middleware
@@ -27,6 +32,7 @@ from fabline.errors import FablineError
 from fabline.jobs.jobfile import load_job_file
 from fabline.jobs.pictures import progress_svg
 from fabline.jobs.queue import JobQueue
+from fabline.progress import Eta, estimate, simulated_speedup
 
 TOKEN_HEADER = "X-Fabline-Token"
 ACTIONS = ("confirm", "pause", "resume", "cancel", "restart", "skip", "requeue", "frame")
@@ -55,8 +61,13 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
     async def index(request: Request) -> Response:
         return HTMLResponse(page)
 
+    timelines = Timelines()
+
     def snapshot() -> dict:
-        return {**queue.snapshot(), "ports": serial_ports()}
+        state = {**queue.snapshot(), "ports": serial_ports()}
+        for job in state["jobs"]:
+            job["eta"] = job_eta(queue, job, state["machines"], timelines)
+        return state
 
     async def state(request: Request) -> Response:
         return JSONResponse(snapshot())
@@ -136,6 +147,77 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
     return Starlette(routes=routes, middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=allowed)])
 
 
+class Timelines:
+    """Planned seconds per line of sheet programs (`fabline.jobs.streaming.program_timeline`), each computed once,
+    in a background thread (a 20 000-line sheet takes a second or two): None until it is ready."""
+
+    def __init__(self):
+        self._ready: dict[tuple[str, float], Any] = {}
+        self._asked: set[tuple[str, float]] = set()
+        self._lock = threading.Lock()
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="timeline")
+
+    def get(self, program: str):
+        """The program's timeline (numpy array), or None while it is computed or if it cannot be read."""
+        try:
+            key = (program, os.stat(program).st_mtime)
+        except OSError:
+            return None
+        with self._lock:
+            if key in self._ready or key in self._asked:
+                return self._ready.get(key)
+            self._asked.add(key)
+        self._pool.submit(self._compute, key)
+        return None
+
+    def _compute(self, key: tuple[str, float]) -> None:
+        from fabline.jobs.streaming import program_timeline
+
+        try:
+            timeline = program_timeline(key[0])
+        except FablineError:
+            return
+        with self._lock:
+            self._ready[key] = timeline
+
+
+def job_eta(queue: JobQueue, job: dict, machines: list[dict], timelines: Timelines) -> dict | None:
+    """Elapsed and remaining time of a job's current sheet and of the whole job, from the planned time of the lines
+    done and to do corrected by the pace so far (`fabline.progress.estimate`), in seconds on the job's machine
+    (a simulator's time scale applied), with `finish_at` the estimated end (Unix time); None until every sheet's
+    plan is known or when the job is not under way."""
+    if job["state"] in ("queued", "preparing", "failed", "cancelled") or not job["sheet_list"]:
+        return None
+    rows = queue.sheets(job["id"])
+    plans = [timelines.get(row.program) for row in rows]
+    if any(plan is None or not len(plan) for plan in plans):
+        return None
+    port = next((m["port"] for m in machines if m["name"] == job.get("machine")), "")
+    speedup = simulated_speedup(port)
+    now = time.time()
+    planned_total = planned_done = worked = 0.0
+    sheet = None
+    for row, plan in zip(rows, plans):
+        total = float(plan[-1]) / speedup
+        done = float(plan[min(row.done_lines, len(plan)) - 1]) / speedup if row.done_lines else 0.0
+        elapsed = ((row.finished or now) - row.started) if row.started else 0.0
+        if row.skipped:
+            continue
+        planned_total, planned_done, worked = planned_total + total, planned_done + done, worked + elapsed
+        if row.k == job["sheet"]:
+            sheet = estimate(total, done, elapsed if row.started and not row.finished else 0.0)
+    whole = estimate(planned_total, planned_done, worked)
+    finishing = job["state"] not in ("done",)
+    return {"sheet": _eta_dict(sheet, now) if sheet is not None and finishing else None,
+            "job": _eta_dict(whole, now) if finishing else None}
+
+
+def _eta_dict(eta: Eta, now: float) -> dict:
+    """Whole seconds, so the live page's snapshot changes once a second, not on every poll."""
+    return {"elapsed_s": round(eta.elapsed), "remaining_s": round(eta.remaining), "planned_s": round(eta.planned),
+            "pace": round(eta.pace, 2), "finish_at": round(now + eta.remaining)}
+
+
 _PORTS_TTL = 5.0
 _ports_seen: list = [0.0, []]
 
@@ -143,8 +225,6 @@ _ports_seen: list = [0.0, []]
 def serial_ports() -> list[dict[str, str]]:
     """The serial ports this computer has (device and description, as pyserial finds them), looked up at most
     every few seconds: the page shows them so the operator can tell which one a machine is on."""
-    import time
-
     from serial.tools import list_ports
 
     now = time.monotonic()

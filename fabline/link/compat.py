@@ -11,6 +11,8 @@ from __future__ import annotations
 import re
 from typing import TYPE_CHECKING, Sequence
 
+import numpy as np
+
 from fabline.errors import FablineError
 from fabline.link.build import BuildInfo
 from fabline.link.gcode import Block, Vector
@@ -81,18 +83,17 @@ def _laser_mode_problems(program: Program, blocks: Sequence[Block], settings: di
 
 def program_extent(blocks: Sequence[Block], origin: Vector) -> tuple[list[float], list[float]]:
     """The lowest and highest work coordinate per axis the program visits, starting at `origin` (arcs sampled)."""
-    low, high = list(origin), list(origin)
+    points = [origin]
     for block in blocks:
         segment = block.segment
         if segment is None:
             continue
-        points = [segment.end] if segment.center is None else [segment.point_at(i / _ARC_SAMPLES)
-                                                               for i in range(1, _ARC_SAMPLES + 1)]
-        for point in points:
-            for axis in range(3):
-                low[axis] = min(low[axis], point[axis])
-                high[axis] = max(high[axis], point[axis])
-    return low, high
+        if segment.center is None:
+            points.append(segment.end)
+        else:
+            points.extend(segment.points(_ARC_SAMPLES))
+    visited = np.array(points, dtype=float)
+    return visited.min(axis=0).tolist(), visited.max(axis=0).tolist()
 
 
 def _travel_problems(blocks: Sequence[Block], origin: Vector, settings: dict[int, float],

@@ -140,6 +140,23 @@ class Segment:
         point[c] = self.start[c] + (self.end[c] - self.start[c]) * fraction
         return tuple(point)
 
+    def points(self, count: int) -> list[Vector]:
+        """The points 1/count, 2/count, ... 1 of the way along the path (as `point_at` gives them, an arc evaluated
+        once: the simulator splits arcs into chords with them)."""
+        if self.center is None:
+            return [self.point_at(i / count) for i in range(1, count + 1)]
+        a, b, c = self.plane
+        radius, angle0, sweep = self._arc()
+        centre_a, centre_b, start_c, rise = self.center[a], self.center[b], self.start[c], self.end[c] - self.start[c]
+        points = []
+        for i in range(1, count + 1):
+            point = [0.0, 0.0, 0.0]
+            angle = angle0 + sweep * i / count
+            point[a], point[b] = centre_a + radius * math.cos(angle), centre_b + radius * math.sin(angle)
+            point[c] = start_c + rise * i / count
+            points.append(tuple(point))
+        return points
+
     def contains(self, point: Vector, tolerance: float) -> bool:
         """Whether `point` lies on this path within `tolerance` mm."""
         if self.center is None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from fabline.errors import FablineError
@@ -65,9 +65,15 @@ class Program:
     machine: str | None = None
     """The machine profile named in the header comments before the first command (`; machine NAME (...)`)."""
 
+    _plans: dict = field(default_factory=dict, compare=False, repr=False)
+    """The last plan made (a program is checked, then streamed, from the same start): one parse, not two."""
+
     def plan(self, modal: ModalState, position: Vector, build: BuildInfo = STOCK_BUILD) -> list[Block]:
         """The block each line becomes when the program starts in `modal` state at work `position` on a controller
         of `build`; every line the firmware would refuse is listed (a refused line changes nothing, as in Grbl)."""
+        key = (modal, tuple(position), build)
+        if key in self._plans:
+            return list(self._plans[key])
         blocks, refused = [], []
         for line in self.lines:
             try:
@@ -79,11 +85,19 @@ class Program:
             modal, position = block.modal, block.position
         if refused:
             raise FablineError(listing(refused, f"{len(refused)} lines the controller would refuse"))
+        self._plans.clear()
+        self._plans[key] = tuple(blocks)
         return blocks
+
+
+_PLAIN = re.compile(r"[^()?!~$;\x00-\x08\x0a-\x1f]*")
+"""A line with no comment and nothing to refuse: stripped in one step, as the loop below would."""
 
 
 def strip_line(text: str, where: str) -> str:
     """Remove comments `( )` and `;`, whitespace and `%` marks; uppercase; refuse what GRBL cannot take."""
+    if _PLAIN.fullmatch(text):
+        return _LEADING_N.sub("", "".join(text.split()).replace("%", "").upper())
     out, depth = [], 0
     for column, char in enumerate(text, 1):
         if depth:

@@ -6,9 +6,16 @@ executes, in execution order, to an append-only executed-line log. It is a stock
 otherwise (`build=BuildInfo(options="VN")` adds `Ln:` to status reports, bigger `planner_blocks` or
 `rx_buffer` model other boards): `$I` answers the build, and the buffers have the build's sizes.
 M0 pauses like the firmware (planner emptied, then a completed feed hold until cycle start); M1 is
-ignored (Grbl has no optional-stop switch). Deviations from real firmware:
-constant speed (no acceleration ramps except when decelerating into a feed hold), one planner block per
-arc, work offsets fixed at zero.
+ignored (Grbl has no optional-stop switch).
+
+Motion follows Grbl's planner (gnea/grbl `planner.c`, `motion_control.c`): arcs are split into chords by
+the $12 arc tolerance, every chord and line is a planner block with its nominal speed and acceleration
+limited per axis ($110-$112, $120-$122), junction speeds follow the $11 junction deviation rule, and each
+new block replans the blocks in the planner buffer (15 on a stock build) with Grbl's backward and forward
+passes, the newest block ending at rest. Blocks run trapezoidal speed profiles, so status reports (`MPos`,
+`FS:`) follow the ramps, and a planner the host does not keep filled makes the machine slow down and stop.
+Deviations from real firmware: no step timing (a profile is exact, not in 10 ms acceleration ticks), no
+overrides, work offsets fixed at zero.
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ BANNER = f"Grbl {VERSION} ['$' for help]"
 HELP = "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]"
 LINE_BUFFER_SIZE = 80
 _REALTIME_BYTES = (b"?", b"!", b"~", b"\x18")
+_BLANK = bytes(range(33))  # what the protocol loop drops from a line: control characters and space
 _INT_SETTINGS = {0, 1, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 26, 30, 31, 32}
 DEFAULT_SETTINGS: dict[int, float] = {
     0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010, 12: 0.002, 13: 0, 20: 0, 21: 0, 22: 0,
@@ -62,7 +70,7 @@ class Faults:
     stall_seconds: float = 0.0
 
 
-@dataclass
+@dataclass(slots=True)
 class _Pending:
     """A parsed line waiting for planner room, or (spindle, coolant, dwell changes) for the planner to empty."""
 
@@ -72,9 +80,11 @@ class _Pending:
     queued: bool = False
     accessory_change: bool = False
     pause: bool = False
+    pieces: list[Segment] | None = None
+    """Motion blocks still to go into the planner (an arc's chords wait for room one by one, as in Grbl's mc_arc)."""
 
 
-@dataclass
+@dataclass(slots=True)
 class _Planned:
     """A line queued for execution: a motion, a dwell, or a zero-time modal change."""
 
@@ -89,6 +99,13 @@ class _Planned:
     pause: bool = False
     spindle: str = "M5"
     speed: float = 0.0
+    final: bool = True
+    """The last planner block of its line (an arc's last chord): completing it completes the line."""
+    length: float = 0.0
+    accel: float = 0.0
+    unit: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    max_entry2: float = 0.0
+    entry2: float = 0.0
 
 
 class GrblSimulator:
@@ -96,11 +113,12 @@ class GrblSimulator:
 
     `line_time` is the firmware's time (real seconds, not scaled) to parse and plan one line before it
     answers and reads the next: an 8-bit Grbl needs a few milliseconds, 0 makes the controller instant.
+    `threaded=False` runs no main loop: the caller drives machine time with `step` (deterministic timing).
     """
 
     def __init__(self, *, time_scale: float = 1.0, executed_log: str | Path | None = None,
                  faults: Faults | None = None, tick: float = 0.001, settings: dict[int, float] | None = None,
-                 line_time: float = 0.0, build: BuildInfo = STOCK_BUILD):
+                 line_time: float = 0.0, build: BuildInfo = STOCK_BUILD, threaded: bool = True):
         self.build = build
         self.time_scale = time_scale
         self.line_time = line_time
@@ -121,9 +139,14 @@ class GrblSimulator:
         self._input_arrived = threading.Event()
         self._stall_until = 0.0
         self._stopping = False
+        self.completed: list[tuple[str, float]] | None = None
+        """When a list: (line, machine time) appended as each line completes (see `step`)."""
+        self.machine_time = 0.0
+        """Seconds of machine time the controller has run (moving or dwelling) since it was created."""
         self._power_on()
-        self._thread = threading.Thread(target=self._run, name="grbl-sim", daemon=True)
-        self._thread.start()
+        self._thread = threading.Thread(target=self._run, name="grbl-sim", daemon=True) if threaded else None
+        if self._thread is not None:
+            self._thread.start()
 
     # ----- host side -------------------------------------------------------------------------------------
     def attach(self) -> int:
@@ -197,7 +220,8 @@ class GrblSimulator:
     def close(self) -> None:
         """Stop the controller thread and close the executed-line log."""
         self._stopping = True
-        self._thread.join(timeout=2)
+        if self._thread is not None:
+            self._thread.join(timeout=2)
         if self._log:
             self._log.close()
             self._log = None
@@ -221,6 +245,8 @@ class GrblSimulator:
         self._parsing: tuple[str, bool] | None = None  # a complete line the firmware is still parsing ...
         self._parsed_at = 0.0                           # ... until this time.monotonic()
         self.planner: deque[_Planned] = deque()
+        self._moves: deque[_Planned] = deque()  # the motion blocks of the planner, in order
+        self._optimal = 0  # Grbl's block_buffer_planned: index in _moves before which the plan cannot improve
         self.modal = ModalState()
         self._parse_position = self.position
         self._hold = None
@@ -239,7 +265,7 @@ class GrblSimulator:
         return any(block.segment is not None or block.dwell for block in self.planner)
 
     def _motion_blocks(self) -> int:
-        return sum(1 for block in self.planner if block.segment is not None)
+        return len(self._moves)
 
     # ----- real-time commands ----------------------------------------------------------------------
     def _realtime(self, byte: int) -> None:
@@ -254,10 +280,15 @@ class GrblSimulator:
             if self.state == "Hold" and self._hold == "complete":
                 self._hold = None
                 self.state = "Run" if self._moving else "Idle"
+                self._optimal = 0  # Grbl replans from rest (plan_cycle_reinitialize)
+                self._replan()
         elif byte == 0x18:
             self._soft_reset()
         elif byte == 0x85 and self.state == "Jog":
             self.planner = deque(block for block in self.planner if not block.jog)
+            self._moves = deque(block for block in self._moves if not block.jog)
+            self._optimal = 0
+            self._speed = 0.0
             self.state = "Idle"
 
     def _soft_reset(self) -> None:
@@ -279,6 +310,8 @@ class GrblSimulator:
         self._rx.clear()
         self._line = bytearray()
         self.planner.clear()
+        self._moves.clear()
+        self._optimal = 0
         self._pending = None
         self._parsing = None
         self._hold = None
@@ -366,22 +399,23 @@ class GrblSimulator:
                 continue
             pending = self._pending
             if pending is not None:
-                if pending.sync and self.planner:
+                if pending.sync and self.planner and (pending.pieces is None or pending.block.dwell > 0):
                     return
                 if not pending.sync and self._motion_blocks() >= self.build.planner_blocks:
                     return
                 if not pending.queued:
-                    if pending.accessory_change:
+                    if pending.accessory_change and pending.pieces is None:
                         self._ovr_counter = 0  # the firmware reports a spindle or coolant change at once
-                    self._queue(pending.line, pending.block, pause=pending.pause)
-                    pending.queued = True
-                    if pending.block.dwell > 0:
+                    pending.queued = self._queue(pending)
+                    if not pending.queued or pending.block.dwell > 0:
                         return
                 self._pending = None
                 self._say("ok")
                 continue
             if not self._rx:
                 return
+            if not self._comment and self._take_plain_text():
+                continue
             char = chr(self._rx.pop(0))
             if char == "\n" or char == "\r":
                 line, overflow = self._line.decode("ascii", errors="replace"), self._line_overflow
@@ -401,6 +435,23 @@ class GrblSimulator:
                 self._line_overflow = True
             else:
                 self._line += char.upper().encode("ascii", errors="replace")
+
+    def _take_plain_text(self) -> bool:
+        """Move the received characters before the next line end into the line buffer at once, as the loop below
+        would one by one (whitespace and control characters dropped, letters uppercased, overflow past 79), when
+        they hold no comment; False (nothing taken) when they do or a line end comes first."""
+        rx = self._rx
+        ends = [index for index in (rx.find(b"\n"), rx.find(b"\r")) if index >= 0]
+        end = min(ends) if ends else len(rx)
+        if end == 0 or rx.find(b"(", 0, end) >= 0:
+            return False
+        text = bytes(rx[:end]).translate(None, _BLANK).upper()
+        del rx[:end]
+        room = LINE_BUFFER_SIZE - 1 - len(self._line)
+        if len(text) > room:
+            text, self._line_overflow = text[:max(room, 0)], True
+        self._line += text
+        return True
 
     def _finish_line(self, line: str, overflow: bool) -> None:
         """Answer a complete input line: error:11 if it overflowed the line buffer, else execute it."""
@@ -442,93 +493,250 @@ class GrblSimulator:
         self._pending = _Pending(line, block, sync, accessory_change=accessory_change, pause=pause)
         return None
 
-    def _queue(self, line: str, block: Block | None, jog: bool = False, pause: bool = False) -> None:
-        planned = _Planned(text=line, line_number=block.line_number if block else None, jog=jog, pause=pause)
-        if block is not None:
-            planned.spindle, planned.speed = block.modal.spindle, block.modal.speed
-            planned.dwell = block.dwell
-            if block.segment is not None and block.segment.length > 0:
-                planned.segment = block.segment
-                planned.programmed_rate = block.modal.feed * (25.4 if block.modal.units == "G20" else 1.0)
-                planned.rate = self._rate(block.segment, planned.programmed_rate)
-        self.planner.append(planned)
-        if planned.segment is None and planned.dwell <= 0 and len(self.planner) == 1:
-            self._complete()  # nothing ahead of it: Grbl executes a non-motion line in the parser, before its ok
-        elif planned.segment is not None and self.state == "Idle":
-            self.state = "Jog" if jog else "Run"
+    def _queue(self, pending: _Pending, jog: bool = False) -> bool:
+        """Put a parsed line into the planner; an arc's chords go in while there is room. True once all are in."""
+        block = pending.block
+        if pending.pieces is None:
+            segment = block.segment if block.segment is not None and block.segment.length > 0 else None
+            pending.pieces = self._chords(segment)[::-1] if segment is not None else []  # next chord last
+            if segment is None:
+                planned = _Planned(text=pending.line, line_number=block.line_number, jog=jog, pause=pending.pause,
+                                   spindle=block.modal.spindle, speed=block.modal.speed, dwell=block.dwell)
+                self.planner.append(planned)
+                if planned.dwell <= 0 and len(self.planner) == 1:
+                    self._complete()  # nothing ahead of it: Grbl executes a non-motion line in the parser, before its ok
+                return True
+        programmed = block.modal.feed * (25.4 if block.modal.units == "G20" else 1.0)
+        while pending.pieces and (jog or len(self._moves) < self.build.planner_blocks):
+            piece = pending.pieces.pop()
+            planned = _Planned(text=pending.line, line_number=block.line_number, jog=jog, pause=pending.pause,
+                               spindle=block.modal.spindle, speed=block.modal.speed, segment=piece,
+                               programmed_rate=programmed, final=not pending.pieces)
+            self._plan(planned)
+            if self.state == "Idle":
+                self.state = "Jog" if jog else "Run"
+        return not pending.pieces
 
-    def _rate(self, segment: Segment, programmed: float) -> float:
-        """Nominal speed in mm/s: the feed (or rapid) limited so no axis exceeds its maximum rate."""
-        span = [e - s for s, e in zip(segment.start, segment.end)]
-        length = math.hypot(*span) or segment.length
-        limit = math.inf
-        for axis, delta in enumerate(span):
-            if delta and segment.center is None:
-                limit = min(limit, self.settings[110 + axis] * length / abs(delta))
-        if segment.center is not None:
-            limit = min(self.settings[110 + a] for a in segment.plane[:2])
-        rate = limit if segment.rapid else min(programmed, limit)
-        return rate / 60.0
+    def _chords(self, segment: Segment) -> list[Segment]:
+        """The planner blocks of a motion: a line is one; an arc is split into chords that stray at most $12 from
+        it (motion_control.c, mc_arc: floor(length / sqrt(tol (2 r - tol))) chords, the last ending on target)."""
+        if segment.center is None:
+            return [segment]
+        a, b, _ = segment.plane
+        radius = math.hypot(segment.start[a] - segment.center[a], segment.start[b] - segment.center[b])
+        tolerance = self.settings[12]
+        chord = math.sqrt(tolerance * (2 * radius - tolerance)) if 2 * radius > tolerance > 0 else 0.0
+        count = int(segment.length / chord) if chord > 0 else 1
+        if count <= 1:
+            return [Segment(segment.start, segment.end, segment.rapid)]
+        points = [segment.start, *segment.points(count)[:-1], segment.end]
+        return [Segment(p, q, False) for p, q in zip(points, points[1:])]
 
-    def _advance(self, dt: float) -> None:
-        """Run the planner for `dt` seconds of machine time."""
+    def _axis_limit(self, first_setting: int, unit: tuple[float, float, float]) -> float:
+        """Grbl's limit_value_by_axis_maximum: the largest value along `unit` with no axis over its own setting."""
+        settings, limit = self.settings, math.inf
+        x, y, z = unit
+        if x:
+            limit = settings[first_setting] / abs(x)
+        if y:
+            limit = min(limit, settings[first_setting + 1] / abs(y))
+        if z:
+            limit = min(limit, settings[first_setting + 2] / abs(z))
+        return limit
+
+    def _plan(self, block: _Planned) -> None:
+        """Add a motion block to the planner (planner.c, plan_buffer_line) and replan the buffer."""
+        segment = block.segment
+        start, end = segment.start, segment.end
+        dx, dy, dz = end[0] - start[0], end[1] - start[1], end[2] - start[2]
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        unit = (dx / length, dy / length, dz / length)
+        rapid_rate = self._axis_limit(110, unit)
+        block.rate = (rapid_rate if segment.rapid else min(block.programmed_rate, rapid_rate)) / 60.0
+        block.length, block.unit, block.accel = length, unit, self._axis_limit(120, unit)
+        nominal2 = block.rate * block.rate
+        if not self._moves:
+            block.max_entry2 = 0.0  # the planner is empty: the machine stands still
+        else:
+            previous = self._moves[-1]
+            px, py, pz = previous.unit
+            cos_theta = -(px * unit[0] + py * unit[1] + pz * unit[2])
+            if cos_theta > 0.999999:
+                junction2 = 0.0  # a full reversal
+            elif cos_theta < -0.999999:
+                junction2 = math.inf  # straight on
+            else:
+                tx, ty, tz = unit[0] - px, unit[1] - py, unit[2] - pz
+                norm = math.sqrt(tx * tx + ty * ty + tz * tz)
+                accel = self._axis_limit(120, (tx / norm, ty / norm, tz / norm))
+                sin_half = math.sqrt(0.5 * (1.0 - cos_theta))
+                junction2 = accel * self.settings[11] * sin_half / (1.0 - sin_half)
+            block.max_entry2 = min(junction2, nominal2, previous.rate * previous.rate)
+        self.planner.append(block)
+        self._moves.append(block)
+        self._replan()
+
+    def _replan(self) -> None:
+        """Grbl's planner_recalculate over the blocks after the optimal pointer: the backward pass from the newest
+        block (which ends at rest), then the forward pass from the executing block's actual speed."""
+        moves, first = self._moves, self._optimal
+        last = len(moves) - 1
+        if last <= first:
+            return
+        newest = moves[last]
+        newest.entry2 = min(newest.max_entry2, 2.0 * newest.accel * newest.length)
+        for index in range(last - 1, first, -1):
+            current = moves[index]
+            if current.entry2 != current.max_entry2:
+                current.entry2 = min(current.max_entry2, moves[index + 1].entry2 + 2.0 * current.accel * current.length)
+        for index in range(first, last):
+            current, following = moves[index], moves[index + 1]
+            if index == 0:
+                entry2, length = self._speed * self._speed, current.length - current.progress
+            else:
+                entry2, length = current.entry2, current.length
+            if entry2 < following.entry2:
+                reachable = entry2 + 2.0 * current.accel * length
+                if reachable < following.entry2:
+                    following.entry2 = reachable
+                    self._optimal = index + 1
+            if following.entry2 == following.max_entry2:
+                self._optimal = index + 1
+
+    def _advance(self, dt: float, single: bool = False) -> float:
+        """Run the planner for `dt` seconds of machine time (with `single`, stop once a block completes: `dt` may
+        then be infinite); returns the machine time used."""
+        spent, clock = 0.0, self.machine_time
         while self.planner and not self._critical:
             block = self.planner[0]
             if block.segment is None and block.dwell <= 0:
+                self.machine_time = clock + spent
                 self._complete()
                 continue
-            if self._hold == "complete" or dt <= 0:
+            if self._hold == "complete" or dt - spent <= 0:
                 break
             if block.segment is None:
-                used = min(dt, block.dwell)
+                used = min(dt - spent, block.dwell)
                 block.dwell -= used
-                dt -= used
+                spent += used
+                if single and block.dwell <= 0:
+                    self.machine_time = clock + spent
+                    self._complete()
+                    break
                 continue
-            if self._hold is None:
-                self._speed = block.rate
-            if self._hold == "decelerating":
-                accel = self.settings[120]
-                step = min(dt, self._speed / accel) if accel > 0 else dt
-                travel = self._speed * step - 0.5 * accel * step * step
-                self._speed = max(0.0, self._speed - accel * step)
-                dt -= step
-                if self._speed <= 1e-9:
-                    self._hold = "complete"
-            else:
-                travel = self._speed * dt
-                dt = 0.0
-            length = block.segment.length
             before = block.progress
-            block.progress += travel
+            if self._hold == "decelerating":  # slow down at once, through the next blocks if need be
+                accel, remaining, speed = block.accel, block.length - before, self._speed
+                step = min(dt - spent, speed / accel)
+                travel = speed * step - 0.5 * accel * step * step
+                if travel >= remaining:
+                    end = math.sqrt(max(speed * speed - 2.0 * accel * remaining, 0.0))
+                    step, travel, speed = (speed - end) / accel, remaining, end
+                else:
+                    speed -= accel * step
+                self._speed = speed if speed > 1e-9 else 0.0
+                if self._speed == 0.0:
+                    self._hold = "complete"
+                block.progress += travel
+                spent += step
+            else:
+                spent += self._profile(block, dt - spent)
             alarm = self.faults.alarm_line
-            if alarm is not None and block.line_number == alarm and before < length / 2 <= block.progress:
+            if alarm is not None and block.line_number == alarm and before < block.length / 2 <= block.progress:
                 self.faults.alarm_line = None
-                block.progress = length / 2
+                block.progress = block.length / 2
                 self.position = block.segment.point_at(0.5)
                 self._alarm(self.faults.alarm_code)
-                return
-            if block.progress >= length:
-                if self._speed > 0 and self._hold is None:
-                    dt += (block.progress - length) / self._speed
+                break
+            if block.progress >= block.length - 1e-9:
+                self.machine_time = clock + spent
                 self._complete()
+                if self._pending is not None or self._rx:
+                    self._process_input()  # the main loop refills the planner while the steppers run
+                if single:
+                    break
             else:
-                self.position = block.segment.point_at(block.progress / length)
+                self.position = block.segment.point_at(block.progress / block.length)
         if not self.planner and self.state in ("Run", "Jog"):
             self.state = "Idle"
             self._speed = 0.0
         elif not self.planner and self._hold == "decelerating":  # the last block ended while slowing: stopped
             self._hold = "complete"
             self._speed = 0.0
+        self.machine_time = clock + spent
+        return spent
+
+    def _profile(self, block: _Planned, dt: float) -> float:
+        """Move along `block` for up to `dt` seconds on its trapezoid from the current speed: accelerate to the
+        nominal speed, cruise, and decelerate to the next block's planned entry speed (0 if none) at its end.
+        Returns the time used (less than `dt` if the block ends)."""
+        accel, nominal = block.accel, block.rate
+        exit2 = self._moves[1].entry2 if len(self._moves) > 1 else 0.0
+        speed, used = self._speed, 0.0
+        while dt - used > 1e-12:
+            remaining = block.length - block.progress
+            if remaining <= 1e-9:
+                break
+            braking = (speed * speed - exit2) / (2.0 * accel)
+            if braking >= remaining - 1e-9:  # decelerate to the end of the block
+                end = math.sqrt(max(speed * speed - 2.0 * accel * remaining, 0.0))
+                phase = (speed - end) / accel
+                if phase <= 1e-12:  # already at the exit speed: the rounding is the rest of the block
+                    phase = remaining / max(speed, 1e-9)
+                    end = speed
+                if used + phase <= dt:
+                    used, speed, block.progress = used + phase, end, block.length
+                    break
+                step = dt - used
+                block.progress += speed * step - 0.5 * accel * step * step
+                speed, used = speed - accel * step, dt
+            elif speed < nominal - 1e-9 and (peak := min(nominal, math.sqrt(
+                    (2.0 * accel * remaining + speed * speed + exit2) / 2.0))) > speed + 1e-9:
+                # accelerate to the nominal speed, or to the peak of a triangle where braking must begin
+                phase = (peak - speed) / accel
+                if used + phase <= dt:
+                    block.progress = min(block.progress + (peak * peak - speed * speed) / (2.0 * accel), block.length)
+                    used, speed = used + phase, peak
+                    continue
+                step = dt - used
+                block.progress += speed * step + 0.5 * accel * step * step
+                speed, used = speed + accel * step, dt
+            else:  # cruise until braking must begin
+                cruise = remaining - max(braking, 0.0)
+                phase = cruise / max(speed, 1e-9)
+                if used + phase <= dt:
+                    block.progress += cruise
+                    used += phase
+                    continue
+                block.progress += speed * (dt - used)
+                used = dt
+        self._speed = speed
+        return used
 
     def _complete(self) -> None:
         block = self.planner.popleft()
         if block.segment is not None:
             self.position = block.segment.end
+            self._moves.popleft()
+            self._optimal = max(0, self._optimal - 1)
+            if not block.final:
+                return
+        if self.completed is not None:
+            self.completed.append((block.text, self.machine_time))
         if self._log and not block.jog:
             self._log.write(block.text + "\n")
             self._log.flush()
         if block.pause:  # M0: the planner is empty (it synchronised); hold until cycle start
             self._hold, self.state, self._hold_stopped_motion = "complete", "Hold", False
+
+    def step(self, seconds: float | None = None) -> float:
+        """One turn of the main loop of a controller made with `threaded=False`: take input, then run `seconds` of
+        machine time (None: until the next planner block or dwell completes). Returns the machine time used."""
+        with self._lock:
+            self._process_input()
+            used = self._advance(math.inf if seconds is None else seconds, single=seconds is None)
+            self._process_input()
+            return used
 
     # ----- system commands ($) -------------------------------------------------------------------------
     def _system_command(self, line: str) -> None:
@@ -628,5 +836,28 @@ class GrblSimulator:
             return 16
         if block.segment is None or "F" not in text:
             return 16
-        self._queue("$J=" + text, block, jog=True)
+        self._queue(_Pending("$J=" + text, block, sync=False), jog=True)
         return 0
+
+
+def timed_run(lines: list[str], *, settings: dict[int, float] | None = None,
+              build: BuildInfo = STOCK_BUILD) -> list[tuple[str, float]]:
+    """Run program `lines` in machine time on a controller whose host keeps its receive buffer full (a line is
+    sent as soon as it fits): (line as executed, machine time in s when it completed) for every line, in order.
+    Deterministic: no wall clock, no thread. A line the controller refuses is a ValueError."""
+    simulator = GrblSimulator(settings=settings, build=build, threaded=False)
+    simulator.completed = []
+    simulator.attach()
+    waiting = deque(line.encode("ascii") + b"\n" for line in lines)
+    while waiting or simulator.planner or simulator._pending is not None or simulator._rx:
+        while waiting and len(waiting[0]) <= build.rx_buffer - len(simulator._rx):
+            simulator.receive(waiting.popleft())
+        progress = (len(simulator.completed), len(simulator._rx), simulator.machine_time)
+        simulator.step()
+        answers = simulator.read(1 << 20, None).decode("ascii")
+        if "error" in answers or "ALARM" in answers:
+            raise ValueError(f"the controller refused a line: {answers.strip()}")
+        if progress == (len(simulator.completed), len(simulator._rx), simulator.machine_time):
+            raise ValueError(f"the controller stopped: state {simulator.state}")
+    simulator.close()
+    return simulator.completed

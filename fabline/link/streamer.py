@@ -47,6 +47,7 @@ from fabline.link.program import TAG_CYCLE, Program, line_tag, load_program
 from fabline.link.protocol import (CYCLE_START, FEED_HOLD, SOFT_RESET, STATUS_QUERY, CharacterCounter,
                                    LineSplitter, Response, StatusReport, classify)
 from fabline.locks import exclusive_lock, lock_path
+from fabline.progress import Eta, estimate, simulated_speedup
 
 MODES = ("counting", "send-response")
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -77,6 +78,8 @@ class Progress:
     file_line: int | None
     message: str | None = None
     """Set while the program waits for the operator: `program paused (M0) at file line N: resume to continue`."""
+    eta: Eta | None = None
+    """Elapsed and remaining time from the planner's machine time per line, corrected by the pace made so far."""
 
 
 @dataclass(frozen=True)
@@ -179,6 +182,7 @@ class Streamer:
         self._paused = False
         self._pauses: list[int] = []  # acknowledged M0 lines whose pause has not been reported yet
         self.message: str | None = None
+        self._timeline, self._timeline_for = None, None
 
     # ----- control from any thread -----------------------------------------------------------------
     def pause(self) -> None:
@@ -307,6 +311,8 @@ class Streamer:
                 raise StreamInterrupted(str(exc), "undecided", previous.done) from None
         if problems is None:  # read now that the controller stands still (a held one was first let finish)
             problems = self._check_controller()
+        if self.on_progress is not None:
+            self.timeline()  # before anything moves: computing it must not delay the stream loop's first answers
         self.journal = Journal(self.journal_path, sync_interval=COMMIT_INTERVAL).open(fresh=previous is None)
         try:
             return self._journaled_job(previous, executed, identity, problems)
@@ -1025,14 +1031,32 @@ class Streamer:
             return
         total = len(self.program.lines)
         elapsed = time.monotonic() - self.started
-        gained = self.acked - self.first_index
-        remaining = elapsed * (total - self.acked) / gained if gained > 0 else None
+        timeline = self.timeline()
+        planned = timeline[-1] - self._planned_at(self.first_index)
+        eta = estimate(planned, self._planned_at(self.acked) - self._planned_at(self.first_index), elapsed)
+        remaining = eta.remaining
         status = self.status
         self.on_progress(Progress(
             acked=self.acked, total=total, percent=100.0 * self.acked / total, state=status.state if status else "?",
             position=status.work_position(self._wco) if status else None, elapsed=elapsed,
             remaining=remaining, file_line=self._file_line(self.acked - 1) if self.acked else None,
-            message=self.message))
+            message=self.message, eta=eta))
+
+    def timeline(self):
+        """Planned seconds (on this machine: a simulator's time scale applied) from the start of the program to the
+        end of each line, from the controller's own settings; computed once per run."""
+        if self._timeline_for is not self.blocks:
+            from fabline.export.motion import line_timeline
+            from fabline.link.simulator import DEFAULT_SETTINGS
+
+            settings = {**DEFAULT_SETTINGS, **self.settings}
+            self._timeline = line_timeline(self.blocks, settings, self.build.planner_blocks) / simulated_speedup(self.url)
+            self._timeline_for = self.blocks
+        return self._timeline
+
+    def _planned_at(self, count: int) -> float:
+        """Planned seconds to the end of the first `count` lines."""
+        return float(self._timeline[count - 1]) if count > 0 else 0.0
 
     def _exchange(self, direction: str, text: str) -> None:
         """Append to the exchange log; a log that cannot be written is closed and raised as a JournalError."""
