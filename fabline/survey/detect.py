@@ -1,9 +1,9 @@
 """AprilTag 36h11 detection with sub-pixel corners, usable on its own (`fabline survey detect`).
 
 OpenCV's aruco finds the quads without corner refinement (its AprilTag refinement silently drops tags,
-its sub-pixel refinement is about 1 px off on real photos), in a second pass with a lower threshold offset for
-small, dim or grazing tags the first pass cannot see; each tag's four edges are then located to
-sub-pixel precision along the edge normal (the intensity-gradient peak, on a cubic spline of the image),
+its sub-pixel refinement is about 1 px off on real photos), on an image pyramid: one threshold window per level, the
+coarse levels for blurred large tags, full resolution for small, dim or grazing ones; each tag's four edges are then
+located to sub-pixel precision along the edge normal (the intensity-gradient peak, on a cubic spline of the image),
 a line is fitted per edge and the corners are the line intersections, as in the AprilTag library. Pixel centres lie at
 integer coordinates (OpenCV's convention; the AprilTag library's are at +0.5). Corners come in the AprilTag library's
 order, p0..p3 at (-s, s), (s, s), (s, -s), (-s, -s) in its tag frame (x right, y down, z into the tag's face, centre at
@@ -49,13 +49,25 @@ CONVERGED_PX = 0.1
 # than a light quiet zone beside it, thresholded dark there and joined a cut tag's black tip to a dark lamella beside.
 BORDER_PAD_PX = 16
 PAD_LIGHT_ROWS = 2
-# Second pass for tags of about 2 px cells: blurred, their black border's contrast falls below aruco's default
-# threshold offset (7 grey levels) and the border breaks up; a lower offset at a window of a few cells keeps it whole.
-# Seen at 60-80 degrees their cells are a pixel or less across the tag: a 3 px window keeps that thin border whole.
-LOW_CONTRAST_THRESHOLD_OFFSET = 3
-LOW_CONTRAST_WINDOWS_PX = (3, 5)
-# The second pass also fits polygons to the contours more finely than aruco's default (3 % of a contour's length): a tag
-# seen past 80 degrees is a sliver whose two obtuse corners lie within 3 % of its contour's length of its long diagonal.
+# Quads are searched for on an image pyramid, as the AprilTag library's quad_decimate but at every scale: aruco's
+# adaptive threshold at one window of SEARCH_WINDOW_PX per level, the photo at full resolution and halved up to
+# MAX_SEARCH_LEVEL times while its shorter side keeps MIN_LEVEL_SIDE_PX. A 3 px window keeps the thin black border of
+# small tags of about 2 px cells, and of tags seen at 60-80 degrees whose cells are a pixel or less across, whole; it
+# sees a blurred large tag's border no longer (on a linear ramp the window's mean is the centre's value), but a level
+# where that blur is a pixel or two does. One window per level costs one threshold and contour search, where aruco's
+# default windows (3 to 23 px in steps of 10) cost three, all at full resolution. Each quad is refined and read at full
+# resolution (`_refine_and_read`).
+SEARCH_WINDOW_PX = 3
+MAX_SEARCH_LEVEL, MIN_LEVEL_SIDE_PX = 2, 240
+# Blurred, small tags' black border falls below aruco's default threshold offset (7 grey levels) and breaks up: at full
+# resolution a lower offset keeps it whole; at the coarser levels, where halving has taken out half the noise, a
+# slightly higher one finds fewer false outlines.
+FULL_RESOLUTION_THRESHOLD_OFFSET, COARSE_THRESHOLD_OFFSET = 3, 5
+# quads found at a coarser level are at least this many of its pixels across (smaller ones are found at the finer)
+COARSE_MIN_SIDE_PX = 8.0
+# At full resolution polygons are fitted to the contours more finely than aruco's default (3 % of a contour's length):
+# a tag seen past 80 degrees is a sliver whose two obtuse corners lie within 3 % of its contour's length of its long
+# diagonal.
 SLIVER_POLYGON_ACCURACY = 0.028
 # A tag in front can hide a corner of the black square of one behind it under its white quiet zone: that square's
 # outline is then a 5-7-gon, cut or notched at the corner, and aruco passes it by. Around each found tag of cells of at
@@ -119,17 +131,26 @@ def write_image(path: str | os.PathLike, image: np.ndarray, params: tuple = (), 
         handle.write(encoded.tobytes())
 
 
-def _detector(min_side_px: float, image_size: int, low_contrast: bool = False) -> cv2.aruco.ArucoDetector:
-    """OpenCV's aruco detector for 36h11 quads of at least `min_side_px`; `low_contrast` for the second pass."""
+def _detector(min_side_px: float, image_size: int, level: int) -> cv2.aruco.ArucoDetector:
+    """OpenCV's aruco detector for 36h11 quads of at least `min_side_px` at pyramid `level` (of `image_size` px)."""
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE
     params.minMarkerPerimeterRate = max(4 * min_side_px / image_size, 1e-3)
-    if low_contrast:
-        params.adaptiveThreshConstant = LOW_CONTRAST_THRESHOLD_OFFSET
-        params.adaptiveThreshWinSizeMin, params.adaptiveThreshWinSizeMax = LOW_CONTRAST_WINDOWS_PX
-        params.adaptiveThreshWinSizeStep = LOW_CONTRAST_WINDOWS_PX[1] - LOW_CONTRAST_WINDOWS_PX[0]
+    params.adaptiveThreshWinSizeMin = params.adaptiveThreshWinSizeMax = SEARCH_WINDOW_PX
+    params.adaptiveThreshConstant = COARSE_THRESHOLD_OFFSET if level else FULL_RESOLUTION_THRESHOLD_OFFSET
+    if level == 0:
         params.polygonalApproxAccuracyRate = SLIVER_POLYGON_ACCURACY
     return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY), params)
+
+
+def _search_levels(padded: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """The pyramid levels (see SEARCH_WINDOW_PX) of the padded photo, coarsest first, each with its image."""
+    levels = [(0, padded)]
+    while levels[-1][0] < MAX_SEARCH_LEVEL and min(levels[-1][1].shape) // 2 >= MIN_LEVEL_SIDE_PX:
+        image = levels[-1][1]
+        levels.append((levels[-1][0] + 1, cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2),
+                                                       interpolation=cv2.INTER_AREA)))
+    return levels[::-1]
 
 
 def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection]:
@@ -138,19 +159,22 @@ def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection
     Quads OpenCV decodes are refined; quads it finds but cannot decode (small, oblique or blurred
     tags, where its bit sampling on the coarse quad fails) get a second chance: refined first, their
     bits are then read on the refined quad and identified with the dictionary's own error correction.
-    A second aruco pass with a lower threshold offset then adds the small, dim or grazing tags the first one cannot
-    see; its quads inside tags already found are skipped. Last, black squares with a corner hidden under the quiet
+    Quads are searched for on an image pyramid, coarsest level first (see SEARCH_WINDOW_PX): the coarse levels find
+    blurred large tags, full resolution the small, dim or grazing ones; quads inside tags already found are skipped.
+    Last, black squares with a corner hidden under the quiet
     zone of a tag found in front of them are read (`_occluded_quads`). Tags with a corner outside the image come out
     `partial` (see the module's docstring).
     """
-    padded = _padded(gray)
     found: list[tuple[int, np.ndarray]] = []
-    for low_contrast in (False, True):
-        corners, ids, rejected = _detector(min_side_px, max(padded.shape), low_contrast).detectMarkers(padded)
+    for level, image in _search_levels(_padded(gray)):
+        scale = 2 ** level
+        detector = _detector(max(min_side_px / scale, COARSE_MIN_SIDE_PX if level else 0.0), max(image.shape), level)
+        corners, ids, rejected = detector.detectMarkers(image)
         candidates = [(q, int(i)) for q, i in zip(corners, ids.ravel())] if ids is not None else []
         candidates += [(q, None) for q in rejected]
-        _read_candidates(gray, [(q.reshape(4, 2).astype(float) - BORDER_PAD_PX, i, None) for q, i in candidates],
-                         found, min_side_px)
+        # a pixel centre of the level at (x + 0.5) * scale - 0.5 at full resolution
+        _read_candidates(gray, [((q.reshape(4, 2).astype(float) + 0.5) * scale - 0.5 - BORDER_PAD_PX, i, None)
+                                for q, i in candidates], found, min_side_px)
     _read_candidates(gray, [(q, None, cover) for q, cover in _occluded_quads(gray, [q for _, q in found])], found,
                      min_side_px, try_quiet_zone=False)
     found.sort(key=lambda tag: (tag[0], *tag[1].mean(axis=0)[::-1]))
