@@ -51,15 +51,16 @@ CONVERGED_PX = 0.1
 BORDER_PAD_PX = 16
 PAD_LIGHT_ROWS = 2
 # Quads are searched for on an image pyramid, as the AprilTag library's quad_decimate but at every scale: aruco's
-# adaptive threshold at one window of SEARCH_WINDOW_PX per level, the photo at full resolution and halved up to
-# MAX_SEARCH_LEVEL times while its shorter side keeps MIN_LEVEL_SIDE_PX. A 3 px window keeps the thin black border of
-# small tags of about 2 px cells, and of tags seen at 60-80 degrees whose cells are a pixel or less across, whole; it
-# sees a blurred large tag's border no longer (on a linear ramp the window's mean is the centre's value), but a level
-# where that blur is a pixel or two does. One window per level costs one threshold and contour search, where aruco's
-# default windows (3 to 23 px in steps of 10) cost three, all at full resolution. Each quad is refined and read at full
-# resolution (`_refine_and_read`).
-SEARCH_WINDOW_PX = 3
-MAX_SEARCH_LEVEL, MIN_LEVEL_SIDE_PX = 2, 240
+# adaptive threshold at one window per search, at full resolution SEARCH_WINDOW_PX, at each coarser level (the photo
+# halved, up to MAX_SEARCH_LEVEL times while its shorter side keeps MIN_LEVEL_SIDE_PX) each of COARSE_WINDOWS_PX in a
+# search of its own (aruco keeps one of the quads its windows find at one place: the quiet zone's outline, not the black
+# square's). A 3 px window keeps the thin black border of small tags of about 2 px cells, and of tags seen at 60-80
+# degrees whose cells are a pixel or less across, whole; it sees a blurred large tag's border no longer (on a linear
+# ramp the window's mean is the centre's value), but a level where that blur is a pixel or two does. A lens blurs over
+# more pixels the more the sensor has: photos of under 960 px a side, sharp to a pixel, get no coarser level. Each quad
+# is refined and read at full resolution (`_refine_and_read`).
+SEARCH_WINDOW_PX, COARSE_WINDOWS_PX = 3, (3, 5)
+MAX_SEARCH_LEVEL, MIN_LEVEL_SIDE_PX = 2, 480
 # Blurred, small tags' black border falls below aruco's default threshold offset (7 grey levels) and breaks up: at full
 # resolution a lower offset keeps it whole; at the coarser levels, where halving has taken out half the noise, a
 # slightly higher one finds fewer false outlines.
@@ -88,6 +89,14 @@ APRILTAG_ORDER = [1, 0, 3, 2]
 TAG_SQUARE = np.array([[0, 0], [TAG_CELLS, 0], [TAG_CELLS, TAG_CELLS], [0, TAG_CELLS]], dtype=float)
 QUIET_ZONE_OUTLINE = np.array([[-1, -1], [TAG_CELLS + 1, -1], [TAG_CELLS + 1, TAG_CELLS + 1], [-1, TAG_CELLS + 1]],
                               dtype=float)
+DECODE_SHARPENING = 0.25  # of the cells' Laplacian, added to a blurred tag's cells for a second reading (see `_decode`)
+# cell centres (TAG_CELLS + 2, TAG_CELLS + 2, 2) of a tag and its quiet zone, in cell coordinates, and which of them
+# are the quiet zone's ring and the black border's
+CELL_CENTRES = np.stack(np.meshgrid(np.arange(-1, TAG_CELLS + 1) + 0.5, np.arange(-1, TAG_CELLS + 1) + 0.5), axis=-1)
+QUIET_ZONE_CELLS = np.pad(np.zeros((TAG_CELLS, TAG_CELLS), dtype=bool), 1, constant_values=True)
+BORDER_CELLS = np.pad(np.pad(np.zeros((TAG_CELLS - 2, TAG_CELLS - 2), dtype=bool), 1, constant_values=True), 1)
+MIN_CONTRAST = 20  # grey levels from a tag's black border to its quiet zone, at least
+PLAIN_DARK_RATE = 0.4
 # bits the dictionary corrects, as OpenCV's detector does (60 % of what 36h11's minimum distance allows, 3 bits)
 CORRECTION_RATE = 0.6
 MIN_REACH_PX = 0.75  # edge profiles reach 0.45 cell either side of the edge, at least this far (at most 4 px)
@@ -132,12 +141,13 @@ def write_image(path: str | os.PathLike, image: np.ndarray, params: tuple = (), 
         handle.write(encoded.tobytes())
 
 
-def _detector(min_side_px: float, image_size: int, level: int) -> cv2.aruco.ArucoDetector:
-    """OpenCV's aruco detector for 36h11 quads of at least `min_side_px` at pyramid `level` (of `image_size` px)."""
+def _detector(min_side_px: float, image_size: int, level: int, window_px: int) -> cv2.aruco.ArucoDetector:
+    """OpenCV's aruco detector for 36h11 quads of at least `min_side_px` at pyramid `level` (of `image_size` px), one
+    adaptive threshold window of `window_px`."""
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE
     params.minMarkerPerimeterRate = max(4 * min_side_px / image_size, 1e-3)
-    params.adaptiveThreshWinSizeMin = params.adaptiveThreshWinSizeMax = SEARCH_WINDOW_PX
+    params.adaptiveThreshWinSizeMin = params.adaptiveThreshWinSizeMax = window_px
     params.adaptiveThreshConstant = COARSE_THRESHOLD_OFFSET if level else FULL_RESOLUTION_THRESHOLD_OFFSET
     if level == 0:
         params.polygonalApproxAccuracyRate = SLIVER_POLYGON_ACCURACY
@@ -169,13 +179,14 @@ def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection
     found: list[tuple[int, np.ndarray]] = []
     for level, image in _search_levels(_padded(gray)):
         scale = 2 ** level
-        detector = _detector(max(min_side_px / scale, COARSE_MIN_SIDE_PX if level else 0.0), max(image.shape), level)
-        corners, ids, rejected = detector.detectMarkers(image)
-        candidates = [(q, int(i)) for q, i in zip(corners, ids.ravel())] if ids is not None else []
-        candidates += [(q, None) for q in rejected]
-        # a pixel centre of the level at (x + 0.5) * scale - 0.5 at full resolution
-        _read_candidates(gray, [((q.reshape(4, 2).astype(float) + 0.5) * scale - 0.5 - BORDER_PAD_PX, i, None)
-                                for q, i in candidates], found, min_side_px)
+        min_side = max(min_side_px / scale, COARSE_MIN_SIDE_PX if level else 0.0)
+        for window in COARSE_WINDOWS_PX if level else (SEARCH_WINDOW_PX,):
+            corners, ids, rejected = _detector(min_side, max(image.shape), level, window).detectMarkers(image)
+            candidates = [(q, int(i)) for q, i in zip(corners, ids.ravel())] if ids is not None else []
+            candidates += [(q, None) for q in rejected]
+            # a pixel centre of the level at (x + 0.5) * scale - 0.5 at full resolution
+            _read_candidates(gray, [((q.reshape(4, 2).astype(float) + 0.5) * scale - 0.5 - BORDER_PAD_PX, i, None)
+                                    for q, i in candidates], found, min_side_px)
     _read_candidates(gray, [(q, None, cover) for q, cover in _occluded_quads(gray, [q for _, q in found])], found,
                      min_side_px, try_quiet_zone=False)
     found.sort(key=lambda tag: (tag[0], *tag[1].mean(axis=0)[::-1]))
@@ -188,8 +199,8 @@ def _read_candidates(gray: np.ndarray, candidates: list[tuple[np.ndarray, int | 
     """Refine and read candidate quads (4, 2) in px, each with aruco's id or None and the outline of what hides part of
     it or None (see `_decode`), into `found` (id, corners); quads cut by the image border, or inside a tag found
     before, are skipped; a quad read as a tag already found at the same place keeps the larger of the two.
-    `try_quiet_zone`: an unread quad may be a tag's quiet zone outline, as aruco's quads of tags on a darker background
-    are."""
+    `try_quiet_zone`: a quad whose edges cannot be located may be a tag's quiet zone outline, as aruco's quads of tags
+    on a darker background are."""
     centres = np.array([q.mean(axis=0) for _, q in found]).reshape(-1, 2)
     radii = np.array([0.5 * _shortest_side(q) for _, q in found])
     for quad, tag_id, hidden_by in candidates:
@@ -199,9 +210,12 @@ def _read_candidates(gray: np.ndarray, candidates: list[tuple[np.ndarray, int | 
             continue
         if np.any(np.linalg.norm(centres - quad.mean(axis=0), axis=1) < radii):
             continue  # inside a tag found before
+        if tag_id is None and hidden_by is None and _plain_dark(gray, quad):
+            continue
         read_id, refined = _refine_and_read(gray, quad, tag_id, hidden_by)
-        if try_quiet_zone and tag_id is None and (refined is None or read_id is None):
+        if try_quiet_zone and tag_id is None and refined is None:
             # a tag on a darker background: the quad may be its quiet zone's outline, one cell outside the black square
+            # (whose edges, light inside, cannot be located as a black square's are)
             read_id, refined = _refine_and_read(gray, _inside_quiet_zone(quad), None)
         if refined is None or read_id is None or _edge_inside_fraction(gray, refined).min() < MIN_EDGE_INSIDE:
             continue
@@ -210,6 +224,18 @@ def _read_candidates(gray: np.ndarray, candidates: list[tuple[np.ndarray, int | 
             found.append((read_id, refined))
         elif _area(refined) > _area(found[same[0]][1]):
             found[same[0]] = (read_id, refined)
+
+
+def _plain_dark(gray: np.ndarray, quad: np.ndarray) -> bool:
+    """Whether a candidate quad (4, 2) in px is a dark patch in a light surround with nothing light inside, so no tag
+    (a lamella's end, a shadow): sampled on the photo at its cells' centres, the quiet zone's median at least
+    MIN_CONTRAST above the black border's, and no data cell above PLAIN_DARK_RATE of the way from border to quiet zone
+    (every 36h11 code has light cells; tags read on the benchmark's photos reach past 1.0). A cheap look, before the
+    edges are located: it leaves out half the candidates that are no tags, at a twentieth of the cost of reading them."""
+    values = cv2.remap(gray, *_tag_points(quad, CELL_CENTRES).astype(np.float32).reshape(1, -1, 2).transpose(2, 0, 1),
+                       cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(TAG_CELLS + 2, TAG_CELLS + 2)
+    dark, light = np.median(values[BORDER_CELLS]), np.median(values[QUIET_ZONE_CELLS])
+    return bool(light - dark >= MIN_CONTRAST and values[2:-2, 2:-2].max() < dark + PLAIN_DARK_RATE * (light - dark))
 
 
 def _overlap(quad: np.ndarray, other: np.ndarray) -> bool:
@@ -363,7 +389,8 @@ def _decode(image: np.ndarray, quad: np.ndarray, hidden_by: np.ndarray | None = 
     """Read a refined quad's cells (spline image) and identify it; returns the id (or None) and corners in tag order.
 
     The black border must be dark and the quiet zone around it light; data cells are thresholded
-    halfway between the two and matched with OpenCV's dictionary (3 bits corrected, as its detector).
+    halfway between the two and matched with OpenCV's dictionary (3 bits corrected, as its detector), sharpened first
+    when they do not match as they are (see DECODE_SHARPENING).
     Cells under `hidden_by` (a convex outline (4, 2) in px of a tag in front) are not measured, as cells outside the
     image; data cells under it are read anyway but each counts as a wrong bit against the 3 the dictionary corrects.
     """
@@ -378,11 +405,7 @@ def _decode(image: np.ndarray, quad: np.ndarray, hidden_by: np.ndarray | None = 
         measured &= ~_in_convex(hidden_by, points).reshape(len(ticks), len(ticks), 9).any(axis=2)
     values = map_coordinates(image, [points[:, 1], points[:, 0]], order=3, mode="mirror", prefilter=False)
     cells = values.reshape(len(ticks), len(ticks), 9).mean(axis=2)
-    ring = np.ones((TAG_CELLS + 2, TAG_CELLS + 2), dtype=bool)
-    ring[1:-1, 1:-1] = False
-    border = np.zeros_like(ring)
-    border[1:-1, 1:-1] = True
-    border[2:-2, 2:-2] = False
+    ring, border = QUIET_ZONE_CELLS.copy(), BORDER_CELLS.copy()
     # the black square must lie in the image; of its quiet zone (which the photo's edge may cut) at least half
     if (not inside[2:-2, 2:-2].all() or measured[border].sum() < MIN_BORDER_CELLS
             or measured[ring].sum() < MIN_QUIET_ZONE_CELLS):
@@ -391,11 +414,16 @@ def _decode(image: np.ndarray, quad: np.ndarray, hidden_by: np.ndarray | None = 
     border &= measured
     dark, light = cells[border], cells[ring]
     threshold = 0.5 * (np.median(dark) + np.median(light))
-    if np.median(light) - np.median(dark) < 20 or np.sum(dark > threshold) > 2 or np.sum(light < threshold) > 4:
+    if np.median(light) - np.median(dark) < MIN_CONTRAST or np.sum(dark > threshold) > 2 or np.sum(light < threshold) > 4:
         return None, quad
-    bits = cells[2:-2, 2:-2] > threshold
     hidden_bits = ~measured[2:-2, 2:-2]
-    tag_id, rotation = identify(bits, hidden_bits)
+    tag_id, rotation = identify(cells[2:-2, 2:-2] > threshold, hidden_bits)
+    if tag_id is None:
+        # blur spreads each cell into its neighbours: a lone light cell among dark ones reads dark. Sharpened as the
+        # AprilTag library's decode_sharpening does (the cells' Laplacian, 0.25 of it), then read again.
+        padded = np.pad(cells, 1, mode="edge")
+        laplacian = 4 * cells - padded[:-2, 1:-1] - padded[2:, 1:-1] - padded[1:-1, :-2] - padded[1:-1, 2:]
+        tag_id, rotation = identify((cells + DECODE_SHARPENING * laplacian)[2:-2, 2:-2] > threshold, hidden_bits)
     if tag_id is None:
         return None, quad
     return tag_id, np.roll(quad, rotation, axis=0)
