@@ -40,8 +40,8 @@ EDGE_SAMPLES, MAX_EDGE_SAMPLES, EDGE_SAMPLE_SPACING_PX = 20, 80, 2.0
 NEXT_CORNER, OPPOSITE_CORNER, PREVIOUS_CORNER = [1, 2, 3, 0], [2, 3, 0, 1], [3, 0, 1, 2]
 REFINE_PASSES = 2
 # Edge profiles reach 0.45 cell, so a quad whose edges are off by more than that (the coarse quad of a small tag, or of
-# one the photo's edge cuts) moves part of the way per pass: a tag once read gets up to this many more passes, until
-# no corner moves by more than CONVERGED_PX
+# one the photo's edge cuts) moves part of the way per pass: a tag once read gets up to this many more passes, while
+# the last one moved a corner by more than CONVERGED_PX
 MAX_EXTRA_PASSES = 2
 CONVERGED_PX = 0.1
 # aruco drops quads whose thresholded contour reaches the image border; a padding keeps tags near it, and closes the
@@ -375,13 +375,13 @@ def _refine_and_read(gray: np.ndarray, quad: np.ndarray, tag_id: int | None,
     x0, y0 = np.maximum(np.floor(quad.min(axis=0) - margin).astype(int), 0)
     x1, y1 = np.ceil(quad.max(axis=0) + margin).astype(int) + 1
     window = spline_filter(gray[y0:y1, x0:x1].astype(np.float64), order=3)
-    refined = refine_corners(window, quad - [x0, y0])
+    refined, moved = _refine(window, quad - [x0, y0])
     if refined is None:
         return tag_id, None
     if tag_id is None:
         tag_id, refined = _decode(window, refined, None if hidden_by is None else hidden_by - [x0, y0])
     if tag_id is not None:
-        refined = _settle(window, refined)
+        refined = _settle(window, refined, moved)
     return tag_id, refined + [x0, y0]
 
 
@@ -493,37 +493,44 @@ def refine_corners(image: np.ndarray, quad: np.ndarray) -> np.ndarray | None:
     edge profiles of small tags) gets a first pass with profiles reaching COARSE_REACH_PX, then the usual ones;
     larger tags' profiles reach that far anyway.
     """
-    refined = _refine_passes(image, quad, [MIN_REACH_PX] * REFINE_PASSES)
+    return _refine(image, quad)[0]
+
+
+def _refine(image: np.ndarray, quad: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """`refine_corners`' corners and how far (px) its last pass moved them the most."""
+    refined, moved = _refine_passes(image, quad, [MIN_REACH_PX] * REFINE_PASSES)
     if refined is None and _profile_reach(quad, MIN_REACH_PX) < COARSE_REACH_PX:
-        refined = _refine_passes(image, quad, [COARSE_REACH_PX] + [MIN_REACH_PX] * REFINE_PASSES)
-    return refined
+        refined, moved = _refine_passes(image, quad, [COARSE_REACH_PX] + [MIN_REACH_PX] * REFINE_PASSES)
+    return refined, moved
 
 
-def _refine_passes(image: np.ndarray, quad: np.ndarray, min_reaches: list[float]) -> np.ndarray | None:
-    """Corners refined by one pass of edge fits per entry of `min_reaches` (each pass's shortest profile reach, px)."""
+def _refine_passes(image: np.ndarray, quad: np.ndarray, min_reaches: list[float]) -> tuple[np.ndarray | None, float]:
+    """Corners refined by one pass of edge fits per entry of `min_reaches` (each pass's shortest profile reach, px), and
+    how far the last pass moved them the most; (None, inf) when a pass cannot locate the edges."""
+    moved = np.inf
     for min_reach in min_reaches:
         lines = _fit_edges(image, quad, min_reach)
         if lines is None:
-            return None
+            return None, np.inf
         new = _corners(lines)
         side = np.mean(np.linalg.norm(quad[NEXT_CORNER] - quad, axis=1))
-        if not np.all(np.isfinite(new)) or np.max(np.linalg.norm(new - quad, axis=1)) > max(3.0, 0.2 * side):
-            return None
+        moved = float(np.max(np.linalg.norm(new - quad, axis=1))) if np.all(np.isfinite(new)) else np.inf
+        if moved > max(3.0, 0.2 * side):
+            return None, np.inf
         quad = new
-    return quad
+    return quad, moved
 
 
-def _settle(image: np.ndarray, quad: np.ndarray) -> np.ndarray:
-    """A read tag's corners after further passes, until none moves by more than CONVERGED_PX (at most MAX_EXTRA_PASSES);
-    a pass that cannot locate the edges leaves the corners as they were."""
+def _settle(image: np.ndarray, quad: np.ndarray, moved: float) -> np.ndarray:
+    """A read tag's corners, which the last pass moved by `moved` px, after further passes until none moves by more than
+    CONVERGED_PX (at most MAX_EXTRA_PASSES); a pass that cannot locate the edges leaves the corners as they were."""
     for _ in range(MAX_EXTRA_PASSES):
-        new = _refine_passes(image, quad, [MIN_REACH_PX])
-        if new is None:
-            break
-        moved = np.max(np.linalg.norm(new - quad, axis=1))
-        quad = new
         if moved <= CONVERGED_PX:
             break
+        new, moved = _refine_passes(image, quad, [MIN_REACH_PX])
+        if new is None:
+            break
+        quad = new
     return quad
 
 
@@ -551,13 +558,22 @@ def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
     # By the photo's edge a profile's quiet-zone end may lie outside the image: it is cut there (its last sample
     # inside repeated) and still measures the edge if the rise lies inside; profiles starting outside are left out.
     inside = _inside(image, grid)
-    last_inside = np.maximum.accumulate(np.where(inside, np.arange(len(offsets)), 0), axis=2)
-    profiles = np.take_along_axis(profiles, last_inside, axis=2)
-    slope = np.gradient(profiles, axis=2)
-    rise_inside = inside[:, :, :-2] & inside[:, :, 1:-1] & inside[:, :, 2:]
-    peak = np.argmax(np.where(rise_inside, slope[:, :, 1:-1], -np.inf), axis=2) + 1
-    before, at, after = (np.take_along_axis(slope, (peak + d)[..., None], axis=2)[..., 0] for d in (-1, 0, 1))
-    measurable = inside[:, :, 0] & np.take_along_axis(rise_inside, (peak - 1)[..., None], axis=2)[..., 0]
+    all_inside = bool(inside.all())
+    if not all_inside:
+        last_inside = np.maximum.accumulate(np.where(inside, np.arange(len(offsets)), 0), axis=2)
+        profiles = np.take_along_axis(profiles, last_inside, axis=2)
+    slope = np.empty_like(profiles)  # np.gradient's: central differences, one-sided at the ends
+    slope[:, :, 1:-1] = 0.5 * (profiles[:, :, 2:] - profiles[:, :, :-2])
+    slope[:, :, 0], slope[:, :, -1] = profiles[:, :, 1] - profiles[:, :, 0], profiles[:, :, -1] - profiles[:, :, -2]
+    if all_inside:
+        peak = np.argmax(slope[:, :, 1:-1], axis=2) + 1
+        measurable = np.ones(peak.shape, dtype=bool)
+    else:
+        rise_inside = inside[:, :, :-2] & inside[:, :, 1:-1] & inside[:, :, 2:]
+        peak = np.argmax(np.where(rise_inside, slope[:, :, 1:-1], -np.inf), axis=2) + 1
+        measurable = inside[:, :, 0] & np.take_along_axis(rise_inside, (peak - 1)[..., None], axis=2)[..., 0]
+    at_peak = (np.arange(peak.size) * len(offsets) + peak.ravel()).reshape(peak.shape)  # into slope's flat array
+    before, at, after = (slope.ravel()[at_peak + d] for d in (-1, 0, 1))
     contrast = np.where(measurable, profiles[:, :, -1] - profiles[:, :, 0], -np.inf)
     curvature = before - 2 * at + after
     good = measurable & (contrast > 0.25 * contrast.max(axis=1, keepdims=True)) & (curvature < 0)
@@ -568,9 +584,10 @@ def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
     if counts.min() < 4:
         return None
     means = np.einsum("es,esi->ei", good, crossings) / counts[:, None]
-    spread = crossings - means[:, None, :]
-    scatter = np.einsum("es,esi,esj->eij", good.astype(float), spread, spread)
-    return means, np.linalg.eigh(scatter)[1][:, :, -1]
+    spread = (crossings - means[:, None, :]) * good[..., None]
+    sxx, syy, sxy = (np.einsum("es,es->e", spread[..., i], spread[..., j]) for i, j in ((0, 0), (1, 1), (0, 1)))
+    angle = 0.5 * np.arctan2(2 * sxy, sxx - syy)  # of the 2 x 2 scatter's main axis, in closed form
+    return means, np.column_stack([np.cos(angle), np.sin(angle)])
 
 
 def _profile_reach(quad: np.ndarray, min_reach: float) -> float:
