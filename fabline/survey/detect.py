@@ -57,10 +57,11 @@ PAD_LIGHT_ROWS = 2
 # square's). A 3 px window keeps the thin black border of small tags of about 2 px cells, and of tags seen at 60-80
 # degrees whose cells are a pixel or less across, whole; it sees a blurred large tag's border no longer (on a linear
 # ramp the window's mean is the centre's value), but a level where that blur is a pixel or two does. A lens blurs over
-# more pixels the more the sensor has: photos of under 960 px a side, sharp to a pixel, get no coarser level. Each quad
-# is refined and read at full resolution (`_refine_and_read`).
+# more pixels the more the sensor has: photos of under 960 px a side, sharp to a pixel, get no coarser level, unless
+# none is found at full resolution (the photo out of focus: then levels down to OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX). Each
+# quad is refined and read at full resolution (`_refine_and_read`).
 SEARCH_WINDOW_PX, COARSE_WINDOWS_PX = 3, (3, 5)
-MAX_SEARCH_LEVEL, MIN_LEVEL_SIDE_PX = 2, 480
+MAX_SEARCH_LEVEL, MIN_LEVEL_SIDE_PX, OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX = 2, 480, 160
 # Blurred, small tags' black border falls below aruco's default threshold offset (7 grey levels) and breaks up: at full
 # resolution a lower offset keeps it whole; at the coarser levels, where halving has taken out half the noise, a
 # slightly higher one finds fewer false outlines.
@@ -163,14 +164,29 @@ def _detector(min_side_px: float, image_size: int, level: int, window_px: int) -
     return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY), params)
 
 
-def _search_levels(padded: np.ndarray) -> list[tuple[int, np.ndarray]]:
-    """The pyramid levels (see SEARCH_WINDOW_PX) of the padded photo, coarsest first, each with its image."""
+def _search_levels(padded: np.ndarray, min_side_px: int) -> list[tuple[int, np.ndarray]]:
+    """The pyramid levels (see SEARCH_WINDOW_PX) of the padded photo, finest first, each with its image; a coarser level
+    while its shorter side keeps `min_side_px`."""
     levels = [(0, padded)]
-    while levels[-1][0] < MAX_SEARCH_LEVEL and min(levels[-1][1].shape) // 2 >= MIN_LEVEL_SIDE_PX:
+    while levels[-1][0] < MAX_SEARCH_LEVEL and min(levels[-1][1].shape) // 2 >= min_side_px:
         image = levels[-1][1]
         levels.append((levels[-1][0] + 1, cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2),
                                                        interpolation=cv2.INTER_AREA)))
-    return levels[::-1]
+    return levels
+
+
+def _search_level(gray: np.ndarray, level: int, image: np.ndarray, min_side_px: float,
+                  found: list[tuple[int, np.ndarray]]) -> None:
+    """Search pyramid `level` (`image`, padded) for quads and read them into `found` (see `_read_candidates`)."""
+    scale = 2 ** level
+    min_side = max(min_side_px / scale, COARSE_MIN_SIDE_PX if level else 0.0)
+    for window in COARSE_WINDOWS_PX if level else (SEARCH_WINDOW_PX,):
+        corners, ids, rejected = _detector(min_side, max(image.shape), level, window).detectMarkers(image)
+        candidates = [(q, int(i)) for q, i in zip(corners, ids.ravel())] if ids is not None else []
+        candidates += [(q, None) for q in rejected]
+        # a pixel centre of the level at (x + 0.5) * scale - 0.5 at full resolution
+        _read_candidates(gray, [((q.reshape(4, 2).astype(float) + 0.5) * scale - 0.5 - BORDER_PAD_PX, i, None)
+                                for q, i in candidates], found, min_side_px)
 
 
 def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection]:
@@ -179,23 +195,20 @@ def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection
     Quads OpenCV decodes are refined; quads it finds but cannot decode (small, oblique or blurred
     tags, where its bit sampling on the coarse quad fails) get a second chance: refined first, their
     bits are then read on the refined quad and identified with the dictionary's own error correction.
-    Quads are searched for on an image pyramid, coarsest level first (see SEARCH_WINDOW_PX): the coarse levels find
-    blurred large tags, full resolution the small, dim or grazing ones; quads inside tags already found are skipped.
+    Quads are searched for on an image pyramid, finest level first (see SEARCH_WINDOW_PX): full resolution finds the
+    small, dim or grazing tags, the coarse levels blurred large ones; quads inside tags already found are skipped.
     Last, black squares with a corner hidden under the quiet
     zone of a tag found in front of them are read (`_occluded_quads`). Tags with a corner outside the image come out
     `partial` (see the module's docstring).
     """
     found: list[tuple[int, np.ndarray]] = []
-    for level, image in _search_levels(_padded(gray)):
-        scale = 2 ** level
-        min_side = max(min_side_px / scale, COARSE_MIN_SIDE_PX if level else 0.0)
-        for window in COARSE_WINDOWS_PX if level else (SEARCH_WINDOW_PX,):
-            corners, ids, rejected = _detector(min_side, max(image.shape), level, window).detectMarkers(image)
-            candidates = [(q, int(i)) for q, i in zip(corners, ids.ravel())] if ids is not None else []
-            candidates += [(q, None) for q in rejected]
-            # a pixel centre of the level at (x + 0.5) * scale - 0.5 at full resolution
-            _read_candidates(gray, [((q.reshape(4, 2).astype(float) + 0.5) * scale - 0.5 - BORDER_PAD_PX, i, None)
-                                    for q, i in candidates], found, min_side_px)
+    padded = _padded(gray)
+    levels = _search_levels(padded, MIN_LEVEL_SIDE_PX)
+    for level, image in levels:
+        _search_level(gray, level, image, min_side_px, found)
+    if not found and len(levels) == 1:  # a small photo out of focus
+        for level, image in _search_levels(padded, OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX)[1:]:
+            _search_level(gray, level, image, min_side_px, found)
     _read_candidates(gray, [(q, None, cover) for q, cover in _occluded_quads(gray, [q for _, q in found])], found,
                      min_side_px, try_quiet_zone=False)
     found.sort(key=lambda tag: (tag[0], *tag[1].mean(axis=0)[::-1]))
