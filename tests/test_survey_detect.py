@@ -631,8 +631,8 @@ def test_identify_reads_as_opencvs_dictionary():
 def test_blurred_tags_large_and_small_are_found_with_their_corners(blur, seed):
     """A 640 x 480 photo out of focus: the large tag's border is no edge to the full-resolution search's 3 px threshold
     window in a blur of 2.5 px or more, the coarse levels searched when full resolution finds nothing see it; the
-    smaller one, seen at 60 degrees, comes out in a blur of 1.2 px (and in some noise draws in more). Corners near the truth (in the heavy blur, where
-    the edge's gradient peak is broad, to within a pixel)."""
+    smaller one, seen at 60 degrees, comes out in a blur of 1.2 px (and in some noise draws in more). Corners near the
+    truth (in the heavy blur, where the edge's gradient peak is broad, to within a pixel)."""
     rng = np.random.default_rng(seed)
     scene = np.full((480, 640), 90, np.float32) + rng.normal(0, 3, (480, 640)).astype(np.float32)
     large = np.array([[150.3, 120.6], [330.2, 128.4], [322.7, 300.1], [144.8, 292.5]])[APRILTAG_ORDER]

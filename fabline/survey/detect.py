@@ -253,7 +253,8 @@ def _plain_dark(gray: np.ndarray, quad: np.ndarray) -> bool:
     (a lamella's end, a shadow): sampled on the photo at its cells' centres, the quiet zone's median at least
     MIN_CONTRAST above the black border's, and no data cell above PLAIN_DARK_RATE of the way from border to quiet zone
     (every 36h11 code has light cells; tags read on the benchmark's photos reach past 1.0). A cheap look, before the
-    edges are located: it leaves out half the candidates that are no tags, at a twentieth of the cost of reading them."""
+    edges are located: it leaves out half the candidates that are no tags, at a twentieth of the cost of reading
+    them."""
     values = cv2.remap(gray, *_tag_points(quad, CELL_CENTRES).astype(np.float32).reshape(1, -1, 2).transpose(2, 0, 1),
                        cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(TAG_CELLS + 2, TAG_CELLS + 2)
     dark, light = np.median(values[BORDER_CELLS]), np.median(values[QUIET_ZONE_CELLS])
@@ -436,7 +437,8 @@ def _decode(image: np.ndarray, quad: np.ndarray, hidden_by: np.ndarray | None = 
     border &= measured
     dark, light = cells[border], cells[ring]
     threshold = 0.5 * (np.median(dark) + np.median(light))
-    if np.median(light) - np.median(dark) < MIN_CONTRAST or np.sum(dark > threshold) > 2 or np.sum(light < threshold) > 4:
+    if (np.median(light) - np.median(dark) < MIN_CONTRAST or np.sum(dark > threshold) > 2
+            or np.sum(light < threshold) > 4):
         return None, quad
     hidden_bits = ~measured[2:-2, 2:-2]
     tag_id, rotation = identify(cells[2:-2, 2:-2] > threshold, hidden_bits)
