@@ -235,9 +235,9 @@ def _read_candidates(gray: np.ndarray, candidates: list[tuple[np.ndarray, int | 
         if tag_id is None and hidden_by is None and _plain_dark(gray, quad):
             continue
         read_id, refined = _refine_and_read(gray, quad, tag_id, hidden_by)
-        if try_quiet_zone and tag_id is None and refined is None:
+        if try_quiet_zone and tag_id is None and refined is None and _contrast(gray, _inside_quiet_zone(quad)) > 0:
             # a tag on a darker background: the quad may be its quiet zone's outline, one cell outside the black square
-            # (whose edges, light inside, cannot be located as a black square's are)
+            # (whose edges, light inside, cannot be located as a black square's are), if that square is darker
             read_id, refined = _refine_and_read(gray, _inside_quiet_zone(quad), None)
         if refined is None or read_id is None or _edge_inside_fraction(gray, refined).min() < MIN_EDGE_INSIDE:
             continue
@@ -255,10 +255,21 @@ def _plain_dark(gray: np.ndarray, quad: np.ndarray) -> bool:
     (every 36h11 code has light cells; tags read on the benchmark's photos reach past 1.0). A cheap look, before the
     edges are located: it leaves out half the candidates that are no tags, at a twentieth of the cost of reading
     them."""
-    values = cv2.remap(gray, *_tag_points(quad, CELL_CENTRES).astype(np.float32).reshape(1, -1, 2).transpose(2, 0, 1),
-                       cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(TAG_CELLS + 2, TAG_CELLS + 2)
+    values = _cell_values(gray, quad)
     dark, light = np.median(values[BORDER_CELLS]), np.median(values[QUIET_ZONE_CELLS])
     return bool(light - dark >= MIN_CONTRAST and values[2:-2, 2:-2].max() < dark + PLAIN_DARK_RATE * (light - dark))
+
+
+def _contrast(gray: np.ndarray, quad: np.ndarray) -> float:
+    """The median grey of the quiet-zone cells around a quad (4, 2) in px as a black square less its border cells'."""
+    values = _cell_values(gray, quad)
+    return float(np.median(values[QUIET_ZONE_CELLS]) - np.median(values[BORDER_CELLS]))
+
+
+def _cell_values(gray: np.ndarray, quad: np.ndarray) -> np.ndarray:
+    """The photo's grey (TAG_CELLS + 2, TAG_CELLS + 2) at the cell centres of a tag whose black square is `quad`."""
+    return cv2.remap(gray, *_tag_points(quad, CELL_CENTRES).astype(np.float32).reshape(1, -1, 2).transpose(2, 0, 1),
+                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(TAG_CELLS + 2, TAG_CELLS + 2)
 
 
 def _overlap(quad: np.ndarray, other: np.ndarray) -> bool:
