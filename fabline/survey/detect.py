@@ -1,9 +1,9 @@
 """AprilTag 36h11 detection with sub-pixel corners, usable on its own (`fabline survey detect`).
 
 OpenCV's aruco finds the quads without corner refinement (its AprilTag refinement silently drops tags,
-its sub-pixel refinement is about 1 px off on real photos), in a second pass with a lower threshold offset for
-small, dim or grazing tags the first pass cannot see; each tag's four edges are then located to
-sub-pixel precision along the edge normal (the intensity-gradient peak, on a cubic spline of the image),
+its sub-pixel refinement is about 1 px off on real photos), on an image pyramid: one threshold window per level, the
+coarse levels for blurred large tags, full resolution for small, dim or grazing ones; each tag's four edges are then
+located to sub-pixel precision along the edge normal (the intensity-gradient peak, on a cubic spline of the image),
 a line is fitted per edge and the corners are the line intersections, as in the AprilTag library. Pixel centres lie at
 integer coordinates (OpenCV's convention; the AprilTag library's are at +0.5). Corners come in the AprilTag library's
 order, p0..p3 at (-s, s), (s, s), (s, -s), (-s, -s) in its tag frame (x right, y down, z into the tag's face, centre at
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 
 import cv2
@@ -39,23 +40,44 @@ EDGE_SAMPLES, MAX_EDGE_SAMPLES, EDGE_SAMPLE_SPACING_PX = 20, 80, 2.0
 NEXT_CORNER, OPPOSITE_CORNER, PREVIOUS_CORNER = [1, 2, 3, 0], [2, 3, 0, 1], [3, 0, 1, 2]
 REFINE_PASSES = 2
 # Edge profiles reach 0.45 cell, so a quad whose edges are off by more than that (the coarse quad of a small tag, or of
-# one the photo's edge cuts) moves part of the way per pass: a tag once read gets up to this many more passes, until
-# no corner moves by more than CONVERGED_PX
+# one the photo's edge cuts) moves part of the way per pass: a tag once read gets up to this many more passes, while
+# the last one moved a corner by more than CONVERGED_PX (passes converge fast: after one that moved 0.1-0.4 px the next
+# moved 0.003-0.03 px, and corners on the benchmark's photos came out the same to 0.0001 px mean with 0.1 px here)
 MAX_EXTRA_PASSES = 2
-CONVERGED_PX = 0.1
+CONVERGED_PX = 0.25
 # aruco drops quads whose thresholded contour reaches the image border; a padding keeps tags near it, and closes the
 # black square of a tag cut by the border so its quad is found. It is as light as the photo's edge nearby (its brightest
 # pixel in the outermost PAD_LIGHT_ROWS rows, within a padding's width along the edge): a uniform grey came out darker
 # than a light quiet zone beside it, thresholded dark there and joined a cut tag's black tip to a dark lamella beside.
 BORDER_PAD_PX = 16
 PAD_LIGHT_ROWS = 2
-# Second pass for tags of about 2 px cells: blurred, their black border's contrast falls below aruco's default
-# threshold offset (7 grey levels) and the border breaks up; a lower offset at a window of a few cells keeps it whole.
-# Seen at 60-80 degrees their cells are a pixel or less across the tag: a 3 px window keeps that thin border whole.
-LOW_CONTRAST_THRESHOLD_OFFSET = 3
-LOW_CONTRAST_WINDOWS_PX = (3, 5)
-# The second pass also fits polygons to the contours more finely than aruco's default (3 % of a contour's length): a tag
-# seen past 80 degrees is a sliver whose two obtuse corners lie within 3 % of its contour's length of its long diagonal.
+# Quads are searched for on an image pyramid, as the AprilTag library's quad_decimate but at every scale: aruco's
+# adaptive threshold at one window per search, at full resolution SEARCH_WINDOW_PX, at each coarser level (the photo
+# halved, up to MAX_SEARCH_LEVEL times while its shorter side keeps MIN_LEVEL_SIDE_PX) each of COARSE_WINDOWS_PX in a
+# search of its own (aruco keeps one of the quads its windows find at one place: the quiet zone's outline, not the black
+# square's). A 3 px window keeps the thin black border of small tags of about 2 px cells, and of tags seen at 60-80
+# degrees whose cells are a pixel or less across, whole; it sees a blurred large tag's border no longer (on a linear
+# ramp the window's mean is the centre's value), but a level where that blur is a pixel or two does. A lens blurs over
+# more pixels the more the sensor has: photos of under 960 px a side, sharp to a pixel, get no coarser level, unless
+# none is found at full resolution (the photo out of focus: then levels down to OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX). Each
+# quad is refined and read at full resolution (`_refine_and_read`).
+SEARCH_WINDOW_PX, COARSE_WINDOWS_PX = 3, (3, 5)
+MAX_SEARCH_LEVEL, MIN_LEVEL_SIDE_PX, OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX = 2, 480, 160
+# Blurred, small tags' black border falls below aruco's default threshold offset (7 grey levels) and breaks up: at full
+# resolution a lower offset keeps it whole; at the coarser levels, where halving has taken out half the noise, a
+# slightly higher one finds fewer false outlines.
+FULL_RESOLUTION_THRESHOLD_OFFSET, COARSE_THRESHOLD_OFFSET = 3, 5
+# quads found at a coarser level are at least this many of its pixels across (smaller ones are found at the finer)
+COARSE_MIN_SIDE_PX = 8.0
+COARSE_MIN_CORNER_DISTANCE_RATE = 0.1
+# aruco identifies a quad whose black border reads with up to this share of its bits wrong; it compares the data bits
+# with one code at a time, 2 ms for each quad that is no tag. Quads it does not identify are read by `_decode` (which
+# leaves out plain dark patches at a glance, `_plain_dark`, and identifies at once): a whole border only, at a third of
+# the CPU time per search.
+ARUCO_BORDER_ERROR_RATE = 0.0
+# At full resolution polygons are fitted to the contours more finely than aruco's default (3 % of a contour's length):
+# a tag seen past 80 degrees is a sliver whose two obtuse corners lie within 3 % of its contour's length of its long
+# diagonal.
 SLIVER_POLYGON_ACCURACY = 0.028
 # A tag in front can hide a corner of the black square of one behind it under its white quiet zone: that square's
 # outline is then a 5-7-gon, cut or notched at the corner, and aruco passes it by. Around each found tag of cells of at
@@ -75,6 +97,14 @@ APRILTAG_ORDER = [1, 0, 3, 2]
 TAG_SQUARE = np.array([[0, 0], [TAG_CELLS, 0], [TAG_CELLS, TAG_CELLS], [0, TAG_CELLS]], dtype=float)
 QUIET_ZONE_OUTLINE = np.array([[-1, -1], [TAG_CELLS + 1, -1], [TAG_CELLS + 1, TAG_CELLS + 1], [-1, TAG_CELLS + 1]],
                               dtype=float)
+DECODE_SHARPENING = 0.25  # of the cells' Laplacian, added to a blurred tag's cells for a second reading (see `_decode`)
+# cell centres (TAG_CELLS + 2, TAG_CELLS + 2, 2) of a tag and its quiet zone, in cell coordinates, and which of them
+# are the quiet zone's ring and the black border's
+CELL_CENTRES = np.stack(np.meshgrid(np.arange(-1, TAG_CELLS + 1) + 0.5, np.arange(-1, TAG_CELLS + 1) + 0.5), axis=-1)
+QUIET_ZONE_CELLS = np.pad(np.zeros((TAG_CELLS, TAG_CELLS), dtype=bool), 1, constant_values=True)
+BORDER_CELLS = np.pad(np.pad(np.zeros((TAG_CELLS - 2, TAG_CELLS - 2), dtype=bool), 1, constant_values=True), 1)
+MIN_CONTRAST = 20  # grey levels from a tag's black border to its quiet zone, at least
+PLAIN_DARK_RATE = 0.4
 # bits the dictionary corrects, as OpenCV's detector does (60 % of what 36h11's minimum distance allows, 3 bits)
 CORRECTION_RATE = 0.6
 MIN_REACH_PX = 0.75  # edge profiles reach 0.45 cell either side of the edge, at least this far (at most 4 px)
@@ -119,17 +149,45 @@ def write_image(path: str | os.PathLike, image: np.ndarray, params: tuple = (), 
         handle.write(encoded.tobytes())
 
 
-def _detector(min_side_px: float, image_size: int, low_contrast: bool = False) -> cv2.aruco.ArucoDetector:
-    """OpenCV's aruco detector for 36h11 quads of at least `min_side_px`; `low_contrast` for the second pass."""
+def _detector(min_side_px: float, image_size: int, level: int, window_px: int) -> cv2.aruco.ArucoDetector:
+    """OpenCV's aruco detector for 36h11 quads of at least `min_side_px` at pyramid `level` (of `image_size` px), one
+    adaptive threshold window of `window_px`."""
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE
     params.minMarkerPerimeterRate = max(4 * min_side_px / image_size, 1e-3)
-    if low_contrast:
-        params.adaptiveThreshConstant = LOW_CONTRAST_THRESHOLD_OFFSET
-        params.adaptiveThreshWinSizeMin, params.adaptiveThreshWinSizeMax = LOW_CONTRAST_WINDOWS_PX
-        params.adaptiveThreshWinSizeStep = LOW_CONTRAST_WINDOWS_PX[1] - LOW_CONTRAST_WINDOWS_PX[0]
+    params.adaptiveThreshWinSizeMin = params.adaptiveThreshWinSizeMax = window_px
+    params.adaptiveThreshConstant = COARSE_THRESHOLD_OFFSET if level else FULL_RESOLUTION_THRESHOLD_OFFSET
+    params.maxErroneousBitsInBorderRate = ARUCO_BORDER_ERROR_RATE
+    if level == 0:
         params.polygonalApproxAccuracyRate = SLIVER_POLYGON_ACCURACY
+    else:
+        params.minCornerDistanceRate = COARSE_MIN_CORNER_DISTANCE_RATE
     return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY), params)
+
+
+def _search_levels(padded: np.ndarray, min_side_px: int) -> list[tuple[int, np.ndarray]]:
+    """The pyramid levels (see SEARCH_WINDOW_PX) of the padded photo, finest first, each with its image; a coarser level
+    while its shorter side keeps `min_side_px`."""
+    levels = [(0, padded)]
+    while levels[-1][0] < MAX_SEARCH_LEVEL and min(levels[-1][1].shape) // 2 >= min_side_px:
+        image = levels[-1][1]
+        levels.append((levels[-1][0] + 1, cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2),
+                                                       interpolation=cv2.INTER_AREA)))
+    return levels
+
+
+def _search_level(gray: np.ndarray, level: int, image: np.ndarray, min_side_px: float,
+                  found: list[tuple[int, np.ndarray]]) -> None:
+    """Search pyramid `level` (`image`, padded) for quads and read them into `found` (see `_read_candidates`)."""
+    scale = 2 ** level
+    min_side = max(min_side_px / scale, COARSE_MIN_SIDE_PX if level else 0.0)
+    for window in COARSE_WINDOWS_PX if level else (SEARCH_WINDOW_PX,):
+        corners, ids, rejected = _detector(min_side, max(image.shape), level, window).detectMarkers(image)
+        candidates = [(q, int(i)) for q, i in zip(corners, ids.ravel())] if ids is not None else []
+        candidates += [(q, None) for q in rejected]
+        # a pixel centre of the level at (x + 0.5) * scale - 0.5 at full resolution
+        _read_candidates(gray, [((q.reshape(4, 2).astype(float) + 0.5) * scale - 0.5 - BORDER_PAD_PX, i, None)
+                                for q, i in candidates], found, min_side_px)
 
 
 def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection]:
@@ -138,19 +196,20 @@ def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection
     Quads OpenCV decodes are refined; quads it finds but cannot decode (small, oblique or blurred
     tags, where its bit sampling on the coarse quad fails) get a second chance: refined first, their
     bits are then read on the refined quad and identified with the dictionary's own error correction.
-    A second aruco pass with a lower threshold offset then adds the small, dim or grazing tags the first one cannot
-    see; its quads inside tags already found are skipped. Last, black squares with a corner hidden under the quiet
+    Quads are searched for on an image pyramid, finest level first (see SEARCH_WINDOW_PX): full resolution finds the
+    small, dim or grazing tags, the coarse levels blurred large ones; quads inside tags already found are skipped.
+    Last, black squares with a corner hidden under the quiet
     zone of a tag found in front of them are read (`_occluded_quads`). Tags with a corner outside the image come out
     `partial` (see the module's docstring).
     """
-    padded = _padded(gray)
     found: list[tuple[int, np.ndarray]] = []
-    for low_contrast in (False, True):
-        corners, ids, rejected = _detector(min_side_px, max(padded.shape), low_contrast).detectMarkers(padded)
-        candidates = [(q, int(i)) for q, i in zip(corners, ids.ravel())] if ids is not None else []
-        candidates += [(q, None) for q in rejected]
-        _read_candidates(gray, [(q.reshape(4, 2).astype(float) - BORDER_PAD_PX, i, None) for q, i in candidates],
-                         found, min_side_px)
+    padded = _padded(gray)
+    levels = _search_levels(padded, MIN_LEVEL_SIDE_PX)
+    for level, image in levels:
+        _search_level(gray, level, image, min_side_px, found)
+    if not found and len(levels) == 1:  # a small photo out of focus
+        for level, image in _search_levels(padded, OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX)[1:]:
+            _search_level(gray, level, image, min_side_px, found)
     _read_candidates(gray, [(q, None, cover) for q, cover in _occluded_quads(gray, [q for _, q in found])], found,
                      min_side_px, try_quiet_zone=False)
     found.sort(key=lambda tag: (tag[0], *tag[1].mean(axis=0)[::-1]))
@@ -163,8 +222,8 @@ def _read_candidates(gray: np.ndarray, candidates: list[tuple[np.ndarray, int | 
     """Refine and read candidate quads (4, 2) in px, each with aruco's id or None and the outline of what hides part of
     it or None (see `_decode`), into `found` (id, corners); quads cut by the image border, or inside a tag found
     before, are skipped; a quad read as a tag already found at the same place keeps the larger of the two.
-    `try_quiet_zone`: an unread quad may be a tag's quiet zone outline, as aruco's quads of tags on a darker background
-    are."""
+    `try_quiet_zone`: a quad whose edges cannot be located may be a tag's quiet zone outline, as aruco's quads of tags
+    on a darker background are."""
     centres = np.array([q.mean(axis=0) for _, q in found]).reshape(-1, 2)
     radii = np.array([0.5 * _shortest_side(q) for _, q in found])
     for quad, tag_id, hidden_by in candidates:
@@ -174,9 +233,12 @@ def _read_candidates(gray: np.ndarray, candidates: list[tuple[np.ndarray, int | 
             continue
         if np.any(np.linalg.norm(centres - quad.mean(axis=0), axis=1) < radii):
             continue  # inside a tag found before
+        if tag_id is None and hidden_by is None and _plain_dark(gray, quad):
+            continue
         read_id, refined = _refine_and_read(gray, quad, tag_id, hidden_by)
-        if try_quiet_zone and tag_id is None and (refined is None or read_id is None):
+        if try_quiet_zone and tag_id is None and refined is None and _contrast(gray, _inside_quiet_zone(quad)) > 0:
             # a tag on a darker background: the quad may be its quiet zone's outline, one cell outside the black square
+            # (whose edges, light inside, cannot be located as a black square's are), if that square is darker
             read_id, refined = _refine_and_read(gray, _inside_quiet_zone(quad), None)
         if refined is None or read_id is None or _edge_inside_fraction(gray, refined).min() < MIN_EDGE_INSIDE:
             continue
@@ -185,6 +247,30 @@ def _read_candidates(gray: np.ndarray, candidates: list[tuple[np.ndarray, int | 
             found.append((read_id, refined))
         elif _area(refined) > _area(found[same[0]][1]):
             found[same[0]] = (read_id, refined)
+
+
+def _plain_dark(gray: np.ndarray, quad: np.ndarray) -> bool:
+    """Whether a candidate quad (4, 2) in px is a dark patch in a light surround with nothing light inside, so no tag
+    (a lamella's end, a shadow): sampled on the photo at its cells' centres, the quiet zone's median at least
+    MIN_CONTRAST above the black border's, and no data cell above PLAIN_DARK_RATE of the way from border to quiet zone
+    (every 36h11 code has light cells; tags read on the benchmark's photos reach past 1.0). A cheap look, before the
+    edges are located: it leaves out half the candidates that are no tags, at a twentieth of the cost of reading
+    them."""
+    values = _cell_values(gray, quad)
+    dark, light = np.median(values[BORDER_CELLS]), np.median(values[QUIET_ZONE_CELLS])
+    return bool(light - dark >= MIN_CONTRAST and values[2:-2, 2:-2].max() < dark + PLAIN_DARK_RATE * (light - dark))
+
+
+def _contrast(gray: np.ndarray, quad: np.ndarray) -> float:
+    """The median grey of the quiet-zone cells around a quad (4, 2) in px as a black square less its border cells'."""
+    values = _cell_values(gray, quad)
+    return float(np.median(values[QUIET_ZONE_CELLS]) - np.median(values[BORDER_CELLS]))
+
+
+def _cell_values(gray: np.ndarray, quad: np.ndarray) -> np.ndarray:
+    """The photo's grey (TAG_CELLS + 2, TAG_CELLS + 2) at the cell centres of a tag whose black square is `quad`."""
+    return cv2.remap(gray, *_tag_points(quad, CELL_CENTRES).astype(np.float32).reshape(1, -1, 2).transpose(2, 0, 1),
+                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(TAG_CELLS + 2, TAG_CELLS + 2)
 
 
 def _overlap(quad: np.ndarray, other: np.ndarray) -> bool:
@@ -324,13 +410,13 @@ def _refine_and_read(gray: np.ndarray, quad: np.ndarray, tag_id: int | None,
     x0, y0 = np.maximum(np.floor(quad.min(axis=0) - margin).astype(int), 0)
     x1, y1 = np.ceil(quad.max(axis=0) + margin).astype(int) + 1
     window = spline_filter(gray[y0:y1, x0:x1].astype(np.float64), order=3)
-    refined = refine_corners(window, quad - [x0, y0])
+    refined, moved = _refine(window, quad - [x0, y0])
     if refined is None:
         return tag_id, None
     if tag_id is None:
         tag_id, refined = _decode(window, refined, None if hidden_by is None else hidden_by - [x0, y0])
     if tag_id is not None:
-        refined = _settle(window, refined)
+        refined = _settle(window, refined, moved)
     return tag_id, refined + [x0, y0]
 
 
@@ -338,7 +424,8 @@ def _decode(image: np.ndarray, quad: np.ndarray, hidden_by: np.ndarray | None = 
     """Read a refined quad's cells (spline image) and identify it; returns the id (or None) and corners in tag order.
 
     The black border must be dark and the quiet zone around it light; data cells are thresholded
-    halfway between the two and matched with OpenCV's dictionary (3 bits corrected, as its detector).
+    halfway between the two and matched with OpenCV's dictionary (3 bits corrected, as its detector), sharpened first
+    when they do not match as they are (see DECODE_SHARPENING).
     Cells under `hidden_by` (a convex outline (4, 2) in px of a tag in front) are not measured, as cells outside the
     image; data cells under it are read anyway but each counts as a wrong bit against the 3 the dictionary corrects.
     """
@@ -353,11 +440,7 @@ def _decode(image: np.ndarray, quad: np.ndarray, hidden_by: np.ndarray | None = 
         measured &= ~_in_convex(hidden_by, points).reshape(len(ticks), len(ticks), 9).any(axis=2)
     values = map_coordinates(image, [points[:, 1], points[:, 0]], order=3, mode="mirror", prefilter=False)
     cells = values.reshape(len(ticks), len(ticks), 9).mean(axis=2)
-    ring = np.ones((TAG_CELLS + 2, TAG_CELLS + 2), dtype=bool)
-    ring[1:-1, 1:-1] = False
-    border = np.zeros_like(ring)
-    border[1:-1, 1:-1] = True
-    border[2:-2, 2:-2] = False
+    ring, border = QUIET_ZONE_CELLS.copy(), BORDER_CELLS.copy()
     # the black square must lie in the image; of its quiet zone (which the photo's edge may cut) at least half
     if (not inside[2:-2, 2:-2].all() or measured[border].sum() < MIN_BORDER_CELLS
             or measured[ring].sum() < MIN_QUIET_ZONE_CELLS):
@@ -366,20 +449,57 @@ def _decode(image: np.ndarray, quad: np.ndarray, hidden_by: np.ndarray | None = 
     border &= measured
     dark, light = cells[border], cells[ring]
     threshold = 0.5 * (np.median(dark) + np.median(light))
-    if np.median(light) - np.median(dark) < 20 or np.sum(dark > threshold) > 2 or np.sum(light < threshold) > 4:
-        return None, quad
-    bits = (cells[2:-2, 2:-2] > threshold).astype(np.uint8)
-    dictionary = cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY)
-    ok, tag_id, rotation = dictionary.identify(bits, CORRECTION_RATE)
-    if not ok:
+    if (np.median(light) - np.median(dark) < MIN_CONTRAST or np.sum(dark > threshold) > 2
+            or np.sum(light < threshold) > 4):
         return None, quad
     hidden_bits = ~measured[2:-2, 2:-2]
-    if hidden_bits.any():
-        code = cv2.aruco.Dictionary.getBitsFromByteList(dictionary.bytesList[tag_id:tag_id + 1], dictionary.markerSize)
-        wrong = min(np.sum((np.rot90(code, turns) != bits) & ~hidden_bits) for turns in range(4))
-        if wrong + hidden_bits.sum() > int(CORRECTION_RATE * dictionary.maxCorrectionBits):
-            return None, quad
-    return int(tag_id), np.roll(quad, int(rotation), axis=0)
+    tag_id, rotation = identify(cells[2:-2, 2:-2] > threshold, hidden_bits)
+    if tag_id is None:
+        # blur spreads each cell into its neighbours: a lone light cell among dark ones reads dark. Sharpened as the
+        # AprilTag library's decode_sharpening does (the cells' Laplacian, 0.25 of it), then read again.
+        padded = np.pad(cells, 1, mode="edge")
+        laplacian = 4 * cells - padded[:-2, 1:-1] - padded[2:, 1:-1] - padded[1:-1, :-2] - padded[1:-1, 2:]
+        tag_id, rotation = identify((cells + DECODE_SHARPENING * laplacian)[2:-2, 2:-2] > threshold, hidden_bits)
+    if tag_id is None:
+        return None, quad
+    return tag_id, np.roll(quad, rotation, axis=0)
+
+
+BITS_SET = np.array([bin(byte).count("1") for byte in range(256)], dtype=np.uint8)  # per byte value, its bits set
+
+
+@cache
+def _codes() -> tuple[np.ndarray, np.ndarray, int]:
+    """The dictionary's codes as integers, bit k the data bit k of the 6 x 6 in row order, of each tag in each of
+    aruco's four rotations (4 * n,: tag i's at 4i..4i+3), each rotation's number as aruco counts them (4,), and the bits
+    it corrects (CORRECTION_RATE)."""
+    dictionary = cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY)
+    size = dictionary.markerSize
+    codes = np.array([cv2.aruco.Dictionary.getBitsFromByteList(dictionary.bytesList[i:i + 1], size)
+                      for i in range(len(dictionary.bytesList))], dtype=bool)
+    # aruco's rotation of a tag read as its code turned by np.rot90 k times: its own answer, once
+    rotations = np.array([dictionary.identify(np.rot90(codes[0], turns).astype(np.uint8), 0)[2] for turns in range(4)])
+    turned = np.stack([np.rot90(codes, turns, axes=(1, 2)) for turns in range(4)], axis=1).reshape(-1, size * size)
+    return _as_integer(turned), rotations, int(CORRECTION_RATE * dictionary.maxCorrectionBits)
+
+
+def _as_integer(bits: np.ndarray) -> np.ndarray:
+    """Rows of up to 64 bits (..., k) as unsigned integers, bit j the row's j-th."""
+    return (bits.astype(np.uint64) << np.arange(bits.shape[-1], dtype=np.uint64)).sum(axis=-1, dtype=np.uint64)
+
+
+def identify(bits: np.ndarray, hidden: np.ndarray | None = None) -> tuple[int | None, int]:
+    """The tag whose code the data bits (6, 6, bool) read, with up to the dictionary's correctable bits wrong (as
+    aruco's `Dictionary.identify` at CORRECTION_RATE, but all codes at once: it compares one at a time, 2 ms a
+    miss), and aruco's rotation of it; (None, 0) if none. Bits `hidden` (6, 6) were not measured: each counts wrong."""
+    codes, rotations, correctable = _codes()
+    known = np.ones(bits.size, dtype=bool) if hidden is None else ~hidden.ravel()
+    differ = (codes ^ _as_integer(bits.ravel())) & _as_integer(known)
+    wrong = BITS_SET[differ.view(np.uint8)].reshape(-1, 8).sum(axis=1) + (bits.size - known.sum())
+    best = int(np.argmin(wrong))
+    if wrong[best] > correctable:
+        return None, 0
+    return best // 4, int(rotations[best % 4])
 
 
 def _inside(image: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -409,37 +529,44 @@ def refine_corners(image: np.ndarray, quad: np.ndarray) -> np.ndarray | None:
     edge profiles of small tags) gets a first pass with profiles reaching COARSE_REACH_PX, then the usual ones;
     larger tags' profiles reach that far anyway.
     """
-    refined = _refine_passes(image, quad, [MIN_REACH_PX] * REFINE_PASSES)
+    return _refine(image, quad)[0]
+
+
+def _refine(image: np.ndarray, quad: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """`refine_corners`' corners and how far (px) its last pass moved them the most."""
+    refined, moved = _refine_passes(image, quad, [MIN_REACH_PX] * REFINE_PASSES)
     if refined is None and _profile_reach(quad, MIN_REACH_PX) < COARSE_REACH_PX:
-        refined = _refine_passes(image, quad, [COARSE_REACH_PX] + [MIN_REACH_PX] * REFINE_PASSES)
-    return refined
+        refined, moved = _refine_passes(image, quad, [COARSE_REACH_PX] + [MIN_REACH_PX] * REFINE_PASSES)
+    return refined, moved
 
 
-def _refine_passes(image: np.ndarray, quad: np.ndarray, min_reaches: list[float]) -> np.ndarray | None:
-    """Corners refined by one pass of edge fits per entry of `min_reaches` (each pass's shortest profile reach, px)."""
+def _refine_passes(image: np.ndarray, quad: np.ndarray, min_reaches: list[float]) -> tuple[np.ndarray | None, float]:
+    """Corners refined by one pass of edge fits per entry of `min_reaches` (each pass's shortest profile reach, px), and
+    how far the last pass moved them the most; (None, inf) when a pass cannot locate the edges."""
+    moved = np.inf
     for min_reach in min_reaches:
         lines = _fit_edges(image, quad, min_reach)
         if lines is None:
-            return None
+            return None, np.inf
         new = _corners(lines)
         side = np.mean(np.linalg.norm(quad[NEXT_CORNER] - quad, axis=1))
-        if not np.all(np.isfinite(new)) or np.max(np.linalg.norm(new - quad, axis=1)) > max(3.0, 0.2 * side):
-            return None
+        moved = float(np.max(np.linalg.norm(new - quad, axis=1))) if np.all(np.isfinite(new)) else np.inf
+        if moved > max(3.0, 0.2 * side):
+            return None, np.inf
         quad = new
-    return quad
+    return quad, moved
 
 
-def _settle(image: np.ndarray, quad: np.ndarray) -> np.ndarray:
-    """A read tag's corners after further passes, until none moves by more than CONVERGED_PX (at most MAX_EXTRA_PASSES);
-    a pass that cannot locate the edges leaves the corners as they were."""
+def _settle(image: np.ndarray, quad: np.ndarray, moved: float) -> np.ndarray:
+    """A read tag's corners, which the last pass moved by `moved` px, after further passes until none moves by more than
+    CONVERGED_PX (at most MAX_EXTRA_PASSES); a pass that cannot locate the edges leaves the corners as they were."""
     for _ in range(MAX_EXTRA_PASSES):
-        new = _refine_passes(image, quad, [MIN_REACH_PX])
-        if new is None:
-            break
-        moved = np.max(np.linalg.norm(new - quad, axis=1))
-        quad = new
         if moved <= CONVERGED_PX:
             break
+        new, moved = _refine_passes(image, quad, [MIN_REACH_PX])
+        if new is None:
+            break
+        quad = new
     return quad
 
 
@@ -467,13 +594,22 @@ def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
     # By the photo's edge a profile's quiet-zone end may lie outside the image: it is cut there (its last sample
     # inside repeated) and still measures the edge if the rise lies inside; profiles starting outside are left out.
     inside = _inside(image, grid)
-    last_inside = np.maximum.accumulate(np.where(inside, np.arange(len(offsets)), 0), axis=2)
-    profiles = np.take_along_axis(profiles, last_inside, axis=2)
-    slope = np.gradient(profiles, axis=2)
-    rise_inside = inside[:, :, :-2] & inside[:, :, 1:-1] & inside[:, :, 2:]
-    peak = np.argmax(np.where(rise_inside, slope[:, :, 1:-1], -np.inf), axis=2) + 1
-    before, at, after = (np.take_along_axis(slope, (peak + d)[..., None], axis=2)[..., 0] for d in (-1, 0, 1))
-    measurable = inside[:, :, 0] & np.take_along_axis(rise_inside, (peak - 1)[..., None], axis=2)[..., 0]
+    all_inside = bool(inside.all())
+    if not all_inside:
+        last_inside = np.maximum.accumulate(np.where(inside, np.arange(len(offsets)), 0), axis=2)
+        profiles = np.take_along_axis(profiles, last_inside, axis=2)
+    slope = np.empty_like(profiles)  # np.gradient's: central differences, one-sided at the ends
+    slope[:, :, 1:-1] = 0.5 * (profiles[:, :, 2:] - profiles[:, :, :-2])
+    slope[:, :, 0], slope[:, :, -1] = profiles[:, :, 1] - profiles[:, :, 0], profiles[:, :, -1] - profiles[:, :, -2]
+    if all_inside:
+        peak = np.argmax(slope[:, :, 1:-1], axis=2) + 1
+        measurable = np.ones(peak.shape, dtype=bool)
+    else:
+        rise_inside = inside[:, :, :-2] & inside[:, :, 1:-1] & inside[:, :, 2:]
+        peak = np.argmax(np.where(rise_inside, slope[:, :, 1:-1], -np.inf), axis=2) + 1
+        measurable = inside[:, :, 0] & np.take_along_axis(rise_inside, (peak - 1)[..., None], axis=2)[..., 0]
+    at_peak = (np.arange(peak.size) * len(offsets) + peak.ravel()).reshape(peak.shape)  # into slope's flat array
+    before, at, after = (slope.ravel()[at_peak + d] for d in (-1, 0, 1))
     contrast = np.where(measurable, profiles[:, :, -1] - profiles[:, :, 0], -np.inf)
     curvature = before - 2 * at + after
     good = measurable & (contrast > 0.25 * contrast.max(axis=1, keepdims=True)) & (curvature < 0)
@@ -484,9 +620,10 @@ def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
     if counts.min() < 4:
         return None
     means = np.einsum("es,esi->ei", good, crossings) / counts[:, None]
-    spread = crossings - means[:, None, :]
-    scatter = np.einsum("es,esi,esj->eij", good.astype(float), spread, spread)
-    return means, np.linalg.eigh(scatter)[1][:, :, -1]
+    spread = (crossings - means[:, None, :]) * good[..., None]
+    sxx, syy, sxy = (np.einsum("es,es->e", spread[..., i], spread[..., j]) for i, j in ((0, 0), (1, 1), (0, 1)))
+    angle = 0.5 * np.arctan2(2 * sxy, sxx - syy)  # of the 2 x 2 scatter's main axis, in closed form
+    return means, np.column_stack([np.cos(angle), np.sin(angle)])
 
 
 def _profile_reach(quad: np.ndarray, min_reach: float) -> float:
