@@ -131,6 +131,11 @@ def test_page_in_headless_chromium_confirm_sheets_and_watch_progress_reach_done(
             if k == 1:  # the operator pauses the second sheet (feed hold) and resumes it from the page
                 row.locator("button[data-action='pause']").click()
                 sync_api.expect(row).to_have_attribute("data-state", "paused", timeout=20000)
+                with httpx.Client(base_url=served["url"], timeout=10, headers={TOKEN_HEADER: TOKEN}) as client:
+                    held = next(m for m in client.get("/api/state").json()["machines"] if m["name"] == "m1")
+                    svg = client.get(f"/api/jobs/{job}/sheets/1.svg").text
+                tool = re.search(r'<g class="tool" data-x="([-\d.]+)" data-y="([-\d.]+)"', svg)  # the head, live
+                assert tool and (float(tool[1]), float(tool[2])) == pytest.approx(held["position"][:2], abs=1e-3)
                 row.locator("button[data-action='resume']").click()
                 sync_api.expect(row).to_have_attribute("data-state", "cutting", timeout=20000)
         sync_api.expect(row).to_have_attribute("data-state", "done", timeout=180000)  # a guard against a hang, not a speed goal
@@ -224,3 +229,24 @@ def test_report_of_a_prepared_job_for_token_holders_only(served, tmp_path):
         answer = client.get(f"/api/jobs/{job_id}/report?token={TOKEN}")
         assert answer.status_code == 200 and answer.text == report.read_text(encoding="utf-8")
         assert client.get(f"/api/jobs/{served['job']}/report?token={TOKEN}").status_code == 404
+
+
+def test_the_progress_picture_puts_the_head_where_the_machine_is(tmp_path):
+    """The head's cross-hair lies where the program's moves put that machine position in the picture: at the end
+    of a cut ending at the head, on a bare picture and over a sheet picture with its own mm-per-unit scale."""
+    from fabline.jobs.pictures import progress_svg
+
+    program = tmp_path / "cut.gcode"
+    program.write_text("G21\nG90\nG0 X10 Y20\nM4 S500\nG1 X70 Y45 F600\nG1 X90 Y45\nM5\n", encoding="ascii")
+    sheet = tmp_path / "sheet.svg"
+    sheet.write_text('<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 400 200" data-mm-per-unit="0.5">'
+                     '<rect width="400" height="200"/></svg>', encoding="utf-8")
+    for background in ("", str(sheet)):
+        svg = progress_svg(program, 7, background, tool=(70.0, 45.0))
+        first_cut = re.findall(r'<polyline points="([^"]+)"', svg)[0].split()
+        circle = re.search(r'<g class="tool"[^>]*><circle cx="([-\d.]+)" cy="([-\d.]+)"', svg)
+        assert (float(circle[1]), float(circle[2])) == pytest.approx(tuple(map(float, first_cut[-1].split(","))),
+                                                                      abs=0.01)
+    assert 'class="tool"' not in progress_svg(program, 5, str(sheet))
+    assert '<circle cx="140" cy="110"' in progress_svg(program, 5, str(sheet), tool=(70.0, 45.0))  # 2 units/mm, y down
+

@@ -126,22 +126,33 @@ def _program_paths(path: str, mtime: float) -> tuple[tuple[np.ndarray, bool], ..
     return tuple(moves)
 
 
-def progress_svg(program: str | os.PathLike, done_lines: int, background: str = "") -> str:
+def progress_svg(program: str | os.PathLike, done_lines: int, background: str = "",
+                 tool: tuple[float, float] | None = None) -> str:
     """The program's cutting moves over the sheet picture `background` (an SVG file, may be empty): the first
-    `done_lines` lines' moves red and thick (cut), the rest grey (to do)."""
+    `done_lines` lines' moves red and thick (cut), the rest grey (to do); `tool`, the machine's work position
+    (x, y in the program's mm), as a blue cross-hair circle where the head is now."""
     stamp = Path(background).stat().st_mtime if background and Path(background).is_file() else 0.0
-    head, inner, moves = _progress_layers(str(program), os.path.getmtime(program), background, stamp)
+    opening, inner, moves, (origin, scale, width) = _progress_layers(str(program), os.path.getmtime(program),
+                                                                     background, stamp)
     todo = "".join(f'<polyline points="{p}" fill="none" stroke="#bbb" stroke-width="0.8"/>'
                    for n, p in moves if n >= done_lines)
     done = "".join(f'<polyline points="{p}" fill="none" stroke="#d62828" stroke-width="1.8"/>'
                    for n, p in moves if n < done_lines)
-    return f'{head} data-done="{done_lines}">{inner}<g class="progress">{todo}{done}</g></svg>'
+    marker = ""
+    if tool is not None:
+        x, y, r = (tool[0] - origin[0]) * scale, (origin[1] - tool[1]) * scale, 0.012 * width
+        marker = (f'<g class="tool" data-x="{tool[0]:.3f}" data-y="{tool[1]:.3f}" stroke="#0b63c4" fill="none" '
+                  f'stroke-width="{_fmt(r / 4)}"><circle cx="{_fmt(x)}" cy="{_fmt(y)}" r="{_fmt(r)}"/>'
+                  f'<path d="M{_fmt(x - 2 * r)} {_fmt(y)}H{_fmt(x + 2 * r)}M{_fmt(x)} {_fmt(y - 2 * r)}V{_fmt(y + 2 * r)}"/>'
+                  "<title>the head, live</title></g>")
+    return f'{opening} data-done="{done_lines}">{inner}<g class="progress">{todo}{done}</g>{marker}</svg>'
 
 
 @lru_cache(maxsize=16)
-def _progress_layers(program: str, mtime: float, background: str, stamp: float) -> tuple[str, str, tuple]:
-    """The picture's opening tag, the background's content and each cutting move's screen polyline by line index;
-    cached per program and background file, so a progress picture is only a string join per request."""
+def _progress_layers(program: str, mtime: float, background: str, stamp: float) -> tuple[str, str, tuple, tuple]:
+    """The picture's opening tag, the background's content, each cutting move's screen polyline by line index and
+    the machine-to-screen mapping (origin, scale, picture width); cached per program and background file, so a
+    progress picture is only a string join per request."""
     moves = _program_paths(program, mtime)
     sheet = Path(background).read_text(encoding="utf-8") if stamp else ""
     match = _VIEWBOX.search(sheet)
@@ -165,4 +176,4 @@ def _progress_layers(program: str, mtime: float, background: str, stamp: float) 
     inner = re.sub(r"^<svg[^>]*>|</svg>\s*$", "", sheet.strip()) if sheet else '<rect width="100%" height="100%" fill="#f7f7f2"/>'
     head = (f'<svg xmlns="http://www.w3.org/2000/svg" font-family="sans-serif" viewBox="0 0 {_fmt(width)} {_fmt(height)}" '
             f'data-lines="{len(moves)}"')
-    return head, inner, tuple(polylines)
+    return head, inner, tuple(polylines), (tuple(origin), scale, width)

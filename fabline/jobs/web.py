@@ -97,8 +97,11 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
                 raise FablineError(f"job {job_id}: no sheet {k + 1}")
         except FablineError as exc:
             return JSONResponse({"error": str(exc)}, status_code=404)
-        sheet = sheets[k]
-        svg = await asyncio.to_thread(progress_svg, sheet.program, sheet.done_lines, sheet.svg)
+        sheet, job = sheets[k], queue.job(job_id)
+        tool = None
+        if job.machine and job.sheet == k and job.state in ("cutting", "paused", "attention"):  # the head is on it
+            tool = next((m["position"][:2] for m in queue.machines() if m["name"] == job.machine), None)
+        svg = await asyncio.to_thread(progress_svg, sheet.program, sheet.done_lines, sheet.svg, tool)
         return Response(svg, media_type="image/svg+xml", headers={"Cache-Control": "no-store"})
 
     async def act(request: Request) -> Response:
