@@ -15,7 +15,7 @@ import time
 from contextlib import contextmanager
 from contextvars import ContextVar
 from pathlib import Path
-from typing import Any, Iterable, Iterator, TextIO
+from typing import Any, BinaryIO, Iterable, Iterator, TextIO
 
 import orjson
 
@@ -277,49 +277,98 @@ def finite_number(value: Any, limit: float = math.inf) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and abs(value) <= limit
 
 
-def read_bytes(path: str | os.PathLike) -> bytes:
-    """A file's bytes; a missing or unreadable file becomes a FablineError naming it."""
-    try:
-        return Path(path).read_bytes()
-    except FileNotFoundError:
-        raise FablineError(f"{path}: file not found") from None
-    except OSError as exc:
-        raise FablineError(f"{path}: cannot read: {exc.strerror}") from None
+INPUT_LIMITS = {"json": 1 << 30, "model": 1 << 30, "gcode": 1 << 28, "photo": 1 << 28, "config": 1 << 20}
+"""The largest input of each kind fabline reads, in bytes: JSON networks, parts, nestings and records (1 GiB);
+models (OBJ, DXF, 3dm, STL, meshes, 1 GiB); G-code (256 MiB); photos (256 MiB); TOML job files, machine
+profiles and materials (1 MiB). A larger file is a mistake (or /dev/zero renamed) that would exhaust memory."""
+_INPUT_NAMES = {"json": "JSON file", "model": "model file", "gcode": "G-code file", "photo": "photo",
+                "config": "TOML file"}
+_NOT_REGULAR = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket"),
+                (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"))
 
 
-def check_regular_file(path: str | os.PathLike, max_bytes: int) -> None:
-    """Refuse, before reading it, a path that is not a regular file (a FIFO or a device would block or never
-    end) or that is larger than `max_bytes`, with a one-line FablineError naming it."""
+def open_input(path: str | os.PathLike, kind: str) -> BinaryIO:
+    """Open an input file of `kind` (a key of INPUT_LIMITS) for reading in binary, vetted: a path holding a NUL
+    byte, a missing file, anything but a regular file (a folder, FIFO, socket or device: found by stat, before it
+    is opened, and again on the open descriptor, opened non-blocking so that a FIFO swapped in meanwhile cannot
+    hang) and a file larger than the kind's limit are each refused with a one-line FablineError naming the path.
+    Every reader of a user's file comes through here (`read_bytes`, `read_text`, `read_json`, `vet_input`)."""
+    text = _no_nul(path)
     try:
-        info = os.stat(path)
-    except FileNotFoundError:
-        raise FablineError(f"{path}: file not found") from None
+        _vet_status(text, os.stat(text), kind)
+        fd = os.open(text, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except (FileNotFoundError, NotADirectoryError):
+        raise FablineError(f"{text}: file not found") from None
     except OSError as exc:
-        raise FablineError(f"{path}: cannot read: {exc.strerror}") from None
+        raise FablineError(f"{text}: cannot read: {exc.strerror}") from None
+    try:
+        _vet_status(text, os.fstat(fd), kind)
+        os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return os.fdopen(fd, "rb")
+
+
+def _no_nul(path: str | os.PathLike) -> str:
+    """A path as text; one holding a NUL byte (which no file name can, and which os calls refuse with a ValueError)
+    is refused in one line."""
+    text = os.fsdecode(path)
+    if "\0" in text:
+        raise FablineError(f"{text!r}: the path holds a NUL byte, which no file name can: give the file's name")
+    return text
+
+
+def _vet_status(path: str, info: os.stat_result, kind: str) -> None:
+    """Refuse an input that is not a regular file, or larger than its kind's limit (INPUT_LIMITS)."""
+    for test, what in _NOT_REGULAR:
+        if test(info.st_mode):
+            raise FablineError(f"{path}: is {what}, not a regular file: give the {_INPUT_NAMES[kind]} itself")
     if not stat.S_ISREG(info.st_mode):
-        raise FablineError(f"{path}: not a regular file")
-    if info.st_size > max_bytes:
-        raise FablineError(f"{path}: {info.st_size} bytes, more than the {max_bytes} this kind of file may have")
+        raise FablineError(f"{path}: is not a regular file: give the {_INPUT_NAMES[kind]} itself")
+    if info.st_size > INPUT_LIMITS[kind]:
+        raise FablineError(f"{path}: {info.st_size} bytes, more than the {INPUT_LIMITS[kind]} bytes "
+                           f"({INPUT_LIMITS[kind] / (1 << 20):g} MiB) a {_INPUT_NAMES[kind]} may have: not read")
 
 
-def read_text(path: str | os.PathLike, what: str = "") -> str:
-    """A UTF-8 text file; a missing, unreadable or undecodable file becomes a FablineError naming it
-    (`what`, e.g. " as OBJ text", says how it was being read)."""
+def vet_input(path: str | os.PathLike, kind: str) -> Path:
+    """Check an input that a library opens by name (rhino3dm, trimesh, ezdxf, OpenCV, Pillow) as `open_input`
+    does; returns the path."""
+    open_input(path, kind).close()
+    return Path(os.fsdecode(path))
+
+
+def read_bytes(path: str | os.PathLike, kind: str = "json") -> bytes:
+    """An input file's bytes, vetted by `open_input` (at most its kind's limit, even if it grows meanwhile)."""
+    with open_input(path, kind) as handle:
+        try:
+            data = handle.read(INPUT_LIMITS[kind] + 1)
+        except OSError as exc:
+            raise FablineError(f"{os.fsdecode(path)}: cannot read: {exc.strerror}") from None
+    if len(data) > INPUT_LIMITS[kind]:
+        raise FablineError(f"{os.fsdecode(path)}: grew past the {INPUT_LIMITS[kind]} bytes a {_INPUT_NAMES[kind]} "
+                           f"may have while it was read: not read")
+    return data
+
+
+def read_text(path: str | os.PathLike, what: str = "", kind: str = "json") -> str:
+    """A UTF-8 text input (vetted by `open_input`); bytes that are not UTF-8 are refused naming the file and the
+    byte offset (`what`, e.g. " as OBJ text", says how it was being read)."""
+    data = read_bytes(path, kind)
     try:
-        return Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FablineError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FablineError(f"{path}: cannot read{what}: {exc}") from None
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise FablineError(f"{os.fsdecode(path)}: byte {exc.start}: cannot read{what}: not UTF-8 text "
+                           f"({exc.reason}, byte 0x{data[exc.start]:02x})") from None
 
 
-def read_json(path: str | os.PathLike) -> Any:
+def read_json(path: str | os.PathLike, kind: str = "json") -> Any:
     """Read a JSON file; a missing file or bad JSON becomes a FablineError naming file and line.
 
     Integers beyond 64 bits become floats (10**400: infinity, which the readers' finite-number checks name), and
     nesting deeper than orjson's 1024 levels is an error, not a RecursionError."""
-    path = Path(path)
-    text = read_text(path)
+    text = read_text(path, kind=kind)
+    path = Path(os.fsdecode(path))
     try:
         return orjson.loads(text)  # 2x faster than json.loads on a large file
     except orjson.JSONDecodeError:
@@ -344,7 +393,10 @@ def check_outputs(files: tuple = (), folders: tuple = (), inputs: tuple = ()) ->
     files), so that a command fails before it computes or writes anything. Nothing is created; None entries
     (options not given) are skipped. The inputs are remembered by the current `OutputSet`, whose later writes
     refuse them too."""
-    inputs = tuple(str(i) for i in inputs if i)
+    inputs = tuple(_no_nul(i) for i in inputs if i)
+    for name in (*files, *folders):
+        if name:
+            _no_nul(name)
     outputs = _CURRENT.get()
     if outputs is not None:
         outputs.inputs += inputs

@@ -65,8 +65,11 @@ def test_a_job_file_that_is_a_fifo_or_a_device_is_refused_at_once_and_the_page_k
     big = tmp_path / "big.toml"
     big.write_bytes(b"#" * (1 << 20) + b"\n")
     with httpx.Client(base_url=served["url"], timeout=10, headers={TOKEN_HEADER: TOKEN}) as client:
-        for path, error in ((fifo, f"{fifo}: not a regular file"), ("/dev/zero", "/dev/zero: not a regular file"),
-                            (big, f"{big}: 1048577 bytes, more than the 1048576 this kind of file may have")):
+        for path, error in ((fifo, f"{fifo}: is a FIFO (named pipe), not a regular file: give the TOML file itself"),
+                            ("/dev/zero", "/dev/zero: is a character device, not a regular file: give the TOML file "
+                                          "itself"),
+                            (big, f"{big}: 1048577 bytes, more than the 1048576 bytes (1 MiB) a TOML file may have: "
+                                  "not read")):
             answer = client.post("/api/jobs", json={"job_file": str(path)})
             assert answer.status_code == 400 and answer.json() == {"error": error}
         assert client.get("/api/state").status_code == 200

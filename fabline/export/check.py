@@ -50,7 +50,7 @@ class CheckReport:
 def check_gcode(path: str | os.PathLike, profile: MachineProfile, build: BuildInfo = STOCK_BUILD) -> CheckReport:
     """Parse a G-code file and check it against `profile` (a Grbl one for `build`); an unreadable file is a
     FablineError."""
-    data = read_bytes(path)
+    data = read_bytes(path, "gcode")
     try:
         text = data.decode("ascii")
     except UnicodeDecodeError as exc:

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from fabline.errors import FablineError
+from fabline.fileio import read_text
 from fabline.link.build import BuildInfo
 from fabline.link.codes import explain_error
 from fabline.link.gcode import REALTIME_COMMANDS, GcodeError, compact_line, parse_block
@@ -162,7 +163,7 @@ def resolve_machine(name_or_path: str) -> Path:
     """Where a profile lives: a path to a TOML file, or a name searched in FABLINE_MACHINE_PATH then built-ins."""
     candidate = Path(name_or_path)
     if candidate.suffix == ".toml" or os.sep in name_or_path:
-        if not candidate.is_file():
+        if "\0" not in name_or_path and not os.path.lexists(candidate):  # anything else: `read_text` says what it is
             raise FablineError(f"{name_or_path}: machine profile file not found")
         return candidate
     folders = [Path(p) for p in os.environ.get("FABLINE_MACHINE_PATH", "").split(os.pathsep) if p] + [BUILTIN_DIR]
@@ -192,14 +193,9 @@ def _merged_table(path: Path, seen: tuple[str, ...]) -> dict[str, Any]:
     if len(seen) >= MAX_EXTENDS:
         raise FablineError(f"{path}: extends: more than {MAX_EXTENDS} profiles in one chain")
     try:
-        with open(path, "rb") as handle:
-            table = tomllib.load(handle)
+        table = tomllib.loads(read_text(path, " (a TOML profile is UTF-8)", kind="config"))
     except tomllib.TOMLDecodeError as exc:
         raise FablineError(f"{path}: malformed TOML: {exc}") from None
-    except UnicodeDecodeError:
-        raise FablineError(f"{path}: not UTF-8 text (a TOML profile is UTF-8)") from None
-    except OSError as exc:
-        raise FablineError(f"{path}: cannot read: {exc}") from None
     parent = table.pop("extends", None)
     if parent is None:
         return table

@@ -21,7 +21,7 @@ except ImportError:  # Python 3.10
     import tomli as tomllib
 
 from fabline.errors import FablineError
-from fabline.fileio import check_regular_file, read_text
+from fabline.fileio import read_text, vet_input
 from fabline.units import job_length
 
 if TYPE_CHECKING:  # the nesting stage pulls in shapely; a job file is read before any stage runs
@@ -36,7 +36,6 @@ DEFAULT_STAGES = ("unroll", "nest", "export", "stream", "report")
 """The stages of a job that does not list its own; `survey` joins them when the job sets `survey.simulate`."""
 DEFAULT_PORT = "sim://grbl"
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
-JOB_FILE_LIMIT = 1 << 20
 """Bytes a job file may have (a job file is a page of TOML; anything larger is a mistake or an attack)."""
 _TYPE_NAMES = {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
                dict: "a table"}
@@ -143,9 +142,8 @@ def inside(folder: Path, relative: str | os.PathLike, where: str) -> Path:
 def load_job_file(path: str | os.PathLike) -> JobSpec:
     """Read and check a job file; every problem is a one-line FablineError naming the file and key path."""
     path = Path(path)
-    check_regular_file(path, JOB_FILE_LIMIT)
     try:
-        raw = tomllib.loads(read_text(path))
+        raw = tomllib.loads(read_text(path, kind="config"))
     except tomllib.TOMLDecodeError as exc:
         raise FablineError(f"{path}: malformed TOML: {exc}") from None
     return job_from_dict(raw, path)
@@ -341,9 +339,15 @@ def _check_model(model: dict[str, Any], base: Path, where: str) -> dict[str, Any
 
 
 def _existing(base: Path, relative: str, where: str) -> Path:
+    """A file the job names, relative to its folder; a missing one, a NUL in its name and anything but a regular
+    file (a folder, FIFO or device: `vet_input` says which) are refused naming the key."""
     path = base / relative
-    if not path.is_file():
+    if "\0" not in relative and not os.path.lexists(path):
         raise FablineError(f"{where}: file not found: {path}")
+    try:
+        vet_input(path, "model")  # the largest kind: a smaller kind's limit is its reader's to check
+    except FablineError as exc:
+        raise FablineError(f"{where}: {exc}") from None
     return path.resolve()
 
 

@@ -155,4 +155,4 @@ def parse_program(data: bytes, name: str, build: BuildInfo = STOCK_BUILD) -> Pro
 def load_program(path: str | os.PathLike, build: BuildInfo = STOCK_BUILD) -> Program:
     """Read and check a G-code file (for a controller of `build`); any problem is a FablineError naming file,
     line and column."""
-    return parse_program(read_bytes(path), str(Path(path)), build)
+    return parse_program(read_bytes(path, "gcode"), str(Path(path)), build)

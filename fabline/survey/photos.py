@@ -7,6 +7,7 @@ import os
 import warnings
 
 from fabline.errors import FablineError
+from fabline.fileio import vet_input
 
 MAX_PHOTO_PIXELS = 150_000_000
 """Largest photo a survey decodes (150 megapixels, 150 MB as grey levels): larger than any phone or camera sensor."""
@@ -16,9 +17,11 @@ MAX_SIMULATED_PHOTOS = 1000
 
 def check_photo(path: str | os.PathLike, notes: list[str] | None = None) -> None:
     """Refuse a photo whose header claims more than MAX_PHOTO_PIXELS; add to `notes` when a JPEG is cut short.
+    Anything but a regular file of at most INPUT_LIMITS["photo"] bytes is refused first (`vet_input`).
     A file Pillow cannot identify is left to OpenCV, which reads more formats and names the file if it cannot."""
     from PIL import Image
 
+    vet_input(path, "photo")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)

@@ -93,7 +93,7 @@ def get_material(name: str, path: str | os.PathLike | None = None) -> Material:
 
 def _read_table(path: Path) -> dict[str, Material]:
     try:
-        data = tomllib.loads(read_text(path))
+        data = tomllib.loads(read_text(path, kind="config"))
     except tomllib.TOMLDecodeError as exc:
         raise FablineError(f"{path}: malformed TOML: {exc}") from None
     materials = {}

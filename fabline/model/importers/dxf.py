@@ -23,6 +23,7 @@ from ezdxf.lldxf.validator import is_binary_dxf_file
 from ezdxf.render import MeshBuilder
 
 from fabline.errors import FablineError
+from fabline.fileio import read_bytes, vet_input
 from fabline.model.importers.curves import SAGITTA_MM, CurveSource, NamedPoint, assign_ids, clean_points, family_and_id
 from fabline.model.importers.surface import mesh_from_arrays
 from fabline.model.network import UNIT_TO_MM
@@ -38,6 +39,7 @@ def read_dxf(path: str | Path, units: str | None = None) -> CurveSource:
     """The curves of a DXF file and its mesh entities as a surface; `units` only sets the flattening tolerance
     of a file that declares none."""
     path = str(path)
+    vet_input(path, "model")
     bulk = _bulk_3d_polylines(path)
     doc = _read_document(path, bulk.rest if bulk else None)
     declared = _declared_units(doc, path)
@@ -83,6 +85,8 @@ def read_dxf_surface(path: str | Path) -> tuple:
 
 def _read_document(path: str, text: str | None = None):
     """The DXF document of `path`, or of `text` (the file with its bulk 3D polylines taken out) if given."""
+    if text is None:
+        vet_input(path, "model")
     try:
         return ezdxf.readfile(path) if text is None else ezdxf.read(io.StringIO(text))
     except FileNotFoundError:
@@ -114,8 +118,8 @@ def _bulk_3d_polylines(path: str) -> _BulkPolylines | None:
             return None
         encoding = dxf_file_info(path).encoding
         "".encode(encoding)  # an encoding Python does not know raises LookupError here
-        raw = Path(path).read_bytes()
-    except (OSError, LookupError, StopIteration, ezdxf.DXFError):  # StopIteration: an empty file
+        raw = read_bytes(path, "model")
+    except (OSError, LookupError, StopIteration, ezdxf.DXFError, FablineError):  # StopIteration: an empty file
         return None
     tags = _tag_lines(raw)
     if tags is None:

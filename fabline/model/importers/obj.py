@@ -83,7 +83,7 @@ def read_obj(path: str | Path) -> CurveSource:
 
 def _read_lines(path: str) -> list[tuple[int, str]]:
     """Non-empty, non-comment lines with their numbers, backslash continuations joined."""
-    text = read_text(path, " as OBJ text")
+    text = read_text(path, " as OBJ text", kind="model")
     result: list[tuple[int, str]] = []
     pending, start = "", 0
     for number, line in enumerate(text.splitlines(), 1):

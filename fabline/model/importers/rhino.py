@@ -14,6 +14,7 @@ import numpy as np
 from ezdxf.math import BSpline
 
 from fabline.errors import FablineError
+from fabline.fileio import vet_input
 from fabline.model.importers.curves import SAGITTA_MM, CurveSource, assign_ids, clean_points, family_and_id
 from fabline.model.importers.surface import mesh_from_arrays
 from fabline.model.network import UNIT_TO_MM
@@ -74,9 +75,7 @@ def _rhino3dm():
 
 
 def _read_model(rhino3dm, path: str):
-    if not Path(path).is_file():
-        raise FablineError(f"{path}: file not found")
-    model = rhino3dm.File3dm.Read(path)
+    model = rhino3dm.File3dm.Read(str(vet_input(path, "model")))
     if model is None:
         raise FablineError(f"{path}: not a readable Rhino .3dm file")
     return model

@@ -15,6 +15,7 @@ import numpy as np
 import trimesh
 
 from fabline.errors import FablineError
+from fabline.fileio import vet_input
 
 
 def mesh_from_arrays(vertices: np.ndarray, faces: np.ndarray, source: str) -> trimesh.Trimesh:
@@ -49,10 +50,9 @@ def load_mesh_file(path: str | Path) -> trimesh.Trimesh:
 
 def read_mesh_arrays(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """A mesh file's vertices and triangles as written (not welded, degenerate faces kept)."""
+    vet_input(path, "model")
     try:
         loaded = trimesh.load(str(path), force="mesh", process=False)
-    except FileNotFoundError:
-        raise FablineError(f"{path}: file not found") from None
     except ImportError:  # trimesh guesses a broken file's text encoding with an optional module
         raise FablineError(f"{path}: cannot read as a mesh: neither a binary nor a text mesh file") from None
     except Exception as exc:  # trimesh raises many types for a broken file
