@@ -77,29 +77,37 @@ class OutputSet:
         self.inputs: list[str] = []
         self.written: dict[Path, Path | None] = {}  # file -> hard link to the file it replaced (None: new file)
         self.folders: list[Path] = []                # folders made, in order
+        self.committed = False
         self._parent: OutputSet | None = None
+        self._children: list[OutputSet] = []        # nested sets: rolled back with this one, even if interrupted
         self._token = None
 
     def __enter__(self) -> "OutputSet":
         self._parent = _CURRENT.get()
         if self._parent is not None:
             self.inputs = list(self._parent.inputs)
+            self._parent._children.append(self)
         self._token = _CURRENT.set(self)
         return self
 
     def __exit__(self, kind, value, traceback) -> None:
-        _CURRENT.reset(self._token)
-        if kind is not None:
-            self.rollback()
-        elif self._parent is not None:
-            for path, backup in self.written.items():
-                if path in self._parent.written and backup is not None:
-                    _unlink(backup)  # the enclosing set keeps the file as it was before both
-                self._parent.written.setdefault(path, backup)
-            self._parent.folders += self.folders
-        else:
-            with _sigint_deferred(swallow=True):  # the outputs are complete: a Ctrl-C now interrupts nothing
-                self.commit()
+        # A signal is held off throughout: a rollback or hand-over cut short would leave replaced files behind.
+        # One that comes before this line runs is caught by the caller's `rollback` (the CLI's), as nothing
+        # was committed or handed over yet.
+        with _signals_deferred(swallow=kind is not None or self._parent is None):
+            _CURRENT.reset(self._token)
+            if kind is not None:
+                self.rollback()
+            elif self._parent is not None:
+                for path, backup in self.written.items():
+                    if path in self._parent.written and backup is not None:
+                        _unlink(backup)  # the enclosing set keeps the file as it was before both
+                    self._parent.written.setdefault(path, backup)
+                self._parent.folders += self.folders
+                self.written, self.folders = {}, []
+                self._parent._children.remove(self)
+            else:
+                self.commit()  # the outputs are complete: a signal now interrupts nothing
 
     def record(self, target: Path) -> Path | None:
         """Before `target` is replaced: keep a hard link to its present file (the first time only)."""
@@ -120,25 +128,31 @@ class OutputSet:
             if backup is not None:
                 _unlink(backup)
         self.written.clear()
+        self.committed = True
 
     def rollback(self) -> None:
-        """Remove the files written (putting back the ones they replaced) and the folders made, if empty."""
-        for path, backup in reversed(list(self.written.items())):
-            if backup is not None:
+        """Remove the files written (putting back the ones they replaced) and the folders made, if empty, also by
+        nested sets not yet handed over; a second call does nothing."""
+        with _signals_deferred(swallow=True):  # a second Ctrl-C must not cut the putting back short
+            for child in reversed(self._children):
+                child.rollback()
+            self._children.clear()
+            for path, backup in reversed(list(self.written.items())):
+                if backup is not None:
+                    try:
+                        os.replace(backup, path)  # does nothing when `path` is still the same file (its write failed)
+                        _unlink(backup)
+                        continue
+                    except OSError:
+                        _unlink(backup)
+                _unlink(path)
+            self.written.clear()
+            for folder in reversed(self.folders):
                 try:
-                    os.replace(backup, path)  # does nothing when `path` is still the same file (its write failed)
-                    _unlink(backup)
-                    continue
+                    folder.rmdir()
                 except OSError:
-                    _unlink(backup)
-            _unlink(path)
-        self.written.clear()
-        for folder in reversed(self.folders):
-            try:
-                folder.rmdir()
-            except OSError:
-                pass
-        self.folders.clear()
+                    pass
+            self.folders.clear()
 
 
 def _unlink(path: Path) -> None:
@@ -148,21 +162,32 @@ def _unlink(path: Path) -> None:
         pass
 
 
+DEFERRED_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
 @contextmanager
-def _sigint_deferred(swallow: bool = False) -> Iterator[None]:
-    """Hold off Ctrl-C (in the main thread) while outputs are renamed into place; afterwards a Ctrl-C that came
-    meanwhile is raised, or with `swallow` dropped (it came when the work was done)."""
+def _signals_deferred(swallow: bool = False) -> Iterator[None]:
+    """Hold off Ctrl-C and SIGTERM (in the main thread) while outputs are renamed into place or put back;
+    afterwards a signal that came meanwhile is raised by its handler, or with `swallow` dropped (it came when the
+    work was done, or while an interrupt was already being handled). A default SIGTERM still ends the process."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    pending: list[Any] = []
-    previous = signal.signal(signal.SIGINT, lambda number, frame: pending.append(frame))
+    pending: list[tuple[int, Any]] = []
+    previous = {number: signal.signal(number, lambda number, frame: pending.append((number, frame)))
+                for number in DEFERRED_SIGNALS}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
-    if pending and not swallow and callable(previous):
-        previous(signal.SIGINT, pending[0])
+        for number, handler in previous.items():
+            signal.signal(number, signal.SIG_DFL if handler is None else handler)
+    if pending:
+        number, frame = pending[0]
+        handler = previous[number]
+        if callable(handler) and not swallow:
+            handler(number, frame)
+        elif handler == signal.SIG_DFL and number != signal.SIGINT:
+            signal.raise_signal(number)
 
 
 def _make_folder(folder: Path) -> None:
@@ -237,7 +262,7 @@ def atomic_output(path: str | os.PathLike, mode: str = "w") -> Iterator[Any]:
             yield handle
             handle.flush()
             os.fsync(handle.fileno())
-        with _sigint_deferred():
+        with _signals_deferred():
             if outputs is not None:
                 outputs.record(target)
             os.replace(tmp, target)

@@ -113,7 +113,7 @@ def test_a_scale_bar_corrects_a_wrong_tag_size(cli, model_file, simulated, tmp_p
 
 
 @pytest.mark.parametrize("args, message", [
-    (["survey", "detect", "{tmp}/missing.jpg"], "missing.jpg: cannot read the image"),
+    (["survey", "detect", "{tmp}/missing.jpg"], "missing.jpg: file not found"),
     (["survey", "detect", "{sim}/photos/photo-000.jpg", "--camera", "{sim}/camera.json"], "poses need both --camera and --tag-size"),
     (["survey", "detect", "{sim}/photos/photo-000.jpg", "--camera", "{sim}/camera.json", "--tag-size", "0.065"],
      "--tag-size 0.065: a tag's black-square edge in millimetres must be 5 to 2000; 0.065 looks like metres: give 65"),

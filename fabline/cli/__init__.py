@@ -12,13 +12,15 @@ import difflib
 import importlib
 import math
 import re
+import signal
 import sys
+import threading
 import warnings
 from contextlib import nullcontext
 from typing import Callable
 
 from fabline import __version__
-from fabline.errors import FablineError
+from fabline.errors import FablineError, Terminated
 from fabline.fileio import OutputSet
 
 STAGE_COMMANDS = {"model": ("design", "inspect"), "importing": ("import",), "unroll": ("unroll", "limits"),
@@ -155,9 +157,11 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     command = argv[0] if argv else None
     module = next((name for name, commands in STAGE_COMMANDS.items() if command in commands), None)
-    args = build_parser((module,) if module else tuple(STAGE_COMMANDS)).parse_args(argv)
+    previous = _terminate_as_interrupt()
+    outputs = OutputSet()
     try:
-        with nullcontext() if args.command in KEEPS_PARTIAL_OUTPUTS else OutputSet(), warnings.catch_warnings():
+        args = build_parser((module,) if module else tuple(STAGE_COMMANDS)).parse_args(argv)
+        with nullcontext() if args.command in KEEPS_PARTIAL_OUTPUTS else outputs, warnings.catch_warnings():
             # numpy's overflow and invalid-value notes on a user's absurd numbers are not messages for the user:
             # the stages check their inputs and say what is wrong in one line
             warnings.filterwarnings("ignore", category=RuntimeWarning, module="numpy")
@@ -169,10 +173,32 @@ def main(argv: list[str] | None = None) -> int:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"fabline {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"fabline {args.command}: interrupted"
-              + ("" if args.command in KEEPS_PARTIAL_OUTPUTS else "; nothing was written"), file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as stop:  # Ctrl-C, or SIGTERM (Terminated), also while the command's modules load
+        outputs.rollback()  # what the output set's own exit could not (the signal came as it began): put back
+        terminated = isinstance(stop, Terminated)
+        if command in KEEPS_PARTIAL_OUTPUTS:
+            outcome = ""
+        elif outputs.committed:
+            outcome = "; it had finished: its outputs are complete and kept"
+        else:
+            outcome = "; nothing was written"
+        print(f"fabline {command or ''}: {'terminated' if terminated else 'interrupted'}{outcome}", file=sys.stderr)
+        return 128 + (stop.number if terminated else signal.SIGINT)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _terminate_as_interrupt():
+    """Make SIGTERM raise `Terminated` (a KeyboardInterrupt) in the main thread, so that `kill` unwinds a command as
+    Ctrl-C does; returns the handler it replaced (None off the main thread, where none is installed)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def terminate(number, frame):
+        raise Terminated(number)
+
+    return signal.signal(signal.SIGTERM, terminate)
 
 
 if __name__ == "__main__":

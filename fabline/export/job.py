@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import gc
 import os
+import signal
 import textwrap
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -131,7 +132,9 @@ def export_job(nesting: Nesting, parts: dict[str, Part], profile: MachineProfile
 def _start_worker(parts: dict[str, Part]) -> None:
     """Set up a worker process with the job's parts, and move everything it inherited out of the garbage
     collector's sight (gc.freeze): the G-code writer allocates hundreds of thousands of small objects, and every
-    full collection would otherwise walk the whole inherited job again (a sixth of the export's CPU time)."""
+    full collection would otherwise walk the whole inherited job again (a sixth of the export's CPU time).
+    A Ctrl-C (sent to the whole process group) is the parent's to handle: a worker ignores it, and writes nothing."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _WORKER_PARTS.clear()
     _WORKER_PARTS.update(parts)
     gc.freeze()
