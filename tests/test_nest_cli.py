@@ -61,8 +61,8 @@ def test_check_passes_a_good_nesting_and_fails_a_broken_one(nested, cli, tmp_pat
     data["parts_file"] = str((nested / "nesting.json").parent / data["parts_file"])
     broken = tmp_path / "broken.json"
     broken.write_text(json.dumps(data))
-    code, out, _ = cli("nest", "--check", broken)
-    assert code == 1 and "placed 2 times" in out and "FAILED" in out
+    code, out, err = cli("nest", "--check", broken)
+    assert code == 1 and "placed 2 times" in err and "FAILED" in out
 
 
 def test_stock_remnants_first_and_write_back(small_parts, cli, tmp_path):

@@ -40,7 +40,7 @@ def test_parts_closer_than_gap_plus_kerf_fail():
 def test_overlap_is_caught():
     nesting, parts = two_rectangles(60, 30)
     problems = validate_nesting(nesting, parts)
-    assert problems == ["sheet S1: parts A and B overlap"]
+    assert problems == ["sheet S1: parts A and B overlap by 1500 mm²"]  # [60, 110] x [30, 60]
 
 
 def test_rotation_is_about_the_part_origin_then_translation():
@@ -66,7 +66,8 @@ def test_missing_duplicate_and_unknown_parts_are_caught():
     nesting, parts = two_rectangles(200)
     nesting.sheets.append(Sheet("S2", 1000, 500, [Placement("B", 10, 10), Placement("Z", 300, 10)]))
     problems = validate_nesting(nesting, parts)
-    assert "part B: placed 2 times" in problems and "part Z: placed but not in the parts file" in problems
+    assert "part B: placed 2 times (on sheets S1, S2)" in problems
+    assert "part Z: placed (on sheet S2) but not in the parts file" in problems
 
 
 def test_grain_bound_part_may_only_turn_half_way():
@@ -158,3 +159,67 @@ def test_mistyped_nesting_field_is_named_on_one_line(cli, tmp_path, field, expec
     assert code == 2 and stdout == "" and stderr.count("\n") == 1, stderr
     assert str(path) in stderr and expected in stderr, stderr
     assert [p.name for p in tmp_path.iterdir()] == ["nesting.json"]
+
+
+CHECK_CASES = {
+    "overlap": (lambda n: _move(n, "B", 60, 30), "sheet S1: parts A and B overlap by 1500 mm²"),
+    "too close": (lambda n: _move(n, "B", 10 + 100 + GAP, 10), "sheet S1: parts A and B are 3.000 mm apart, need 3.2 mm (gap + kerf)"),
+    "placed twice": (lambda n: n.sheets[0].placements.append(Placement("A", 500, 200)), "part A: placed 2 times "
+                     "(on sheet S1 2 times)"),
+    "missing": (lambda n: n.sheets[0].placements.pop(), "part B: not placed on any sheet"),
+    "unknown id": (lambda n: n.sheets[0].placements.append(Placement("Z", 500, 200)),
+                   "part Z: placed (on sheet S1) but not in the parts file"),
+    "negative kerf": (lambda n: setattr(n, "kerf", -0.2), "kerf is -0.2 mm: must not be negative"),
+    "negative gap": (lambda n: setattr(n, "gap", -3), "gap is -3 mm: must not be negative"),
+    "grain rotated 45": (lambda n: setattr(n.sheets[0].placements[1], "rotation", 45.0),
+                         "sheet S1: part B is grain-bound but rotated 45 deg"),
+    "outside the margin": (lambda n: _move(n, "B", 1000 - MARGIN - 99, 10),
+                           "sheet S1: part B lies outside the usable area (margin 10 mm) by 1.00 mm"),
+    "outside the sheet": (lambda n: _move(n, "B", 10, -60),
+                          "sheet S1: part B lies outside the usable area (margin 10 mm) by 70.00 mm"),
+    "common cut off the sheet": (lambda n: n.sheets[0].common_cuts.append(CommonCut(("A", "Q"), (0, 0), (1, 0))),
+                                 "sheet S1: common cut names part Q, which is not on this sheet"),
+}
+
+
+def _move(nesting, pid, x, y):
+    placement = next(p for p in nesting.sheets[0].placements if p.part == pid)
+    placement.x, placement.y = x, y
+
+
+def _check_files(tmp_path, damages):
+    from fabline.nest import save_nesting
+    from fabline.unroll import save_parts
+
+    nesting, parts = two_rectangles(400, grain=True)
+    for damage in damages:
+        CHECK_CASES[damage][0](nesting)
+    save_parts(parts, tmp_path / "parts.json")
+    save_nesting(nesting, tmp_path / "nesting.json")
+    return tmp_path / "nesting.json"
+
+
+@pytest.mark.parametrize("damage", sorted(CHECK_CASES))
+def test_nest_check_names_each_kind_of_problem_on_a_line_of_its_own(damage, cli, tmp_path):
+    path = _check_files(tmp_path, [damage])
+    code, out, err = cli("nest", "--check", path)
+    assert code == 1 and err == f"fabline nest: {path}: {CHECK_CASES[damage][1]}\n", err
+    assert "FAILED" in out and "1 problems" in out
+
+
+def test_nest_check_lists_every_problem_not_just_the_first(cli, tmp_path):
+    damages = ["overlap", "unknown id", "negative kerf", "placed twice"]
+    path = _check_files(tmp_path, damages)
+    code, out, err = cli("nest", "--check", path)
+    assert code == 1 and sorted(err.splitlines()) == sorted(f"fabline nest: {path}: {CHECK_CASES[d][1]}"
+                                                            for d in damages), err
+    assert f"{len(damages)} problems" in out
+
+
+def test_nest_check_refuses_a_nul_byte_in_parts_file(cli, tmp_path):
+    path = _check_files(tmp_path, [])
+    data = json.loads(path.read_text())
+    data["parts_file"] = "parts\0.json"
+    path.write_text(json.dumps(data))
+    code, out, err = cli("nest", "--check", path)
+    assert code == 2 and out == "" and err.count("\n") == 1 and "holds a NUL byte" in err and "parts" in err, err

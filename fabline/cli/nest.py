@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from pathlib import Path
 
 from fabline.cli import hidden_alias
@@ -85,12 +86,13 @@ def run_nest(args: argparse.Namespace) -> int:
 
 
 def _check(path: str) -> int:
-    """Validate a nesting against its parts file; list every problem, exit 1 if there are any."""
+    """Validate a nesting against its parts file; list every problem on stderr, one line each naming the sheet and
+    part, and the verdict on stdout; exit 1 if there are any."""
     nesting = load_nesting(path)
     partset = load_parts(parts_path(path, nesting))
     problems = validate_nesting(nesting, partset)
     for problem in problems:
-        print(f"{path}: {problem}")
+        print(f"fabline nest: {path}: {problem}", file=sys.stderr)
     placed = sum(len(s.placements) for s in nesting.sheets)
     print(f"{path}: {'FAILED' if problems else 'ok'}: {placed} placements on {len(nesting.sheets)} sheets, "
           f"{len(partset.parts)} parts, {len(problems)} problems")

@@ -36,20 +36,30 @@ def validate_nesting(nesting: Nesting, partset: PartSet) -> list[str]:
     problems = [f"{name} is {value:g} mm: must not be negative" for name, value in
                 (("kerf", nesting.kerf), ("gap", nesting.gap), ("margin", nesting.margin)) if value < 0]
     problems += [problem for part in partset.parts if (problem := _outline_problem(part))]
-    counts = Counter(pl.part for sheet in nesting.sheets for pl in sheet.placements)
+    where: dict[str, list[str]] = {}
+    for sheet in nesting.sheets:
+        for placement in sheet.placements:
+            where.setdefault(placement.part, []).append(sheet.id)
     for pid in parts:
-        if counts[pid] == 0:
+        if pid not in where:
             problems.append(f"part {pid}: not placed on any sheet")
-        elif counts[pid] > 1:
-            problems.append(f"part {pid}: placed {counts[pid]} times")
-    for pid in counts:
+        elif len(where[pid]) > 1:
+            problems.append(f"part {pid}: placed {len(where[pid])} times (on {_sheets_named(where[pid])})")
+    for pid, sheets in where.items():
         if pid not in parts:
-            problems.append(f"part {pid}: placed but not in the parts file")
+            problems.append(f"part {pid}: placed (on {_sheets_named(sheets)}) but not in the parts file")
     with_holes = bool(nesting.summary.get("settings", {}).get("fill_holes", False))
     clearance = nesting.gap + nesting.kerf
     for sheet in nesting.sheets:
         problems += _check_sheet(sheet, parts, nesting.margin, clearance, nesting.kerf, with_holes)
     return problems
+
+
+def _sheets_named(sheets: list[str]) -> str:
+    """'sheet S1', 'sheets S1 and S2', 'sheet S1 twice'... for a part's placements."""
+    counts = Counter(sheets)
+    named = [f"{s}" + (f" {counts[s]} times" if counts[s] > 1 else "") for s in counts]
+    return ("sheet " if len(named) == 1 else "sheets ") + ", ".join(named)
 
 
 def _outline_problem(part: Part) -> str:
@@ -72,7 +82,7 @@ def _check_sheet(sheet, parts: dict[str, Part], margin: float, clearance: float,
     for placement in sheet.placements:
         part = parts.get(placement.part)
         if part is None:
-            continue
+            continue  # named by `validate_nesting`: placed but not in the parts file
         if part.grain and round(placement.rotation % 360.0, 6) not in (0.0, 180.0):
             problems.append(f"sheet {sheet.id}: part {part.id} is grain-bound but rotated {placement.rotation:g} deg")
         polygon = _placed_polygon(part, placement, with_holes)
@@ -103,8 +113,9 @@ def _check_sheet(sheet, parts: dict[str, Part], margin: float, clearance: float,
         (id_a, geom_a), (id_b, geom_b) = placed[a], placed[b]
         distance = geom_a.distance(geom_b)
         needed = kerf if frozenset((id_a, id_b)) in shared else clearance
-        if geom_a.intersection(geom_b).area > 1e-6:
-            problems.append(f"sheet {sheet.id}: parts {id_a} and {id_b} overlap")
+        overlap = geom_a.intersection(geom_b).area
+        if overlap > 1e-6:
+            problems.append(f"sheet {sheet.id}: parts {id_a} and {id_b} overlap by {overlap:.4g} mm²")
         elif distance < needed - DISTANCE_TOLERANCE:
             problems.append(f"sheet {sheet.id}: parts {id_a} and {id_b} are {distance:.3f} mm apart, "
                             f"need {needed:g} mm (gap + kerf)")
