@@ -163,7 +163,8 @@ def test_mistyped_nesting_field_is_named_on_one_line(cli, tmp_path, field, expec
 
 CHECK_CASES = {
     "overlap": (lambda n: _move(n, "B", 60, 30), "sheet S1: parts A and B overlap by 1500 mm²"),
-    "too close": (lambda n: _move(n, "B", 10 + 100 + GAP, 10), "sheet S1: parts A and B are 3.000 mm apart, need 3.2 mm (gap + kerf)"),
+    "too close": (lambda n: _move(n, "B", 10 + 100 + GAP, 10),
+                  "sheet S1: parts A and B are 3.000 mm apart, need 3.2 mm (gap + kerf)"),
     "placed twice": (lambda n: n.sheets[0].placements.append(Placement("A", 500, 200)), "part A: placed 2 times "
                      "(on sheet S1 2 times)"),
     "missing": (lambda n: n.sheets[0].placements.pop(), "part B: not placed on any sheet"),

@@ -71,33 +71,36 @@ def build_network(spec: JobSpec) -> "Network":
 
 
 def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) -> JobResult:
-    """Run the job's stages up to export and write the report; returns the result with the sheet programs."""
+    """Run the job's stages up to export and write the report; returns the result with the sheet programs. The
+    stages are one `OutputSet`: a stage that refuses its input leaves the output folder as it was."""
     from fabline.model import save_network
 
     spec = job if isinstance(job, JobSpec) else load_job_file(job)
     timings: dict[str, float] = {}
-    check_outputs(files=[spec.output(name) for name in ("network.json", "parts.json", "nesting.json", spec.report_name,
-                                                        Path(spec.report_name).with_suffix(".json"))],
-                  folders=[spec.output(name) for name in ("dxf", "gcode", "sheets")],
-                  inputs=(spec.path, spec.model.get("file")))
-    result = JobResult(spec, network=_timed(timings, "model", lambda: build_network(spec)), timings=timings)
-    save_network(result.network, spec.output("network.json"))
-    say(f"model: {result.network.name}, {len(result.network.lamellas)} lamellas, {len(result.network.nodes)} nodes")
-    if "unroll" in spec.stages:
-        _timed(result.timings, "unroll", lambda: _unroll(result))
-        say(f"unroll: {len(result.partset.parts)} parts -> {spec.output('parts.json')}")
-    if "nest" in spec.stages:
-        _timed(result.timings, "nest", lambda: _nest(result))
-        say(f"nest: {len(result.nesting.sheets)} sheet(s) -> {spec.output('nesting.json')}")
-    if "export" in spec.stages:
-        _timed(result.timings, "export", lambda: _export(result))
-        say(f"export: {len(result.sheet_files)} G-code program(s) -> {spec.output('gcode')}")
-    if spec.survey.get("result"):
-        from fabline.jobs.survey_stage import load_survey_result
+    report = spec.report_name
+    names = ("network.json", "parts.json", "nesting.json", report, Path(report).with_suffix(".json"))
+    with OutputSet():  # a stage refused (or Ctrl-C) removes what every stage before it wrote: the folder is as it was
+        check_outputs(files=[spec.output(name) for name in names],
+                      folders=[spec.output(name) for name in ("dxf", "gcode", "sheets")],
+                      inputs=(spec.path, spec.model.get("file")))
+        result = JobResult(spec, network=_timed(timings, "model", lambda: build_network(spec)), timings=timings)
+        save_network(result.network, spec.output("network.json"))
+        say(f"model: {result.network.name}, {len(result.network.lamellas)} lamellas, {len(result.network.nodes)} nodes")
+        if "unroll" in spec.stages:
+            _timed(result.timings, "unroll", lambda: _unroll(result))
+            say(f"unroll: {len(result.partset.parts)} parts -> {spec.output('parts.json')}")
+        if "nest" in spec.stages:
+            _timed(result.timings, "nest", lambda: _nest(result))
+            say(f"nest: {len(result.nesting.sheets)} sheet(s) -> {spec.output('nesting.json')}")
+        if "export" in spec.stages:
+            _timed(result.timings, "export", lambda: _export(result))
+            say(f"export: {len(result.sheet_files)} G-code program(s) -> {spec.output('gcode')}")
+        if spec.survey.get("result"):
+            from fabline.jobs.survey_stage import load_survey_result
 
-        result.survey = load_survey_result(spec.survey["result"])
-    if "report" in spec.stages:
-        write_report(result)
+            result.survey = load_survey_result(spec.survey["result"])
+        if "report" in spec.stages:
+            write_report(result)
     return result
 
 
