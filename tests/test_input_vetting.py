@@ -70,7 +70,7 @@ def _argv(reader: str, x, goods, out) -> list[str]:
 
 def _fabline(argv: list[str], cwd) -> subprocess.CompletedProcess:
     """Run the command line in its own process; a reader that blocks is killed after 60 s and fails the test."""
-    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, (os.environ.get("PYTHONPATH"), str(REPO)))))
     try:
         return subprocess.run([sys.executable, "-m", "fabline", *argv], cwd=cwd, env=env, capture_output=True,
                               text=True, timeout=60)

@@ -23,7 +23,7 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def _fabline(*args, cwd) -> subprocess.Popen:
-    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, (os.environ.get("PYTHONPATH"), str(REPO)))))
     return subprocess.Popen([sys.executable, "-m", "fabline", *map(str, args)], cwd=cwd, env=env, text=True,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
 
