@@ -383,8 +383,8 @@ def read_text(path: str | os.PathLike, what: str = "", kind: str = "json") -> st
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise FablineError(f"{os.fsdecode(path)}: byte {exc.start}: cannot read{what}: not UTF-8 text "
-                           f"({exc.reason}, byte 0x{data[exc.start]:02x})") from None
+        raise FablineError(f"{os.fsdecode(path)}: cannot read{what}: not UTF-8 text at byte {exc.start} "
+                           f"(0x{data[exc.start]:02x}: {exc.reason})") from None
 
 
 def read_json(path: str | os.PathLike, kind: str = "json") -> Any:

@@ -149,8 +149,8 @@ def test_undecodable_text_names_the_file_and_the_byte_offset(cli, tmp_path):
     path = tmp_path / "n.json"
     path.write_bytes(b'{"format": "fabline.network/1", "name": "caf\xe9"}')
     code, _, err = cli("inspect", path)
-    _one_line(code, err, f"{path}: byte 44: ", "not UTF-8")
-    with pytest.raises(FablineError, match=r"job.toml: byte 2: .*not UTF-8"):
+    _one_line(code, err, f"{path}: cannot read: not UTF-8 text at byte 44 (0xe9: ")
+    with pytest.raises(FablineError, match=r"job.toml: cannot read: not UTF-8 text at byte 2 \(0xff"):
         (tmp_path / "job.toml").write_bytes(b"# \xff\n")
         read_text(tmp_path / "job.toml", kind="config")
 

@@ -182,7 +182,8 @@ def main(argv: list[str] | None = None) -> int:
             outcome = "; it had finished: its outputs are complete and kept"
         else:
             outcome = "; nothing was written"
-        print(f"fabline {command or ''}: {'terminated' if terminated else 'interrupted'}{outcome}", file=sys.stderr)
+        print(f"fabline {command}: " if command else "fabline: ", f"{'terminated' if terminated else 'interrupted'}"
+              f"{outcome}", sep="", file=sys.stderr)
         return 128 + (stop.number if terminated else signal.SIGINT)
     finally:
         if previous is not None:
