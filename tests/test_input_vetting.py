@@ -164,3 +164,12 @@ def test_open_input_reads_a_regular_file_and_a_symlink_to_one(tmp_path):
             assert handle.read() == b"[1]"
     with pytest.raises(FablineError, match="missing.json: file not found"):
         open_input(tmp_path / "missing.json", "json")
+
+
+def test_a_fifo_among_the_survey_photos_is_named_at_once(tmp_path):
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    os.mkfifo(photos / "a.png")
+    done = _fabline(["survey", "calibrate", str(photos), "-o", str(tmp_path / "camera.json")], tmp_path)
+    _one_line(done.returncode, done.stderr, f"{photos / 'a.png'}: is a FIFO (named pipe), not a regular file")
+    assert not (tmp_path / "camera.json").exists()
