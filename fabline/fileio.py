@@ -1,4 +1,4 @@
-"""Safe file output and tolerant input helpers shared by every stage."""
+"""Safe file output and vetted file input, shared by every stage."""
 
 from __future__ import annotations
 
