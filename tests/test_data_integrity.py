@@ -75,8 +75,8 @@ def test_export_refuses_a_nesting_the_validator_rejects_and_writes_nothing(case,
     code, _, err = cli("export", path, "--gcode", tmp_path / "g", "--dxf", tmp_path / "d")
     assert code == 2 and err.count("\n") == 1 and message in err, err
     assert not (tmp_path / "g").exists() and not (tmp_path / "d").exists()
-    code, out, _ = cli("nest", "--check", path)
-    assert code == 1 and message in out
+    code, out, err = cli("nest", "--check", path)
+    assert code == 1 and message in err and "FAILED" in out
 
 
 def _common_cut_elsewhere(nesting, partset):
@@ -101,7 +101,7 @@ def test_nest_check_refuses(case, cli, tmp_path):
     breaking, message = CHECK[case]
     breaking(nesting, partset)
     code, out, err = cli("nest", "--check", _job(tmp_path, nesting, partset))
-    assert code == 1 and message in out and "FAILED" in out, out + err
+    assert code == 1 and message in err and "FAILED" in out, out + err
 
 
 def test_an_empty_sheet_list_is_a_one_line_error(cli, tmp_path):

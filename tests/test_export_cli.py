@@ -186,7 +186,7 @@ def test_a_failing_later_sheet_leaves_no_file_of_the_sheets_made_before_it(cli, 
     assert _outputs(folder / "out") == []
     save_nesting(nesting, folder / "nesting.json")  # the command refuses it before making anything: A is off S2
     err = _bad(cli, folder)
-    assert "part A: placed 2 times (and 1 more problems)" in err
+    assert "part A: placed 2 times (on sheets " in err and "(and 1 more problems)" in err
 
 
 @pytest.mark.parametrize("machine", ["grbl-laser", "grbl-plotter", "rs274-mill"])
