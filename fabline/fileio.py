@@ -170,20 +170,25 @@ def _signals_deferred(swallow: bool = False) -> Iterator[None]:
     """Hold off Ctrl-C and SIGTERM (in the main thread) while outputs are renamed into place or put back;
     afterwards a signal that came meanwhile is raised by its handler, or with `swallow` dropped (it came when the
     work was done, or while an interrupt was already being handled). A default SIGTERM still ends the process."""
+    pending: list[tuple[int, Any, Any]] = []  # (signal, frame, the handler it would have reached)
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield pending
         return
-    pending: list[tuple[int, Any]] = []
-    previous = {number: signal.signal(number, lambda number, frame: pending.append((number, frame)))
+    previous = {number: signal.signal(number, lambda number, frame: pending.append((number, frame, previous[number])))
                 for number in DEFERRED_SIGNALS}
     try:
-        yield
+        yield pending
     finally:
         for number, handler in previous.items():
             signal.signal(number, signal.SIG_DFL if handler is None else handler)
+    _deliver(pending, swallow)
+
+
+def _deliver(pending: list[tuple[int, Any, Any]], swallow: bool = False) -> None:
+    """Raise the first signal `_signals_deferred` held off, by its handler (unless `swallow`); a default SIGTERM
+    ends the process even so."""
     if pending:
-        number, frame = pending[0]
-        handler = previous[number]
+        number, frame, handler = pending[0]
         if callable(handler) and not swallow:
             handler(number, frame)
         elif handler == signal.SIG_DFL and number != signal.SIGINT:
@@ -251,14 +256,17 @@ def atomic_output(path: str | os.PathLike, mode: str = "w") -> Iterator[Any]:
     try:
         _make_folder(target.parent)
         sweep_orphans(target.parent)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.fabline{os.getpid()}-", suffix=".tmp", dir=target.parent)
+        with _signals_deferred(swallow=True) as pending:  # the temp file is made, and removed below if a signal came
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.fabline{os.getpid()}-", suffix=".tmp",
+                                       dir=target.parent)
     except OSError as exc:
         raise FablineError(f"{path}: cannot write: {exc.strerror}") from None
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
     try:
         with os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8", "newline": "\n"})) as handle:
+            _deliver(pending)  # a signal that came as the temp file was made: raised here, where it is removed
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)
             yield handle
             handle.flush()
             os.fsync(handle.fileno())

@@ -121,3 +121,22 @@ def test_a_run_refused_at_a_later_stage_leaves_its_output_folder_as_it_was(cli, 
     code, _, err = cli("run", tmp_path / "job.toml")
     assert code == 2 and err.count("\n") == 1 and "is larger than the bed of machine grbl-laser" in err, err
     assert _snapshot(tmp_path) == before and os.listdir(tmp_path / "out") == ["network.json"]
+
+
+def test_a_ctrl_c_as_the_temp_file_is_made_leaves_no_temp_file(tmp_path, monkeypatch):
+    """The window the process test found: a signal landing right after mkstemp made the temp file (before the
+    code that removes it on failure began) left an empty `.name.fabline<pid>-*.tmp` behind."""
+    import tempfile
+
+    made = tempfile.mkstemp
+
+    def mkstemp(*args, **kwargs):
+        fd, name = made(*args, **kwargs)
+        signal.raise_signal(signal.SIGINT)
+        return fd, name
+
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_output(tmp_path / "a.txt") as handle:
+            handle.write("never")
+    assert os.listdir(tmp_path) == []
