@@ -175,6 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt as stop:  # Ctrl-C, or SIGTERM (Terminated), also while the command's modules load
         outputs.rollback()  # what the output set's own exit could not (the signal came as it began): put back
+        _forget_unhandled_interrupt()
         terminated = isinstance(stop, Terminated)
         if command in KEEPS_PARTIAL_OUTPUTS:
             outcome = ""
@@ -188,6 +189,15 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _forget_unhandled_interrupt() -> None:
+    """CPython remembers a KeyboardInterrupt that escaped Python code an extension ran with PyRun_String while it
+    loaded, and at exit kills itself with SIGINT (exit -2, whatever `main` returned); a PyRun call that succeeds
+    clears that memory, so an interrupt handled here exits 130 as it says (seen with Ctrl-C ~0.2 s into unroll)."""
+    import ctypes
+
+    ctypes.pythonapi.PyRun_SimpleString(b"pass")
 
 
 def _terminate_as_interrupt():
