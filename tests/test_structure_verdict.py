@@ -165,3 +165,30 @@ def test_design_unroll_run_and_report_say_the_same_verdict(small, tmp_path, cli)
         assert html.escape(line.strip().removeprefix("structure: ")) in page
     summary = page[page.index("<table id=summary"):page.index("</table>", page.index("<table id=summary"))]
     assert html.escape(said[0].removeprefix("structure: ")) in summary and "class=fail" in summary
+
+
+def test_the_example_job_passes_its_own_structural_check():
+    """jobs/pavilion.toml: the 9 x 12 m Enneper pavilion in 100 x 1.5 mm stainless, at a k_max its centre
+    lamellas' pure twist can take (1.05 < 1.053 rad/m)."""
+    from pathlib import Path
+
+    from fabline.jobs.jobfile import load_job_file
+    from fabline.jobs.pipeline import build_network
+    from fabline.unroll.materials import parse_profile
+
+    spec = load_job_file(Path(__file__).resolve().parent.parent / "jobs" / "pavilion.toml")
+    network = build_network(spec)
+    material, profile = get_material(spec.lamella["material"]), parse_profile(spec.lamella["profile"])
+    checks = check_lamellas(list(analyse(network).lamellas.values()), material, profile)
+    verdict = structural_verdict(checks, material, profile, network.meta["k_max"])
+    assert spec.model["options"]["size"] == (9.0, 12.0) and len(network.lamellas) == 58
+    assert verdict["passes"] and 0.99 < verdict["max_utilisation"] <= 1.0
+    assert network.meta["k_max"] < hand_pure_twist_limit(material, profile.h, profile.t) * 1000
+
+
+def test_a_network_file_from_before_the_combined_check_is_not_read_as_combined(small):
+    network, _, _ = small
+    old = quality_report(network, material="stainless")
+    del old["structure"]
+    lines = summary_lines(old, "m")
+    assert lines[-1].startswith("structural check: not in this file") and not any("combined" in line for line in lines)

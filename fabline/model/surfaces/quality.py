@@ -94,6 +94,9 @@ def summary_lines(report: dict, units: str) -> list[str]:
     if "distance_to_surface_mm" in report:
         d = report["distance_to_surface_mm"]
         lines.append(f"curves off the surface: {d['mean']:.3f} mm mean, {d['max']:.3f} mm max")
+    if "structure" not in report:  # a network file from before the combined check: its figures meant otherwise
+        lines.append("structural check: not in this file (an older fabline wrote it); `fabline unroll` gives the verdict")
+        return lines
     t, b = report["twist"], report["bending"]
     limit = f"{t['limit']:.3f} rad/m" if t["limit"] else "none"
     lines.append(f"largest twist {t['max_tau_g']:.3f} rad/m on {t['lamella']} ({percent(t['utilisation'])} combined; "
