@@ -71,6 +71,12 @@ def test_twist_at_a_radius_and_radius_at_a_twist_land_on_100_percent_by_hand(rad
     assert radius > STAINLESS.E * 1.5 / (2 * STAINLESS.f_y)  # twisted, the strip may bend less than r_min
 
 
+def test_limits_names_the_combined_twist_limit_beside_the_shear_one(cli):
+    code, out, _ = cli("limits", "--material", "stainless", "--profile", "100x1.5")
+    pure = hand_pure_twist_limit(STAINLESS, 100.0, 1.5) * 1000
+    assert code == 0 and f"1.150 rad/m (65.9 deg/m) by shear alone; {pure:.3f} rad/m by the combined check" in out
+
+
 def test_no_radius_passes_a_twist_over_the_pure_twist_limit():
     assert combined_radius_limit(STAINLESS, PROFILE, 1.1e-3) is None
     assert combined_twist_limit(STAINLESS, PROFILE, 1.0 / 600.0) == 0.0  # bent below r_min = 652 mm

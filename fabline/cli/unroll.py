@@ -137,7 +137,8 @@ def run_limits(args: argparse.Namespace) -> int:
           f"f_y {result['f_y']:g}, tau_y {result['tau_y']:.1f} N/mm2")
     print(f"minimum bending radius (weak axis)  {result['min_bending_radius_mm']:.1f} mm")
     print(f"maximum twist                       {result['max_twist_rad_per_m']:.3f} rad/m "
-          f"({result['max_twist_deg_per_m']:.1f} deg/m)")
+          f"({result['max_twist_deg_per_m']:.1f} deg/m) by shear alone; "
+          f"{result['combined_max_twist_rad_per_m']:.3f} rad/m by the combined check (the verdict's)")
     if "at_radius" in result:
         r = result["at_radius"]
         print(f"at radius {r['radius_mm']:g} mm: bending stress {r['bending_stress']:.1f} N/mm2, "
