@@ -357,7 +357,8 @@ def structural_verdict(checks: list[LamellaCheck], material: Material, profile: 
     verdict = {
         "passes": not failing, "lamellas": len(checks), "failing": failing,
         "max_utilisation": rounded_utilisation(worst.utilisation), "lamella": worst.lamella,
-        "nodes": worst.node_ids[at:at + 2], "profile": str(profile), "material": material.name, "f_y": material.f_y,
+        "nodes": worst.node_ids[at:at + 2], "profile": str(profile), "h_mm": profile.h, "t_mm": profile.t,
+        "material": material.name, "f_y": material.f_y,
         "radius_mm": 1.0 / k_g if k_g > 0 else None, "twist_rad_per_m": twist * MM_PER_M,
         "limits": {"twist_at_radius_rad_per_m": combined_twist_limit(material, profile, k_g) * MM_PER_M,
                    "radius_at_twist_mm": radius_limit,
@@ -383,18 +384,16 @@ def _remedies(checks: list[LamellaCheck], material: Material, profile: Profile, 
     k_g = np.concatenate([check.max_k_g for check in checks])
     twist = np.concatenate([check.max_tau_g for check in checks])
 
-    def over(**change) -> float:
-        scale = change.pop("scale", 1.0)
-        return combined_maximum(replace(material, **change.pop("material", {})), replace(profile, **change),
-                                scale * k_g, scale * twist) - 1.0
+    def over(scale: float = 1.0, **dimension: float) -> float:
+        return combined_maximum(material, replace(profile, **dimension), scale * k_g, scale * twist) - 1.0
 
     scale = brentq(lambda s: over(scale=s), 0.0, 1.0, xtol=1e-12)
     remedies = {"scale": scale, "k_max_per_m": scale * k_max, "k_max_of": "design" if of_design else "largest twist"}
     floor_t, floor_h = 1e-6 * profile.t, 1e-6 * profile.h
     remedies["t_mm"] = (brentq(lambda t: over(t=t), floor_t, profile.t, xtol=1e-12)
                         if over(t=floor_t) < 0.0 else None)  # the helix stress does not depend on t
-    h = brentq(lambda h: over(h=h), floor_h, profile.h, xtol=1e-12) if over(h=floor_h) < 0.0 else None
-    remedies["h_mm"] = h if h is not None and h > profile.t else None  # bending and shear do not depend on h
+    remedies["h_mm"] = (brentq(lambda h: over(h=h), floor_h, profile.h, xtol=1e-12)
+                        if over(h=floor_h) < 0.0 else None)  # bending and shear do not depend on h
     stress = combined_maximum(material, profile, k_g, twist) * material.f_y  # utilisation is stress / f_y
     remedies["f_y"] = stress
     return remedies
@@ -424,15 +423,17 @@ def verdict_lines(verdict: dict) -> list[str]:
     k_max = math.floor(r["k_max_per_m"] * 1000.0) / 1000.0
     of = "k_max" if r["k_max_of"] == "design" else "largest twist"
     options = [f"curvatures x {math.floor(r['scale'] * 1000.0) / 1000.0:.3f} ({of} {k_max:.3f} 1/m, a flatter or larger design)"]
-    h, t = (float(v) for v in verdict["profile"].split("x"))
+    h, t = verdict["h_mm"], verdict["t_mm"]
     if r["t_mm"] is not None:
         options.append(f"thickness {math.floor(r['t_mm'] * 100.0) / 100.0:.2f} mm ({h:g} x {math.floor(r['t_mm'] * 100.0) / 100.0:.2f})")
     else:
         options.append("no thinner strip (the helix stress alone exceeds yield)")
-    if r["h_mm"] is not None:
-        options.append(f"height {math.floor(r['h_mm'] * 10.0) / 10.0:.1f} mm ({math.floor(r['h_mm'] * 10.0) / 10.0:.1f} x {t:g})")
-    else:
+    if r["h_mm"] is None:
         options.append("no lower strip (bending and shear alone exceed yield)")
+    elif r["h_mm"] <= t:
+        options.append(f"no lower strip (it would be {r['h_mm']:.2g} mm high, not above its thickness)")
+    else:
+        options.append(f"height {math.floor(r['h_mm'] * 10.0) / 10.0:.1f} mm ({math.floor(r['h_mm'] * 10.0) / 10.0:.1f} x {t:g})")
     options.append(f"a material certified to f_y {math.ceil(r['f_y']):.0f} N/mm2")
     lines.append("  remedies, each alone bringing the largest utilisation to 100 %: " + "; ".join(options))
     return lines
