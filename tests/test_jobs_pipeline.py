@@ -164,7 +164,8 @@ def test_report_starts_with_a_summary_and_lists_materials_hardware_and_cut_order
     assert data["bill_of_materials"]["totals"]["mass_kg"] == pytest.approx(mass, abs=0.05 * len(nesting.sheets))
     shown = f"{mass / 1000:.2f} t" if mass >= 1000 else f"{mass:.1f} kg"
     structure = data["structure"]
-    verdict = ("every lamella passes" if structure["passes"] else f"{len(structure['failing'])} lamella(s) exceed yield")
+    verdict = (f"all {len(structure['lamellas'])} lamellas pass" if structure["passes"]
+               else f"{len(structure['failing'])} of {len(structure['lamellas'])} lamellas exceed yield")
     assert f"{shown} of sheet" in summary and verdict in summary and "survey" in summary
     assert "<table id=bom>" in html and "<table id=hardware>" in html
     assert html.count("<details class=preview") == len(nesting.sheets)

@@ -91,7 +91,7 @@ def run_job_command(args: argparse.Namespace) -> int:
     """Run every stage of the job and print where the report is; Ctrl-C, SIGTERM and SIGHUP stop the machines
     safely (exit 130, resumable with --resume)."""
     from fabline.jobs.jobfile import load_job_file
-    from fabline.jobs.pipeline import load_facts, run_job
+    from fabline.jobs.pipeline import load_facts, run_job, structure_lines
     from fabline.jobs.queue import describe_load
     from fabline.locks import exclusive_lock, lock_path
 
@@ -128,6 +128,8 @@ def run_job_command(args: argparse.Namespace) -> int:
     finally:
         stop_signals()
     total = sum(result.timings.values())
+    for line in structure_lines(result):
+        print(line)
     if result.report_path:
         print(f"report: {result.report_path} (JSON: {result.report_path.with_suffix('.json')}); {duration(total)}")
     else:

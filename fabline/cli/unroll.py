@@ -12,7 +12,7 @@ from fabline.fileio import check_outputs
 from fabline.model import load_network
 from fabline.unroll import SINGULARITY_MODES, UnrollOptions, get_material, limits, parse_profile, save_parts, unroll_network
 from fabline.unroll.preview import write_previews
-from fabline.unroll.structure import percent
+from fabline.unroll.structure import percent, verdict_lines
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -103,6 +103,8 @@ def run_unroll(args: argparse.Namespace) -> int:
     print(f"\n{args.output}: {s['parts']} parts ({kinds}) from {s['lamellas']} lamellas, {s['strips']} strips, "
           f"{s['strip_length_m']:.3f} m of strip; max utilisation {percent(s['max_utilisation'])} "
           f"({s['governing_check']}, lamella {s['governing_lamella']}); {s['warnings']} warnings")
+    if report["verdict"]:
+        print("\n".join(verdict_lines(report["verdict"])))
     if "edges" in report:
         edges = report["edges"]
         worst = max(edges["members"], key=lambda row: row["utilisation"], default=None)
@@ -135,7 +137,8 @@ def run_limits(args: argparse.Namespace) -> int:
           f"f_y {result['f_y']:g}, tau_y {result['tau_y']:.1f} N/mm2")
     print(f"minimum bending radius (weak axis)  {result['min_bending_radius_mm']:.1f} mm")
     print(f"maximum twist                       {result['max_twist_rad_per_m']:.3f} rad/m "
-          f"({result['max_twist_deg_per_m']:.1f} deg/m)")
+          f"({result['max_twist_deg_per_m']:.1f} deg/m) by shear alone; "
+          f"{result['combined_max_twist_rad_per_m']:.3f} rad/m by the combined check (the verdict's)")
     if "at_radius" in result:
         r = result["at_radius"]
         print(f"at radius {r['radius_mm']:g} mm: bending stress {r['bending_stress']:.1f} N/mm2, "

@@ -86,6 +86,8 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
     if "unroll" in spec.stages:
         _timed(result.timings, "unroll", lambda: _unroll(result))
         say(f"unroll: {len(result.partset.parts)} parts -> {spec.output('parts.json')}")
+        for line in structure_lines(result):
+            say(line)
     if "nest" in spec.stages:
         _timed(result.timings, "nest", lambda: _nest(result))
         say(f"nest: {len(result.nesting.sheets)} sheet(s) -> {spec.output('nesting.json')}")
@@ -124,6 +126,14 @@ def run_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None,
         if "report" in spec.stages:
             write_report(result)
     return result
+
+
+def structure_lines(result: JobResult) -> list[str]:
+    """The unroll stage's structural verdict in the words `fabline unroll` and the report use (none without it)."""
+    from fabline.unroll.structure import verdict_lines
+
+    verdict = result.partset.report.get("verdict") if result.partset else None
+    return verdict_lines(verdict) if verdict else []
 
 
 def write_report(result: JobResult) -> Path:

@@ -19,7 +19,7 @@ from typing import Any
 from fabline.jobs import report_shop
 from fabline.jobs.pictures import model_svg
 from fabline.units import mm
-from fabline.unroll.structure import CHECKS, VERDICT_RULE, percent
+from fabline.unroll.structure import CHECKS, VERDICT_RULE, percent, verdict_lines
 
 REPORT_SCHEMA = "fabline.report/1"
 _STYLE = """
@@ -57,7 +57,8 @@ def report_data(result: Any) -> dict[str, Any]:
         "parts": ({"count": len(result.partset.parts),
                    "by_kind": dict(Counter(p.kind for p in result.partset.parts))} if result.partset else None),
         "structure": {"lamellas": structure, "max_utilisation": max((r["utilisation"] for r in structure), default=None),
-                      "failing": failing, "passes": not failing, "rule": VERDICT_RULE},
+                      "failing": failing, "passes": not failing, "rule": VERDICT_RULE,
+                      "verdict": result.partset.report.get("verdict") if result.partset else None},
         "edge_members": result.partset.report.get("edges") if result.partset else None,
         "nesting": ({"sheets": sheets, "summary": result.nesting.summary} if result.nesting else None),
         "machine_time_s": result.export.totals().time if result.export else None,
@@ -108,14 +109,14 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
 
 
 def _structure_table(structure: dict[str, Any]) -> str:
+    """Every lamella's utilisations by check, its combined limit (the twist allowed at its worst interval's radius)
+    and verdict, under the verdict in `fabline unroll`'s and `fabline run`'s words (`verdict_lines`)."""
     rows = structure["lamellas"]
     if not rows:
         return "<h2>Strips and structural check</h2><p>No unroll stage in this job.</p>"
-    worst = max(rows, key=lambda row: row["utilisation"])
-    verdict = ("every lamella passes" if structure["passes"]
-               else f"{len(structure['failing'])} lamella(s) exceed yield: {', '.join(structure['failing'])}")
     head = ("<tr><th>lamella</th><th>length m</th><th>min radius mm</th><th>max twist rad/m</th>"
-            "<th>bending %</th><th>shear %</th><th>helix %</th><th>combined %</th><th>governing</th><th>verdict</th></tr>")
+            "<th>allowed twist rad/m</th><th>bending %</th><th>shear %</th><th>helix %</th><th>combined %</th>"
+            "<th>governing</th><th>verdict</th></tr>")
     body = []
     for row in rows:
         css = "ok" if row["passes"] else "fail"
@@ -123,14 +124,15 @@ def _structure_table(structure: dict[str, Any]) -> str:
         cells = "".join(f"<td class={'fail' if row[f'utilisation_{k}'] > 1.0 else 'ok'}>"
                         f"{percent(row[f'utilisation_{k}'])[:-2]}</td>" for k in CHECKS)
         body.append(f"<tr class={css}><td>{html.escape(row['lamella'])}</td><td>{row['length_mm'] / 1000:.3f}</td>"
-                    f"<td>{radius}</td><td>{row['max_twist_rad_per_m']:.3f}</td>{cells}"
+                    f"<td>{radius}</td><td>{row['max_twist_rad_per_m']:.3f}</td>"
+                    f"<td>{row['allowed_twist_at_radius_rad_per_m']:.3f}</td>{cells}"
                     f"<td>{row['governing']}</td><td>{'passes' if row['passes'] else 'exceeds yield'}</td></tr>")
-    first = rows[0]
+    lines = verdict_lines(structure["verdict"])
+    said = "".join(f"<p class=note>{html.escape(line.strip())}</p>" for line in lines[1:])
     return (f"<h2>Strips and structural check</h2><p id=verdict class={'ok' if structure['passes'] else 'fail'}>"
-            f"{html.escape(verdict)}; largest utilisation {percent(worst['utilisation'])} ({worst['governing']}, "
-            f"lamella {html.escape(worst['lamella'])}; allowed radius {first['min_allowed_radius_mm']:.0f} mm, "
-            f"twist {first['max_allowed_twist_rad_per_m']:.3f} rad/m).</p><p class=note>Rule: "
-            f"{html.escape(structure['rule'])}</p><table id=strips>{head}{''.join(body)}</table>")
+            f"{html.escape(lines[0].removeprefix('structure: '))}</p>{said}<p class=note>Rule: "
+            f"{html.escape(structure['rule'])} The allowed twist is the combined limit at the bending radius of the "
+            f"lamella's worst interval.</p><table id=strips>{head}{''.join(body)}</table>")
 
 
 def _edge_table(edges: dict[str, Any] | None) -> str:

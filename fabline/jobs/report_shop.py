@@ -63,9 +63,9 @@ def summary_block(data: dict[str, Any]) -> str:
                              f"({100 * totals['scrap_share']:.1f} % scrap){cost}"))
     structure = data["structure"]
     if structure["lamellas"]:
-        rows.append(("structure", "every lamella passes" if structure["passes"] else
-                     f"{len(structure['failing'])} lamella(s) exceed yield"))
-        rows[-1] = (rows[-1][0], rows[-1][1] + f" (largest utilisation {100 * structure['max_utilisation']:.0f} %)")
+        from fabline.unroll.structure import verdict_lines  # numpy: the runner imports this module and starts fast
+
+        rows.append(("structure", verdict_lines(structure["verdict"])[0].removeprefix("structure: ")))
     else:
         rows.append(("structure", "not checked (no unroll stage)"))
     survey = data["survey"]
