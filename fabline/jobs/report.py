@@ -25,7 +25,8 @@ from fabline.unroll.structure import CHECKS, VERDICT_RULE, percent
 
 REPORT_SCHEMA = "fabline.report/1"
 _STYLE = """
-body{font:14px/1.4 system-ui,sans-serif;margin:24px;color:#1b1b1b;max-width:1400px;overflow-wrap:anywhere}
+body{font:14px/1.4 system-ui,sans-serif;margin:24px;color:#1b1b1b;max-width:1400px}
+p,figcaption,summary{overflow-wrap:anywhere}
 @media (max-width:600px){body{margin:8px}}
 h1{margin:0 0 4px}h2{margin:28px 0 8px;border-bottom:1px solid #ccc}
 .pictures{display:flex;flex-wrap:wrap;gap:16px;align-items:flex-start}
