@@ -75,7 +75,7 @@ def _spot(key: tuple) -> Spot | None:
 def _candidates(solid: Polygon) -> tuple[np.ndarray, np.ndarray]:
     """Candidate centres (the widest point first, then a grid inside the material) and the unit direction of the
     outline nearest to each."""
-    widest = shapely.get_coordinates(shapely.maximum_inscribed_circle(solid, tolerance=solid.length * 1e-3))[0]
+    widest = shapely.get_coordinates(shapely.maximum_inscribed_circle(solid, tolerance=solid.length * 5e-3))[0]
     x0, y0, x1, y1 = solid.bounds
     gx, gy = np.meshgrid(np.linspace(x0, x1, GRID + 2)[1:-1], np.linspace(y0, y1, GRID + 2)[1:-1])
     grid = np.column_stack([gx.ravel(), gy.ravel()])
