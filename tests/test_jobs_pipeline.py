@@ -436,3 +436,25 @@ def test_run_and_report_give_the_size_asked_and_the_size_built(run):
     assert f"<td>size in plan</td><td>{line}</td>" in summary
     extent = json.loads((run["dir"] / "report.json").read_text())["model"]["extent"]
     assert extent["plan_m"] == pytest.approx([dx, dy], abs=1e-3) and extent["asked_m"] == [1.5, 1.5]
+
+
+@pytest.mark.parametrize("width", [1280, 390])
+def test_report_fits_the_page_width_in_a_browser(run, width):
+    """Headless Chromium lays the page out at a desktop's and a phone's width: nothing sticks out sideways (the page
+    does not scroll; wide tables and a zoomed picture scroll inside their own box)."""
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (optional) drives the browser")
+    chromium = shutil.which("chromium") or "/usr/bin/chromium"
+    if not Path(chromium).is_file():
+        pytest.skip("no Chromium browser installed (optional)")
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium, args=["--no-sandbox", "--disable-gpu"])
+        try:
+            page = browser.new_page(viewport={"width": width, "height": 900})
+            page.goto((run["dir"] / "report.html").as_uri(), wait_until="load")
+            scroll = page.evaluate("document.documentElement.scrollWidth")
+            wide = page.evaluate("""() => [...document.querySelectorAll('body *')].filter(e =>
+                e.getBoundingClientRect().right > innerWidth + 1 && !e.parentElement.closest('table, .zoom'))
+                .map(e => e.tagName + (e.id ? '#' + e.id : ''))""")
+        finally:
+            browser.close()
+    assert scroll <= width and not wide, (scroll, wide[:10])
