@@ -80,7 +80,7 @@ def report_data(result: Any) -> dict[str, Any]:
 
 
 def render_report(result: Any, data: dict[str, Any]) -> str:
-    """The self-contained HTML page for a job result and its report data."""
+    """The HTML page for a job result and its report data (its big pictures linked from the output folder)."""
     spec = result.spec
     e = html.escape
     folder = Path(result.report_path or spec.output(spec.report_name)).parent
