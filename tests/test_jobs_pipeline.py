@@ -130,16 +130,26 @@ def test_every_part_is_nested_once_and_labelled_on_its_sheet_picture(run):
     assert sorted(label for label in page.labels if label in set(placed)) == sorted(placed)
 
 
-def test_pictures_come_first_and_the_page_is_self_contained(run):
+def test_pictures_come_first_and_the_page_works_offline_from_its_folder(run, tmp_path):
+    """The model and each sheet inline, each sheet's cut order and the deviation map the files in the output folder,
+    linked relatively and loaded lazily: the page still finds them when the folder is moved."""
     html = (run["dir"] / "report.html").read_text()
     page = Tags()
     page.feed(html)
     nesting = load_nesting(run["dir"] / "nesting.json")
-    assert page.tags.count("svg") == 1 + 2 * len(nesting.sheets)      # the model; each sheet and its cut order
+    assert page.tags.count("svg") == 1 + len(nesting.sheets)      # the model and each sheet
     assert page.tags.index("table") < page.tags.index("svg") < page.tags.index("table", page.tags.index("table") + 1), \
         "the summary, then the pictures, then the other tables"
-    assert not re.search(r'(src|href)="(?!#|data:)', html), "no external resources"
-    assert "<script" not in html
+    assert "<script" not in html and "data:" not in html
+    moved = tmp_path / "moved"
+    shutil.copytree(run["dir"], moved)
+    links = re.findall(r'<img src="([^"]+)" loading=lazy', html) + re.findall(r'<img alt="[^"]*" src="([^"]+)" loading=lazy', html)
+    assert len(links) == len(nesting.sheets) + 1 and len(re.findall(r"(?:src|href)=", html)) == len(links)
+    for link in links:
+        assert not link.startswith(("/", "http:", "https:", "file:")) and ".." not in link, link
+        assert (moved / link).is_file(), link
+    assert sorted(l for l in links if l.endswith(".order.svg")) == sorted(
+        f"gcode/{Path(s['preview']).name}" for s in json.loads((run["dir"] / "report.json").read_text())["nesting"]["sheets"])
 
 
 def test_report_starts_with_a_summary_and_lists_materials_hardware_and_cut_order(run):
@@ -276,9 +286,9 @@ def test_report_survey_figures_agree_with_the_injected_truth(run):
 def test_report_page_shows_the_survey_map_first_then_its_figures(run):
     html = (run["dir"] / "report.html").read_text()
     section = html[html.index("<h2>Survey</h2>"):html.index("<h2>Run</h2>")]
-    png = (run["dir"] / "survey" / "deviation_map.png").read_bytes()
-    assert section.startswith('<h2>Survey</h2><figure id=deviation-map><img alt="deviation map" '
-                              f'src="data:image/png;base64,{base64.b64encode(png).decode()}"')
+    assert (run["dir"] / "survey" / "deviation_map.png").is_file()
+    assert re.match(r'<h2>Survey</h2><figure id=deviation-map[^>]*><img alt="deviation map" '
+                    r'src="survey/deviation_map.png" loading=lazy>', section)
     data = json.loads((run["dir"] / "report.json").read_text())["survey"]
     s, truth = data["summary"], data["truth"]
     assert f"<tr><td>RMS deviation mm</td><td>{s['rms_deviation_mm']:.1f}</td></tr>" in section   # mm to 0.1
@@ -394,3 +404,58 @@ def test_run_summary_and_report_give_planned_machine_time_and_the_time_remaining
     stream = html[html.index("<table id=stream>"):html.index("</table>", html.index("<table id=stream>"))]
     assert "<th>planned</th><th>remaining</th>" in stream
     assert f"<tr class=total><th>job</th>" in stream and f"<td>{duration(planned)}</td>" in stream
+
+
+def test_report_links_its_large_pictures_and_stays_small(run):
+    """The page holds the model and the sheet pictures (its parts labelled, at most 1.5 kB a part), tables and text,
+    but no copy of the cut-order previews or the deviation map (which alone were 0.48 MB of this job's 0.59 MB page;
+    the pavilion's page was 18.9 MB, 15.7 MB of it previews)."""
+    html = (run["dir"] / "report.html").read_bytes()
+    parts = load_parts(run["dir"] / "parts.json").parts
+    pictures = re.findall(rb"<svg.*?</svg>", html, re.S)
+    model, sheets = len(pictures[0]), sum(len(p) for p in pictures[1:])
+    assert sheets <= 1500 * len(parts), (sheets, len(parts))
+    assert len(html) - model - sheets < 40_000, "tables and text"
+    linked = sum(p.stat().st_size for p in (run["dir"] / "gcode").glob("*.order.svg"))
+    assert linked + (run["dir"] / "survey" / "deviation_map.png").stat().st_size > len(html)
+    assert len(html) < 150_000
+
+
+def test_run_and_report_give_the_size_asked_and_the_size_built(run):
+    """The design was asked for 1.5 x 1.5 m; its nodes, a whole number of spacings apart, span less: the run's model
+    line, the report's summary and report.json give the network's bounding box in plan (worked out here from
+    network.json)."""
+    network = load_network(run["dir"] / "network.json")
+    xy = np.vstack([np.array([n.xyz for n in network.nodes.values()])[:, :2]]
+                   + [lam.curve[:, :2] for lam in network.lamellas])
+    dx, dy = np.ptp(xy, axis=0) * {"m": 1.0, "mm": 1e-3}[network.units]
+    assert dx < 1.5 - 0.2 and dy < 1.5 - 0.2
+    line = f"asked 1.5 x 1.5 m, built {dx:.1f} x {dy:.1f} m"
+    assert f"{len(network.nodes)} nodes, {line}\n" in run["out"]
+    html = (run["dir"] / "report.html").read_text()
+    summary = html[html.index("<table id=summary"):html.index("</table>", html.index("<table id=summary"))]
+    assert f"<td>size in plan</td><td>{line}</td>" in summary
+    extent = json.loads((run["dir"] / "report.json").read_text())["model"]["extent"]
+    assert extent["plan_m"] == pytest.approx([dx, dy], abs=1e-3) and extent["asked_m"] == [1.5, 1.5]
+
+
+@pytest.mark.parametrize("width", [1280, 390])
+def test_report_fits_the_page_width_in_a_browser(run, width):
+    """Headless Chromium lays the page out at a desktop's and a phone's width: nothing sticks out sideways (the page
+    does not scroll; wide tables and a zoomed picture scroll inside their own box)."""
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (optional) drives the browser")
+    chromium = shutil.which("chromium") or "/usr/bin/chromium"
+    if not Path(chromium).is_file():
+        pytest.skip("no Chromium browser installed (optional)")
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium, args=["--no-sandbox", "--disable-gpu"])
+        try:
+            page = browser.new_page(viewport={"width": width, "height": 900})
+            page.goto((run["dir"] / "report.html").as_uri(), wait_until="load")
+            scroll = page.evaluate("document.documentElement.scrollWidth")
+            wide = page.evaluate("""() => [...document.querySelectorAll('body *')].filter(e =>
+                e.getBoundingClientRect().right > innerWidth + 1 && !e.parentElement.closest('table, .zoom'))
+                .map(e => e.tagName + (e.id ? '#' + e.id : ''))""")
+        finally:
+            browser.close()
+    assert scroll <= width and not wide, (scroll, wide[:10])

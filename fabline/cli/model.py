@@ -127,7 +127,10 @@ def run_design(args: argparse.Namespace) -> int:
     options = {k: v for k, v in vars(args).items() if k not in ("command", "design", "output", "func")}
     network = DESIGNS[args.design](**options)
     save_network(network, args.output)
-    print(f"{args.output}: {args.design} network, {len(network.nodes)} nodes, {len(network.lamellas)} lamellas (units m)")
+    from fabline.model.extent import extent_text
+
+    print(f"{args.output}: {args.design} network, {len(network.nodes)} nodes, {len(network.lamellas)} lamellas (units m), "
+          f"{extent_text(network)}")
     return 0
 
 

@@ -73,6 +73,7 @@ def build_network(spec: JobSpec) -> "Network":
 def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) -> JobResult:
     """Run the job's stages up to export and write the report; returns the result with the sheet programs."""
     from fabline.model import save_network
+    from fabline.model.extent import extent_text
 
     spec = job if isinstance(job, JobSpec) else load_job_file(job)
     timings: dict[str, float] = {}
@@ -82,7 +83,8 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
                   inputs=(spec.path, spec.model.get("file")))
     result = JobResult(spec, network=_timed(timings, "model", lambda: build_network(spec)), timings=timings)
     save_network(result.network, spec.output("network.json"))
-    say(f"model: {result.network.name}, {len(result.network.lamellas)} lamellas, {len(result.network.nodes)} nodes")
+    say(f"model: {result.network.name}, {len(result.network.lamellas)} lamellas, {len(result.network.nodes)} nodes, "
+        f"{extent_text(result.network)}")
     if "unroll" in spec.stages:
         _timed(result.timings, "unroll", lambda: _unroll(result))
         say(f"unroll: {len(result.partset.parts)} parts -> {spec.output('parts.json')}")
@@ -137,15 +139,17 @@ def structure_lines(result: JobResult) -> list[str]:
 
 
 def write_report(result: JobResult) -> Path:
-    """Write the HTML report and its JSON twin into the output folder; returns the HTML's path."""
+    """Write the HTML report and its JSON twin into the output folder (the pictures it links, cut-order previews and
+    the deviation map, are their stages' files there); returns the HTML's path."""
     from fabline.jobs.report import render_report, report_data
 
     spec = result.spec
     data = report_data(result)
     result.report_path = spec.output(spec.report_name)
-    write_json(spec.output(Path(spec.report_name).with_suffix(".json")), data)
-    with atomic_output(result.report_path) as handle:
-        handle.write(render_report(result, data))
+    with OutputSet():  # the page and its twin as one: a failure leaves the last complete pair
+        write_json(spec.output(Path(spec.report_name).with_suffix(".json")), data)
+        with atomic_output(result.report_path) as handle:
+            handle.write(render_report(result, data))
     return result.report_path
 
 

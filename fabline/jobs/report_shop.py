@@ -6,8 +6,11 @@ Kept apart from `report.py` (which lays out the page) so each section is one fun
 
 from __future__ import annotations
 
+import base64
 import html
+import os
 from pathlib import Path
+from urllib.parse import quote
 from typing import Any
 
 from fabline.progress import estimate, simulated_speedup
@@ -15,7 +18,8 @@ from fabline.units import duration
 
 ZOOM_STYLE = """
 .zoom{overflow:auto;max-height:85vh}.zoom>label{cursor:zoom-in;display:block}.zoom input{display:none}
-.zoom input:checked+label{cursor:zoom-out}.zoom input:checked+label>svg{width:400%;max-width:none}
+.zoom input:checked+label{cursor:zoom-out}.zoom input:checked+label>svg,.zoom input:checked+label>img{width:400%;max-width:none}
+figure.zoom img{width:100%;height:auto}
 .summary td:first-child{font-weight:600}.summary{margin:8px 0 4px;font-size:14px}.summary td{text-align:left}
 """
 def zoomable(svg: str, key: str) -> str:
@@ -47,6 +51,8 @@ def summary_block(data: dict[str, Any]) -> str:
     e = html.escape
     model, nesting, bom = data["model"], data["nesting"], data.get("bill_of_materials")
     rows = [("what", f"{model['name']}: {model['lamellas']} lamellas, {model['nodes']} nodes")]
+    if model.get("extent"):
+        rows.append(("size in plan", model["extent"]["text"]))
     if data["parts"]:
         kinds = ", ".join(f"{n} {k}" for k, n in data["parts"]["by_kind"].items())
         rows.append(("parts", f"{data['parts']['count']} ({kinds})"))
@@ -110,16 +116,27 @@ def bom_section(bom: dict | None) -> str:
             f"<p></p><table id=hardware><tr><th>hardware</th><th>count</th><th>per</th></tr>{hardware}</table>")
 
 
-def preview_figure(entry: dict[str, Any]) -> str:
-    """A sheet's cut-order preview (read from its G-code at export), zoomable, folded away until opened."""
+def picture_source(path: Path, folder: Path, media_type: str) -> str:
+    """An image's address from a page in `folder`: relative (URL-quoted) when the file lies inside the folder, so the
+    page loads it only when shown and still finds it when the folder is moved; otherwise inlined as a data URL."""
+    relative = os.path.relpath(os.path.abspath(path), os.path.abspath(folder))
+    if not relative.startswith(os.pardir):
+        return html.escape(quote(Path(relative).as_posix()), quote=True)
+    return f"data:{media_type};base64,{base64.b64encode(path.read_bytes()).decode('ascii')}"
+
+
+def preview_figure(entry: dict[str, Any], folder: Path) -> str:
+    """A sheet's cut-order preview (the SVG export drew from its G-code), an image beside the report (`folder`) that
+    loads when its fold is opened, zoomable."""
     path = entry.get("preview")
     if not path or not Path(path).is_file():
         return ""
-    svg = Path(path).read_text(encoding="utf-8")
+    source = picture_source(Path(path), folder, "image/svg+xml")
+    image = f'<img src="{source}" loading=lazy alt="cut order of sheet {html.escape(entry["id"], quote=True)}">'
     return (f"<details class=preview data-sheet=\"{html.escape(entry['id'])}\"><summary>Sheet {html.escape(entry['id'])}: "
             "cut order (from the G-code: engraving green, then cuts from blue to red, numbered; dashed grey travel; "
             "click to zoom)"
-            f"</summary><figure class=zoom>{zoomable(svg, 'order-' + entry['id'])}</figure></details>")
+            f"</summary><figure class=zoom>{zoomable(image, 'order-' + entry['id'])}</figure></details>")
 
 
 def short_port(port: str) -> str:
