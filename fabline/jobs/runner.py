@@ -31,6 +31,41 @@ class MachineConfig:
     port: str
 
 
+DEFAULT_PROFILE = "grbl-laser"
+"""The machine profile a job file names when it names none (`machine.profile`'s default): the runner's default
+simulated machine is set up as that machine, so the example job cuts on it with no setting typed."""
+
+
+def default_machines() -> list[MachineConfig]:
+    """`runner serve` without `--machine`: one simulator set up as the default profile's machine."""
+    return [MachineConfig("sim1", f"sim://sim1?machine={DEFAULT_PROFILE}")]
+
+
+def describe_machine(machine: MachineConfig) -> str:
+    """'NAME=PORT (PROFILE: ...)' for the start-up lines: which machine a simulator plays (its profile's laser mode
+    and travel), or that a real controller keeps its own `$` settings (checked against each program's profile)."""
+    import urllib.parse
+
+    from fabline.export import load_machine
+
+    parts = urllib.parse.urlsplit(machine.port)
+    if parts.scheme != "sim":
+        return f"{machine.name}={machine.port} (a real controller: its own $ settings, checked against each program)"
+    options = urllib.parse.parse_qs(parts.query)
+    name = options.get("machine", [None])[-1]
+    extra = " with its settings= values" if "settings" in options else ""
+    if name is None:
+        return (f"{machine.name}={machine.port} (no machine profile: a stock Grbl 1.1h{extra}; the stock one is "
+                "laser mode off $32=0, 200 x 200 mm travel)")
+    try:
+        profile = load_machine(name)
+    except FablineError as exc:
+        raise FablineError(f"--machine {machine.name}={machine.port}: {exc}") from None
+    laser = "laser mode $32=1" if profile.laser_mode else "laser mode off $32=0"
+    return (f"{machine.name}={machine.port} (profile {profile.name}: {laser}, "
+            f"{profile.bed_width:g} x {profile.bed_height:g} mm travel{extra})")
+
+
 def parse_machine(text: str) -> MachineConfig:
     """'NAME=PORT' (e.g. 'laser1=/dev/ttyUSB0' or 'sim1=sim://sim1?time_scale=100')."""
     name, sep, port = text.partition("=")
