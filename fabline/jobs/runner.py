@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from fabline.errors import FablineError
+from fabline.jobs import prepared as prepared_output
 from fabline.jobs.queue import JobQueue, JobRow, SheetRow
 from fabline.jobs.streaming import SheetStream, checkpoint, frame_sheet
 from fabline.locks import exclusive_lock, lock_path
@@ -167,9 +168,19 @@ class Runner:
                 continue
             try:
                 spec = replace(load_job_file(job.job_file), output_folder=self.runs / f"job-{job.id}")
+                key = prepared_output.job_key(spec)
                 with exclusive_lock(lock_path(spec.output_folder), f"job folder {spec.output_folder}"):
-                    prepared = prepare_job(spec)
-                queue.prepared(job.id, prepared.sheet_programs(), str(prepared.report_path), str(spec.output_folder))
+                    earlier = prepared_output.find(self.runs, key, exclude=spec.output_folder)
+                    if earlier is not None:  # the same job file and inputs: its sheets as they were prepared
+                        programs, report = prepared_output.reuse(earlier, spec.output_folder)
+                        queue.log(job.id, None, f"job {job.id}: job file and inputs unchanged since {earlier.name}: "
+                                  "its prepared sheets reused")
+                    else:
+                        result = prepare_job(spec)
+                        programs = result.sheet_programs()
+                        report = str(result.report_path) if result.report_path else None
+                        prepared_output.record(spec.output_folder, key, programs, report)
+                queue.prepared(job.id, programs, report, str(spec.output_folder))
             except FablineError as exc:
                 queue.fail(job.id, str(exc))
             except Exception as exc:  # a bug in a stage must not take the runner down; the job records it
