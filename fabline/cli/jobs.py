@@ -200,7 +200,7 @@ def run_serve(args: argparse.Namespace) -> int:
         print(f"found by `fabline runner status` and the other commands through {' and '.join(map(str, records))}",
               flush=True)
         try:
-            uvicorn.Server(uvicorn.Config(create_app(_db(args), token, hosts=hosts), host=args.host, port=args.web_port,
+            uvicorn.Server(uvicorn.Config(create_app(_db(args), token, hosts=hosts, jobs=jobs), host=args.host, port=args.web_port,
                                           log_level="warning")).run()
         finally:
             remove_records(_db(args))

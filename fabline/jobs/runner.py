@@ -21,6 +21,7 @@ from fabline.errors import FablineError
 from fabline.jobs import prepared as prepared_output
 from fabline.jobs.queue import JobQueue, JobRow, SheetRow
 from fabline.jobs.streaming import SheetStream, checkpoint, frame_sheet
+from fabline.link import Streamer
 from fabline.locks import exclusive_lock, lock_path
 
 
@@ -128,9 +129,9 @@ class Runner:
                     continue
                 try:
                     spec = load_job_file(path)
-                    queue.submit(spec.name, job_file=str(spec.path))
+                    queue.submit_once(spec.name, job_file=str(spec.path))
                 except FablineError as exc:
-                    queue.submit(path.stem, job_file=str(path.resolve()), error=str(exc))
+                    queue.submit_once(path.stem, job_file=str(path.resolve()), error=str(exc))
             if self._stop.wait(every):
                 break
         queue.close()
@@ -192,6 +193,7 @@ class Runner:
     def _machine_loop(self, machine: MachineConfig) -> None:
         queue = JobQueue(self.db_path)
         while not self._stop.is_set():
+            self._console(queue, machine)
             job = queue.claim_for_machine(machine.name)
             if job is None:
                 queue.set_machine(machine.name, state="idle")
@@ -279,10 +281,32 @@ class Runner:
             queue.set_machine(machine.name, state="idle" if after.state == "done" else
                               f"waiting: load sheet {after.sheet + 1} of {after.sheets}")
         elif stream.cancelled:
-            queue.set_cutting_state(job.id, "cancelled")
+            queue.set_cutting_state(job.id, "cancelled", checkpoint(sheet.program, sheet.journal, "cancelled by the operator"))
             queue.set_machine(machine.name, state="idle")
         else:
             queue.set_machine(machine.name, state="stopped (the operator decides how to go on)")
+
+    def _console(self, queue: JobQueue, machine: MachineConfig, stream: SheetStream | None = None) -> None:
+        """Carry out the operator's console commands for this machine (fabline.jobs.console): through the link
+        stage on a machine that streams nothing; while a sheet streams (`stream`), only real-time overrides,
+        anything else refused. Each command's answer goes into the queue's log."""
+        for command in queue.pending_commands(machine.name):
+            line, override = command["line"], command["override"]
+            if stream is not None and line is not None:
+                queue.finish_command(command["id"], "refused", [
+                    f"{machine.name} is cutting: only feed, rapid and power overrides until the sheet stops"])
+                continue
+            try:
+                if stream is not None:
+                    stream.override(override)
+                    answer = ["sent"]
+                else:
+                    replies = Streamer(machine.port).console([line] if line else [], [override] if override else [])
+                    answer = replies[0][1] if replies else ["sent"]
+            except FablineError as exc:
+                queue.finish_command(command["id"], "failed", [str(exc)])
+            else:
+                queue.finish_command(command["id"], "done", answer)
 
     def _watch_requests(self, job_id: int, stream: SheetStream, machine: MachineConfig) -> None:
         """While a sheet streams: carry out pause, resume and cancel requests; a stopping runner stops the stream
@@ -292,6 +316,7 @@ class Runner:
             if self._stop.is_set():
                 stream.stop()
                 break
+            self._console(queue, machine, stream)
             request = queue.take_request(job_id)
             if request == "pause":
                 stream.pause()
