@@ -159,3 +159,42 @@ def test_a_job_file_uploaded_from_the_page_is_queued_once(shop, tmp_path):
         answer = client.post("/api/jobs/upload", json=body)
         assert answer.status_code == 400 and said in answer.json()["error"], answer.text
     assert not (jobs / "bad.toml").exists() and not (tmp_path / "x.toml").exists()
+
+
+def test_the_page_console_sends_a_setting_after_its_dialog_uploads_a_job_and_shows_what_a_cancelled_job_cut(shop):
+    from runner_support import headless_chromium
+
+    client, queue = shop["client"], shop["queue"]
+    program = laser_program(shop["tmp"] / "plate.gcode")
+    job = queue.submit("plate", programs=[("plate", str(program), "")])
+    job_file = shop["tmp"] / "tiny.toml"
+    job_file.write_text(TINY, encoding="utf-8")
+    with headless_chromium() as (sync_api, browser):
+        page = browser.new_page()
+        page.goto(f"{client.base_url}?token={TOKEN}")
+        machine = page.locator(".machine[data-machine='m1']")
+        machine.locator(".console summary").click()
+        machine.locator(".console input.line").fill("$32=1")
+        machine.locator(".console button.send").click()
+        dialog = page.locator("#confirm")
+        sync_api.expect(dialog).to_contain_text("Send $32=1 to m1?")
+        simulator = get_simulator(shop["sim"])  # none yet: nothing was ever sent to the machine
+        assert simulator is None or simulator.settings[32] == 0, "not before the dialog's yes"
+        page.locator("#confirm-yes").click()
+        sync_api.expect(machine.locator(".console .answer")).to_have_text("$32=1: ok", timeout=20000)
+        assert get_simulator(shop["sim"]).settings[32] == 1
+        machine.locator(".console button.jog-Xplus").click()
+        sync_api.expect(machine.locator(".console .answer")).to_have_text("$J=G91 G21 X10 F3000: ok", timeout=20000)
+        machine.locator(".console input.line").fill("G1 X5")
+        machine.locator(".console input.line").press("Enter")
+        sync_api.expect(machine.locator(".console .answer")).to_contain_text("G1 X5: refused: console: 'G1 X5' is not sent")
+
+        page.locator("#upload").set_input_files(str(job_file))
+        uploaded = page.locator("#queue tr", has_text="tiny")
+        sync_api.expect(uploaded).to_have_count(1, timeout=20000)
+        assert (shop["jobs"] / "tiny.toml").read_text(encoding="utf-8") == TINY
+
+        queue.act(job, "cancel")
+        row = page.locator(f"#queue tr[data-job='{job}']")
+        sync_api.expect(row).to_have_attribute("data-state", "cancelled", timeout=20000)
+        sync_api.expect(row.locator(".state")).to_contain_text("cut: 0 of 1 sheets finished")

@@ -38,10 +38,10 @@ def test_runner_serve_as_the_readme_says_cuts_a_grbl_laser_job_on_its_default_ma
                                str(port)], cwd=shop, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               env={**os.environ, "XDG_STATE_HOME": str(tmp_path / "state")})
     try:
-        lines = [server.stdout.readline() for _ in range(3)]
-        assert lines[1] == "  machine sim1=sim://sim1?machine=grbl-laser (profile grbl-laser: laser mode $32=1, " \
+        lines = [server.stdout.readline() for _ in range(4)]
+        assert lines[3] == "  machine sim1=sim://sim1?machine=grbl-laser (profile grbl-laser: laser mode $32=1, " \
                            "4100 x 2100 mm travel)\n", lines
-        token = lines[2].removeprefix("token: ").strip()
+        token = lines[1].removeprefix("token: ").strip()
         client = httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"X-Fabline-Token": token}, timeout=10)
         deadline = time.monotonic() + 300
 

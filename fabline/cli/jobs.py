@@ -192,10 +192,10 @@ def run_serve(args: argparse.Namespace) -> int:
         runner.watch_folder(jobs, args.scan)
         runner.start()
         print(f"fabline runner: {len(machines)} machine(s); queue {_db(args)}", flush=True)
-        for line in described:
-            print(f"  machine {line}", flush=True)
         print(f"token: {token}", flush=True)
         print(f"open http://{args.host}:{args.web_port}/?token={token}", flush=True)
+        for line in described:
+            print(f"  machine {line}", flush=True)
         records = write_records(_db(args), page_url(args.host, args.web_port), token)
         print(f"found by `fabline runner status` and the other commands through {' and '.join(map(str, records))}",
               flush=True)
