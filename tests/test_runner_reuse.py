@@ -87,3 +87,33 @@ def test_a_requeued_unchanged_job_reuses_its_sheets_and_a_changed_input_is_prepa
         assert counted == ["_unroll", "_nest", "_export"] * 3
     finally:
         runner.stop()
+
+
+def test_a_job_prepared_before_the_runner_stopped_keeps_its_own_sheets(tmp_path, counted):
+    """Killed between writing the sheets and marking the job ready: on restart the job goes back to the queue
+    (`recover`) and its own finished preparation is taken as it is, not redone nor copied."""
+    jobs = tmp_path / "jobs"
+    jobs.mkdir()
+    save_network(DESIGNS["enneper"](size=(1.5, 1.5), spacing=0.5), jobs / "shell.json")
+    (jobs / "reused.toml").write_text(JOB, encoding="utf-8")
+    db = jobs / "runner.sqlite"
+    queue = JobQueue(db)
+    job = queue.submit("reused", job_file=str(jobs / "reused.toml"))
+    runner = Runner(db, [], poll=0.05)
+    runner.start()
+    try:
+        _wait_ready(queue, job)
+    finally:
+        runner.stop()
+    programs = [s.program for s in queue.sheets(job)]
+    with queue.transaction() as db_:  # as a runner killed just before `prepared` left it
+        db_.execute("DELETE FROM sheets WHERE job_id = ?", (job,))
+        db_.execute("UPDATE jobs SET state = 'preparing', sheets = 0 WHERE id = ?", (job,))
+    runner = Runner(db, [], poll=0.05)
+    runner.start()
+    try:
+        _wait_ready(queue, job)
+    finally:
+        runner.stop()
+    assert counted == ["_unroll", "_nest", "_export"]
+    assert [s.program for s in queue.sheets(job)] == programs

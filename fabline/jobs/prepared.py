@@ -4,8 +4,9 @@ The runner prepares every job into a folder of its own (`runs/job-N/`) and recor
 key of what it prepared: a SHA-256 over the job file's bytes, the bytes of every file it reads (model, materials,
 stock, machine profile, survey result) and fabline's own code (the package's sources, so a changed stage never
 hands out stale programs). A job with the same key (a re-queued job, the same file submitted again) gets a copy
-of that folder instead of a new preparation (minutes for the example job); one whose programs were changed
-on disk since (their SHA-256 is recorded too) is prepared afresh.
+of that folder instead of a new preparation (minutes for the example job), and a job whose own preparation had
+finished when the runner stopped keeps it; one whose programs were changed on disk since (their SHA-256 is
+recorded too) is prepared afresh.
 """
 
 from __future__ import annotations
@@ -95,21 +96,20 @@ def _intact(folder: Path, entry: dict) -> bool:
         return False
 
 
-def find(runs: str | os.PathLike, key: str, exclude: str | os.PathLike) -> Path | None:
-    """The newest job folder under `runs` prepared with `key` whose programs are unchanged, or None."""
-    exclude = Path(exclude).resolve()
+def find(runs: str | os.PathLike, key: str, prefer: str | os.PathLike) -> Path | None:
+    """The job folder under `runs` prepared with `key` whose programs are unchanged: `prefer` (the job's own
+    folder, prepared before the runner stopped) if it is one, else the newest; None if there is none."""
+    prefer = Path(prefer).resolve()
     candidates = []
     for path in Path(runs).glob(f"*/{RECORD}"):
         folder = path.parent.resolve()
-        if folder == exclude:
-            continue
         try:
             entry = read_json(path)
         except FablineError:
             continue
         if isinstance(entry, dict) and entry.get("format") == FORMAT and entry.get("key") == key and _intact(folder, entry):
-            candidates.append((path.stat().st_mtime, folder))
-    return max(candidates)[1] if candidates else None
+            candidates.append((folder == prefer, path.stat().st_mtime, folder))
+    return max(candidates)[2] if candidates else None
 
 
 def reuse(source: str | os.PathLike, folder: str | os.PathLike) -> tuple[list[tuple], str | None]:
@@ -117,6 +117,8 @@ def reuse(source: str | os.PathLike, folder: str | os.PathLike) -> tuple[list[tu
     files are never written in place) and return its programs and report with paths into `folder`."""
     source, folder = Path(source).resolve(), Path(folder).resolve()
     entry = read_json(source / RECORD)
+    if source == folder:  # the job's own preparation, finished before the runner stopped
+        return [tuple(_absolute(p, folder)) for p in entry["programs"]], _absolute(entry["report"], folder)
     if folder.exists():
         shutil.rmtree(folder)
 

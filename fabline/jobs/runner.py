@@ -171,7 +171,7 @@ class Runner:
                 spec = replace(load_job_file(job.job_file), output_folder=self.runs / f"job-{job.id}")
                 key = prepared_output.job_key(spec)
                 with exclusive_lock(lock_path(spec.output_folder), f"job folder {spec.output_folder}"):
-                    earlier = prepared_output.find(self.runs, key, exclude=spec.output_folder)
+                    earlier = prepared_output.find(self.runs, key, prefer=spec.output_folder)
                     if earlier is not None:  # the same job file and inputs: its sheets as they were prepared
                         programs, report = prepared_output.reuse(earlier, spec.output_folder)
                         queue.log(job.id, None, f"job {job.id}: job file and inputs unchanged since {earlier.name}: "
