@@ -68,3 +68,12 @@ def test_runner_serve_as_the_readme_says_cuts_a_grbl_laser_job_on_its_default_ma
     finally:
         server.send_signal(signal.SIGINT)
         server.communicate(timeout=60)
+
+
+def test_serve_refuses_a_simulated_machine_of_an_unknown_profile_before_starting(tmp_path, cli):
+    (tmp_path / "jobs").mkdir()
+    code, out, err = cli("runner", "serve", "--jobs", tmp_path / "jobs", "--machine", "m1=sim://m1?machine=grbl-lazer")
+    assert code == 2 and out == ""
+    assert err.splitlines()[0].startswith("fabline runner: error: --machine m1=sim://m1?machine=grbl-lazer: ")
+    assert "grbl-laser" in err.splitlines()[0], "the known profiles are named"
+    assert not (tmp_path / "jobs" / "runner.sqlite").exists(), "nothing started"
