@@ -83,10 +83,10 @@ def test_a_conflicting_controller_is_set_up_from_the_console_and_the_job_resumed
     home = console(client, {"line": "$H"})  # the stock build has homing off ($22=0): the controller's own answer
     assert home.status_code == 200 and home.json()["answer"] == ["error:5 (homing cycle is not enabled via settings)"]
     assert console(client, {"line": "$X"}).json()["answer"] == ["ok"]
-    assert console(client, {"line": "$J=G91 X10 Y5 F6000"}).json()["answer"] == ["ok"]
-    wait_for(lambda: get_simulator(shop["sim"]).state == "Idle")
+    assert console(client, {"line": "$J=G91 X10 Y5 F30"}).json()["answer"] == ["ok"]  # 1.1 s at the time scale
+    assert get_simulator(shop["sim"]).state == "Jog"
+    assert console(client, {"line": "g10 l20 p1 x0 y0"}).json()["answer"] == ["ok"], "sent once the jog ended"
     assert [round(v, 3) for v in get_simulator(shop["sim"]).position[:2]] == [10.0, 5.0]
-    assert console(client, {"line": "g10 l20 p1 x0 y0"}).json()["answer"] == ["ok"]
     for bad, status in (({"line": "G1 X100 F500"}, 409), ({"line": "M4 S1000"}, 409), ({"line": "$X\n$H"}, 409),
                         ({"override": "feed +50%"}, 409), ({"nothing": 1}, 400), ({"line": "$X", "override": "feed 100%"}, 400)):
         answer = console(client, bad)
@@ -139,6 +139,9 @@ def test_a_job_file_uploaded_from_the_page_is_queued_once(shop, tmp_path):
     runner.watch_folder(jobs, every=0.05)  # the folder watcher sees the uploaded file too: still one job
     runner.start()
     try:
+        assert httpx.post(str(client.base_url.join("/api/jobs/upload")),
+                          json={"name": "tiny.toml", "text": TINY}).status_code == 403
+        assert not (jobs / "tiny.toml").exists()
         answer = client.post("/api/jobs/upload", json={"name": "tiny.toml", "text": TINY})
         assert answer.status_code == 200, answer.text
         first = answer.json()

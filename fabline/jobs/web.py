@@ -43,7 +43,7 @@ _LARGEST_ID = 2 ** 62  # ids beyond SQLite's integers are no job
 
 
 def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple[str, ...] = (),
-               jobs: str | Path | None = None, console_timeout: float = 30.0) -> Starlette:
+               jobs: str | Path | None = None, console_timeout: float = 150.0) -> Starlette:
     """The web application over the queue at `db_path`; `token` guards everything but the page shell;
     requests must name one of the loopback `LOOPBACK_HOSTS` or of `hosts` in their Host header. Uploaded job
     files go into `jobs` (default: the queue's folder); a console command waits `console_timeout` s for its machine."""

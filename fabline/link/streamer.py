@@ -141,6 +141,12 @@ def _describe(identity: dict[str, str] | None) -> str:
     return "no named run" if identity is None else "run " + ", ".join(f"{k}={v}" for k, v in sorted(identity.items()))
 
 
+JOG_WAIT = 60.0
+"""Seconds a console line waits for an earlier jog to end (Grbl refuses G-code while it jogs: error:9)."""
+HOMING_WAIT = 120.0
+"""Seconds a console `$H` waits for its ok: Grbl answers when the homing cycle is over."""
+
+
 class Streamer:
     """A GRBL 1.1 host on one port (`/dev/ttyUSB0`, `socket://host:port`, `rfc2217://...`, `sim://grbl`, ...)."""
 
@@ -227,6 +233,10 @@ class Streamer:
                 for name in realtime:
                     self._write(OVERRIDES[name])
                 state = self._query_status().state if lines else "Idle"
+                deadline = time.monotonic() + JOG_WAIT
+                while state == "Jog" and time.monotonic() < deadline:  # an earlier jog still moving: let it end
+                    time.sleep(0.05)
+                    state = self._query_status().state
                 if state not in ("Idle", "Alarm"):
                     raise FablineError(f"{self.url}: the controller is {state}; wait until it is idle")
                 return [(line, self._answer(line)) for line in lines]
@@ -236,7 +246,8 @@ class Streamer:
     def _answer(self, line: str) -> list[str]:
         """Send one console line; its feedback lines and the final `ok` or `error:N (meaning)`."""
         self._write(line.encode("ascii") + b"\n")
-        answer, deadline = [], time.monotonic() + max(self.connect_timeout, 2.0)
+        wait = HOMING_WAIT if line.startswith("$H") else max(self.connect_timeout, 2.0)  # ok comes when homed
+        answer, deadline = [], time.monotonic() + wait
         while time.monotonic() < deadline:
             for response in self._read(0.02):
                 if response.kind == "ok":
@@ -245,7 +256,7 @@ class Streamer:
                     return answer + [explain_error(response.code)]
                 if response.kind != "status":
                     answer.append(response.text if response.kind != "alarm" else explain_alarm(response.code))
-        raise FablineError(f"{self.url}: no answer to {line!r} within {max(self.connect_timeout, 2.0):g} s")
+        raise FablineError(f"{self.url}: no answer to {line!r} within {wait:g} s")
 
     @property
     def paused(self) -> bool:
