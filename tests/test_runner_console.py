@@ -201,3 +201,23 @@ def test_the_page_console_sends_a_setting_after_its_dialog_uploads_a_job_and_sho
         row = page.locator(f"#queue tr[data-job='{job}']")
         sync_api.expect(row).to_have_attribute("data-state", "cancelled", timeout=20000)
         sync_api.expect(row.locator(".state")).to_contain_text("cut: 0 of 1 sheets finished")
+
+
+@pytest.mark.parametrize("text, sent, kind", [
+    ("$32=1", "$32=1", "setting"), (" $x ", "$X", "unlock"), ("$H", "$H", "home"), ("$$", "$$", "report"),
+    ("$j=g91 g21 x-5.5 y2 f600", "$J=G91 G21 X-5.5 Y2 F600", "jog"), ("$J=G53 F100 X0", "$J=G53 F100 X0", "jog"),
+    ("G10 L20 P1 X0 Y0", "G10 L20 P1 X0 Y0", "origin"), ("G92 X0 Y0", "G92 X0 Y0", "origin")])
+def test_the_console_sends_settings_unlock_home_jogs_and_origins(text, sent, kind):
+    from fabline.jobs.console import check_line
+
+    assert check_line(text) == (sent, kind)
+
+
+@pytest.mark.parametrize("text", ["G1 X10 F100", "M4 S1000", "$J=G91 X10", "$J=G91 F100", "$J=G91 X10 F100 M3",
+                                  "$RST=*", "$SLP", "$C", "$32=1\n$X", "G10 L2 P1 X0", "$N0=G1 X1", "\x18"])
+def test_the_console_refuses_programs_and_anything_else(text):
+    from fabline.errors import FablineError
+    from fabline.jobs.console import check_line
+
+    with pytest.raises(FablineError, match="console: "):
+        check_line(text)

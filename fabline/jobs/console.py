@@ -21,8 +21,7 @@ _LINES = {
     "unlock": re.compile(r"\$X"),
     "home": re.compile(r"\$H"),
     "report": re.compile(r"\$[$#GI]"),
-    "jog": re.compile(rf"\$J=\s*(G9[01]\s*|G2[01]\s*|G53\s*)*({_AXES})(\s*F\s*{_NUMBER})|"
-                      rf"\$J=\s*(G9[01]\s*|G2[01]\s*|G53\s*)*(\s*F\s*{_NUMBER})({_AXES})"),
+    "jog": re.compile(rf"\$J=(\s*(G53|G9[01]|G2[01]|[XYZF]\s*{_NUMBER}))+"),  # with an axis and F: see check_line
     "origin": re.compile(rf"G10\s*L20\s*P[1-6]{_AXES}|G92{_AXES}"),
 }
 _SAID = ("a $N=V setting, $X (unlock), $H (home), a $J= jog with a feed (e.g. $J=G91 X10 F1000), "
@@ -36,6 +35,8 @@ def check_line(text: str) -> tuple[str, str]:
         raise FablineError(f"console: one line of ASCII text expected, got {text!r}")
     line = text.strip().upper()
     kind = next((kind for kind, pattern in _LINES.items() if pattern.fullmatch(line)), None)
+    if kind == "jog" and not (re.search(r"[XYZ]", line[3:]) and "F" in line):
+        kind = None  # Grbl refuses a jog without a target or a feed rate
     if kind is None:
         raise FablineError(f"console: {line!r} is not sent from the console; send {_SAID}")
     return line, kind

@@ -144,6 +144,8 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
 
     async def console(request: Request) -> Response:
         name = request.path_params["name"]
+        if name not in {machine["name"] for machine in queue.machines()}:
+            return JSONResponse({"error": f"no machine named {name!r}"}, status_code=404)
         try:
             body = await request.json()
             if not isinstance(body, dict) or ("line" in body) == ("override" in body):
@@ -160,7 +162,7 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
             return JSONResponse({"error": "expected JSON {\"line\": \"$X\"} (with \"confirm\": true for a $N=V "
                                           "setting) or {\"override\": \"feed +10%\"}"}, status_code=400)
         except FablineError as exc:
-            return JSONResponse({"error": str(exc)}, status_code=409 if "no machine" not in str(exc) else 404)
+            return JSONResponse({"error": str(exc)}, status_code=409)
         deadline = time.monotonic() + console_timeout
         while (done := queue.command(command))["state"] == "pending":
             if time.monotonic() > deadline:
