@@ -45,14 +45,15 @@ def default_machines() -> list[MachineConfig]:
 
 def describe_machine(machine: MachineConfig) -> str:
     """'NAME=PORT (PROFILE: ...)' for the start-up lines: which machine a simulator plays (its profile's laser mode
-    and travel), or that a real controller keeps its own `$` settings (checked against each program's profile)."""
+    and travel), or that a controller on a port keeps its own `$` settings (checked against each program's profile)."""
     import urllib.parse
 
     from fabline.export import load_machine
 
     parts = urllib.parse.urlsplit(machine.port)
     if parts.scheme != "sim":
-        return f"{machine.name}={machine.port} (a real controller: its own $ settings, checked against each program)"
+        return (f"{machine.name}={machine.port} (the controller on that port: its own $ settings, checked against each "
+                "program's profile)")
     options = urllib.parse.parse_qs(parts.query)
     name = options.get("machine", [None])[-1]
     extra = " with its settings= values" if "settings" in options else ""
