@@ -12,6 +12,7 @@ import pytest
 from fabline.jobs import pipeline
 from fabline.jobs.queue import JobQueue
 from fabline.jobs.runner import Runner
+from fabline.link import load_program
 from fabline.model import save_network
 from fabline.model.designs import DESIGNS
 
@@ -66,6 +67,7 @@ def test_a_requeued_unchanged_job_reuses_its_sheets_and_a_changed_input_is_prepa
         _wait_ready(queue, again)
         assert counted == ["_unroll", "_nest", "_export"], "unchanged: nothing unrolled, nested or exported again"
         assert _programs(queue, again) == _programs(queue, first)
+        assert [s.lines for s in queue.sheets(again)] == [len(load_program(s.program).lines) for s in queue.sheets(first)]
         assert all(Path(s.program).is_relative_to(jobs / "runs" / f"job-{again}") for s in queue.sheets(again))
         assert [s.load_facts()["picture"] for s in queue.sheets(again)] == \
             [str(jobs / "runs" / f"job-{again}" / Path(s.svg).relative_to(jobs / "runs" / f"job-{first}"))

@@ -271,13 +271,14 @@ class JobQueue:
             self._event(db, job_id, None, f"job {job_id} {name} submitted ({state}{': ' + error if error else ''})")
         return job_id, True
 
-    def _add_sheets(self, db: sqlite3.Connection, job_id: int, programs: list[tuple]) -> None:
+    def _add_sheets(self, db: sqlite3.Connection, job_id: int, programs: list[tuple],
+                    lines: list[int] | None = None) -> None:
         if not programs:
             raise FablineError(f"job {job_id}: no sheets to cut")
         for k, (name, program, svg, *facts) in enumerate(programs):
             db.execute("INSERT INTO sheets (job_id, k, name, program, svg, facts, lines) VALUES (?, ?, ?, ?, ?, ?, ?)",
                        (job_id, k, name, str(program), svg, json.dumps(facts[0] if facts else {}),
-                        _count_lines(program)))
+                        lines[k] if lines is not None else _count_lines(program)))
         db.execute("UPDATE jobs SET sheets = ? WHERE id = ?", (len(programs), job_id))
 
     def job(self, job_id: int) -> JobRow:
@@ -326,14 +327,14 @@ class JobQueue:
         return self.job(job.id)
 
     def prepared(self, job_id: int, programs: list[tuple], report: str | None,
-                 output: str | None = None) -> None:
+                 output: str | None = None, lines: list[int] | None = None) -> None:
         """A job's sheet programs are made (in its output folder): preparing -> ready (unless it was paused or
-        cancelled meanwhile)."""
+        cancelled meanwhile). `lines`: the programs' command lines when known (reused sheets), else counted."""
         with self.transaction() as db:
             job = self._locked_job(db, job_id)
             if job.state in FINAL_STATES:
                 return
-            self._add_sheets(db, job_id, programs)
+            self._add_sheets(db, job_id, programs, lines)
             if job.state == "paused":
                 db.execute("UPDATE jobs SET paused_from = 'ready', report = ?, output = ? WHERE id = ?",
                            (report, output, job_id))

@@ -174,15 +174,15 @@ class Runner:
                 with exclusive_lock(lock_path(spec.output_folder), f"job folder {spec.output_folder}"):
                     earlier = prepared_output.find(self.runs, key, prefer=spec.output_folder)
                     if earlier is not None:  # the same job file and inputs: its sheets as they were prepared
-                        programs, report = prepared_output.reuse(earlier, spec.output_folder)
+                        programs, report, lines = prepared_output.reuse(earlier, spec.output_folder)
                         queue.log(job.id, None, f"job {job.id}: job file and inputs unchanged since {earlier.name}: "
                                   "its prepared sheets reused")
                     else:
                         result = prepare_job(spec)
                         programs = result.sheet_programs()
                         report = str(result.report_path) if result.report_path else None
-                        prepared_output.record(spec.output_folder, key, programs, report)
-                queue.prepared(job.id, programs, report, str(spec.output_folder))
+                        lines = prepared_output.record(spec.output_folder, key, programs, report)
+                queue.prepared(job.id, programs, report, str(spec.output_folder), lines)
             except FablineError as exc:
                 queue.fail(job.id, str(exc))
             except Exception as exc:  # a bug in a stage must not take the runner down; the job records it
