@@ -46,7 +46,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                   help="TCP port of the web page")
     hidden_alias(serve, web_port, "--port")
     serve.add_argument("--machine", action="append", default=[], metavar="NAME=PORT",
-                       help="a machine and its serial port, repeatable (default: sim1=sim://sim1)")
+                       help="a machine and its serial port, repeatable (default: sim1=sim://sim1?machine=grbl-laser, a simulator "
+                       "set up as the grbl-laser profile's machine: laser mode, 4100 x 2100 mm travel)")
     serve.add_argument("--allow-host", action="append", default=[], metavar="NAME",
                        help="a host name the page may be reached by besides the loopback names and --host, repeatable "
                        "(requests naming any other host are refused)")
@@ -177,29 +178,31 @@ def run_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from fabline.jobs.discovery import page_url, remove_records, write_records
-    from fabline.jobs.runner import MachineConfig, Runner, parse_machine
+    from fabline.jobs.runner import Runner, default_machines, describe_machine, parse_machine
     from fabline.jobs.web import create_app
     from fabline.locks import exclusive_lock
 
     jobs = Path(args.jobs)
     if not jobs.is_dir():
         raise FablineError(f"--jobs {args.jobs}: not a folder")
-    machines = [parse_machine(m) for m in args.machine] or [MachineConfig("sim1", "sim://sim1")]
+    machines = [parse_machine(m) for m in args.machine] or default_machines()
+    described = [describe_machine(m) for m in machines]  # a bad profile name is refused before anything starts
     token = args.token or secrets.token_urlsafe(18)
     hosts = (*args.allow_host, *([args.host] if args.host not in ("0.0.0.0", "::") else []))
     with exclusive_lock(Path(f"{_db(args)}.lock"), f"runner queue {_db(args)}"):  # one runner per queue
         runner = Runner(_db(args), machines, auto_confirm=args.auto_confirm)
         runner.watch_folder(jobs, args.scan)
         runner.start()
-        print(f"fabline runner: {len(machines)} machine(s): {', '.join(f'{m.name}={m.port}' for m in machines)}; "
-              f"queue {_db(args)}", flush=True)
+        print(f"fabline runner: {len(machines)} machine(s); queue {_db(args)}", flush=True)
         print(f"token: {token}", flush=True)
         print(f"open http://{args.host}:{args.web_port}/?token={token}", flush=True)
+        for line in described:
+            print(f"  machine {line}", flush=True)
         records = write_records(_db(args), page_url(args.host, args.web_port), token)
         print(f"found by `fabline runner status` and the other commands through {' and '.join(map(str, records))}",
               flush=True)
         try:
-            uvicorn.Server(uvicorn.Config(create_app(_db(args), token, hosts=hosts), host=args.host, port=args.web_port,
+            uvicorn.Server(uvicorn.Config(create_app(_db(args), token, hosts=hosts, jobs=jobs), host=args.host, port=args.web_port,
                                           log_level="warning")).run()
         finally:
             remove_records(_db(args))

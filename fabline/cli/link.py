@@ -69,6 +69,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="the build's $I option letters (V: a stock build; VN adds Ln: line numbers)")
     sim.add_argument("--planner-blocks", type=positive(int), default=15, help="planner size in blocks")
     sim.add_argument("--rx-buffer", type=positive(int), default=128, help="serial receive buffer, bytes")
+    sim.add_argument("--machine", metavar="NAME",
+                     help="set the controller up as this machine profile (name or .toml): its $N settings, e.g. "
+                     "grbl-laser for the example job's programs (laser mode $32=1, 4100 x 2100 mm travel)")
     sim.add_argument("--setting", action="append", default=[], metavar="N=VALUE",
                      help="a Grbl $N setting other than its default, e.g. --setting 32=1 for laser mode")
     sim.add_argument("--fault", action="append", default=[], metavar="KEY=VALUE",
@@ -171,6 +174,8 @@ def _grbl_sim(args: argparse.Namespace) -> int:
 
     options = {"time_scale": args.time_scale, "line_time": args.line_time, "build_options": args.build_options,
                "planner_blocks": args.planner_blocks, "rx_buffer": args.rx_buffer}
+    if args.machine:
+        options["machine"] = args.machine
     if args.setting:
         options["settings"] = ",".join(setting.replace("=", ":", 1) for setting in args.setting)
     if args.log:

@@ -18,8 +18,10 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from fabline.errors import FablineError
+from fabline.jobs import prepared as prepared_output
 from fabline.jobs.queue import JobQueue, JobRow, SheetRow
 from fabline.jobs.streaming import SheetStream, checkpoint, frame_sheet
+from fabline.link import Streamer
 from fabline.locks import exclusive_lock, lock_path
 
 
@@ -29,6 +31,42 @@ class MachineConfig:
 
     name: str
     port: str
+
+
+DEFAULT_PROFILE = "grbl-laser"
+"""The machine profile a job file names when it names none (`machine.profile`'s default): the runner's default
+simulated machine is set up as that machine, so the example job cuts on it with no setting typed."""
+
+
+def default_machines() -> list[MachineConfig]:
+    """`runner serve` without `--machine`: one simulator set up as the default profile's machine."""
+    return [MachineConfig("sim1", f"sim://sim1?machine={DEFAULT_PROFILE}")]
+
+
+def describe_machine(machine: MachineConfig) -> str:
+    """'NAME=PORT (PROFILE: ...)' for the start-up lines: which machine a simulator plays (its profile's laser mode
+    and travel), or that a controller on a port keeps its own `$` settings (checked against each program's profile)."""
+    import urllib.parse
+
+    from fabline.export import load_machine
+
+    parts = urllib.parse.urlsplit(machine.port)
+    if parts.scheme != "sim":
+        return (f"{machine.name}={machine.port} (the controller on that port: its own $ settings, checked against each "
+                "program's profile)")
+    options = urllib.parse.parse_qs(parts.query)
+    name = options.get("machine", [None])[-1]
+    extra = " with its settings= values" if "settings" in options else ""
+    if name is None:
+        return (f"{machine.name}={machine.port} (no machine profile: a stock Grbl 1.1h{extra}; the stock one is "
+                "laser mode off $32=0, 200 x 200 mm travel)")
+    try:
+        profile = load_machine(name)
+    except FablineError as exc:
+        raise FablineError(f"--machine {machine.name}={machine.port}: {exc}") from None
+    laser = "laser mode $32=1" if profile.laser_mode else "laser mode off $32=0"
+    return (f"{machine.name}={machine.port} (profile {profile.name}: {laser}, "
+            f"{profile.bed_width:g} x {profile.bed_height:g} mm travel{extra})")
 
 
 def parse_machine(text: str) -> MachineConfig:
@@ -92,9 +130,9 @@ class Runner:
                     continue
                 try:
                     spec = load_job_file(path)
-                    queue.submit(spec.name, job_file=str(spec.path))
+                    queue.submit_once(spec.name, job_file=str(spec.path))
                 except FablineError as exc:
-                    queue.submit(path.stem, job_file=str(path.resolve()), error=str(exc))
+                    queue.submit_once(path.stem, job_file=str(path.resolve()), error=str(exc))
             if self._stop.wait(every):
                 break
         queue.close()
@@ -132,9 +170,19 @@ class Runner:
                 continue
             try:
                 spec = replace(load_job_file(job.job_file), output_folder=self.runs / f"job-{job.id}")
+                key = prepared_output.job_key(spec)
                 with exclusive_lock(lock_path(spec.output_folder), f"job folder {spec.output_folder}"):
-                    prepared = prepare_job(spec)
-                queue.prepared(job.id, prepared.sheet_programs(), str(prepared.report_path), str(spec.output_folder))
+                    earlier = prepared_output.find(self.runs, key, prefer=spec.output_folder)
+                    if earlier is not None:  # the same job file and inputs: its sheets as they were prepared
+                        programs, report, lines = prepared_output.reuse(earlier, spec.output_folder)
+                        queue.log(job.id, None, f"job {job.id}: job file and inputs unchanged since {earlier.name}: "
+                                  "its prepared sheets reused")
+                    else:
+                        result = prepare_job(spec)
+                        programs = result.sheet_programs()
+                        report = str(result.report_path) if result.report_path else None
+                        lines = prepared_output.record(spec.output_folder, key, programs, report)
+                queue.prepared(job.id, programs, report, str(spec.output_folder), lines)
             except FablineError as exc:
                 queue.fail(job.id, str(exc))
             except Exception as exc:  # a bug in a stage must not take the runner down; the job records it
@@ -146,6 +194,7 @@ class Runner:
     def _machine_loop(self, machine: MachineConfig) -> None:
         queue = JobQueue(self.db_path)
         while not self._stop.is_set():
+            self._console(queue, machine)
             job = queue.claim_for_machine(machine.name)
             if job is None:
                 queue.set_machine(machine.name, state="idle")
@@ -233,10 +282,32 @@ class Runner:
             queue.set_machine(machine.name, state="idle" if after.state == "done" else
                               f"waiting: load sheet {after.sheet + 1} of {after.sheets}")
         elif stream.cancelled:
-            queue.set_cutting_state(job.id, "cancelled")
+            queue.set_cutting_state(job.id, "cancelled", checkpoint(sheet.program, sheet.journal, "cancelled by the operator"))
             queue.set_machine(machine.name, state="idle")
         else:
             queue.set_machine(machine.name, state="stopped (the operator decides how to go on)")
+
+    def _console(self, queue: JobQueue, machine: MachineConfig, stream: SheetStream | None = None) -> None:
+        """Carry out the operator's console commands for this machine (fabline.jobs.console): through the link
+        stage on a machine that streams nothing; while a sheet streams (`stream`), only real-time overrides,
+        anything else refused. Each command's answer goes into the queue's log."""
+        for command in queue.pending_commands(machine.name):
+            line, override = command["line"], command["override"]
+            if stream is not None and line is not None:
+                queue.finish_command(command["id"], "refused", [
+                    f"{machine.name} is cutting: only feed, rapid and power overrides until the sheet stops"])
+                continue
+            try:
+                if stream is not None:
+                    stream.override(override)
+                    answer = ["sent"]
+                else:
+                    replies = Streamer(machine.port).console([line] if line else [], [override] if override else [])
+                    answer = replies[0][1] if replies else ["sent"]
+            except FablineError as exc:
+                queue.finish_command(command["id"], "failed", [str(exc)])
+            else:
+                queue.finish_command(command["id"], "done", answer)
 
     def _watch_requests(self, job_id: int, stream: SheetStream, machine: MachineConfig) -> None:
         """While a sheet streams: carry out pause, resume and cancel requests; a stopping runner stops the stream
@@ -246,6 +317,7 @@ class Runner:
             if self._stop.is_set():
                 stream.stop()
                 break
+            self._console(queue, machine, stream)
             request = queue.take_request(job_id)
             if request == "pause":
                 stream.pause()

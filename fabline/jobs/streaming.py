@@ -90,6 +90,10 @@ class SheetStream:
         self.cancelled = True
         self.streamer.abort()
 
+    def override(self, name: str) -> None:
+        """A real-time override while the sheet streams ('feed +10%', 'power -10%': `fabline.link.protocol.OVERRIDES`)."""
+        self.streamer.override(name)
+
     def stop(self) -> None:
         """Stop now because the runner stops; the sheet resumes from its journal on the next start."""
         self.streamer.abort()
@@ -173,15 +177,18 @@ def frame_sheet(port: str, program: str | os.PathLike, folder: str | os.PathLike
 
 
 def checkpoint(program: str | os.PathLike, journal: str | os.PathLike | None, reason: str) -> dict:
-    """Where a stopped sheet stands, for the operator: `reason`, lines known executed (`done`) of `lines`, and
-    the `file_line` of the last one, from the run's journal (none written yet: nothing was sent)."""
-    entry: dict = {"reason": reason, "done": 0, "lines": 0, "file_line": None}
+    """Where a stopped sheet stands, for the operator: `reason`, lines known executed (`done`) of `lines` and
+    the `file_line` of the last one, lines acknowledged (`acked`, `acked_file_line`), from the run's journal
+    (none written yet: nothing was sent)."""
+    entry: dict = {"reason": reason, "done": 0, "lines": 0, "file_line": None, "acked": 0, "acked_file_line": None}
     try:
         lines = load_program(program).lines
         entry["lines"] = len(lines)
         if journal and Path(journal).is_file():
-            entry["done"] = read_journal(journal).done
+            state = read_journal(journal)
+            entry["done"], entry["acked"] = state.done, state.acked
             entry["file_line"] = lines[entry["done"] - 1].file_line if entry["done"] else None
+            entry["acked_file_line"] = lines[entry["acked"] - 1].file_line if entry["acked"] else None
     except FablineError as exc:
         entry["reason"] = f"{reason}; {exc}"
     return entry

@@ -44,7 +44,7 @@ from fabline.link.compat import controller_problems, program_machine
 from fabline.link.gcode import ModalState, Vector
 from fabline.link.journal import Journal, JournalError, JournalState, default_journal_path, read_journal
 from fabline.link.program import TAG_CYCLE, Program, line_tag, load_program
-from fabline.link.protocol import (CYCLE_START, FEED_HOLD, SOFT_RESET, STATUS_QUERY, CharacterCounter,
+from fabline.link.protocol import (CYCLE_START, FEED_HOLD, OVERRIDES, SOFT_RESET, STATUS_QUERY, CharacterCounter,
                                    LineSplitter, Response, StatusReport, classify)
 from fabline.locks import exclusive_lock, lock_path
 from fabline.progress import Eta, estimate, simulated_speedup
@@ -141,6 +141,12 @@ def _describe(identity: dict[str, str] | None) -> str:
     return "no named run" if identity is None else "run " + ", ".join(f"{k}={v}" for k, v in sorted(identity.items()))
 
 
+JOG_WAIT = 60.0
+"""Seconds a console line waits for an earlier jog to end (Grbl refuses G-code while it jogs: error:9)."""
+HOMING_WAIT = 120.0
+"""Seconds a console `$H` waits for its ok: Grbl answers when the homing cycle is over."""
+
+
 class Streamer:
     """A GRBL 1.1 host on one port (`/dev/ttyUSB0`, `socket://host:port`, `rfc2217://...`, `sim://grbl`, ...)."""
 
@@ -201,6 +207,56 @@ class Streamer:
     def abort(self) -> None:
         """Stop the job safely (feed hold, then reset); the journal allows a later resume."""
         self._abort.set()
+
+    def override(self, name: str) -> None:
+        """A real-time override while a program streams (`OVERRIDES`: 'feed +10%', 'power -1%', ...): the byte
+        goes out with the next real-time commands."""
+        if name not in OVERRIDES:
+            raise FablineError(f"unknown override {name!r} (use one of: {', '.join(OVERRIDES)})")
+        with self._control:
+            self._realtime.append(OVERRIDES[name])
+
+    def console(self, lines: list[str], realtime: list[str] = ()) -> list[tuple[str, list[str]]]:
+        """An operator's commands to a controller that is not running a program: `realtime` overrides by name,
+        then each line (a `$` setting, `$X`, `$H`, a `$J=` jog, `G10 L20 P1 X0 Y0` ...) sent alone and answered
+        before the next. Returns (line, the controller's answer lines, ending in `ok` or `error:N (meaning)`)
+        per line; an `error` answer does not stop the rest. Refused while the controller runs, jogs or holds."""
+        unknown = [name for name in realtime if name not in OVERRIDES]
+        if unknown:
+            raise FablineError(f"unknown override {unknown[0]!r} (use one of: {', '.join(OVERRIDES)})")
+        device = self.url.split("?", 1)[0]
+        if device.startswith("sim://"):
+            device += f"#{os.getpid()}"
+        with exclusive_lock(lock_path(device), f"port {self.url}"):
+            self._open()
+            try:
+                for name in realtime:
+                    self._write(OVERRIDES[name])
+                state = self._query_status().state if lines else "Idle"
+                deadline = time.monotonic() + JOG_WAIT
+                while state == "Jog" and time.monotonic() < deadline:  # an earlier jog still moving: let it end
+                    time.sleep(0.05)
+                    state = self._query_status().state
+                if state not in ("Idle", "Alarm"):
+                    raise FablineError(f"{self.url}: the controller is {state}; wait until it is idle")
+                return [(line, self._answer(line)) for line in lines]
+            finally:
+                self._close()
+
+    def _answer(self, line: str) -> list[str]:
+        """Send one console line; its feedback lines and the final `ok` or `error:N (meaning)`."""
+        self._write(line.encode("ascii") + b"\n")
+        wait = HOMING_WAIT if line.startswith("$H") else max(self.connect_timeout, 2.0)  # ok comes when homed
+        answer, deadline = [], time.monotonic() + wait
+        while time.monotonic() < deadline:
+            for response in self._read(0.02):
+                if response.kind == "ok":
+                    return answer + ["ok"]
+                if response.kind == "error":
+                    return answer + [explain_error(response.code)]
+                if response.kind != "status":
+                    answer.append(response.text if response.kind != "alarm" else explain_alarm(response.code))
+        raise FablineError(f"{self.url}: no answer to {line!r} within {wait:g} s")
 
     @property
     def paused(self) -> bool:
