@@ -1,7 +1,7 @@
 """First contact (issue 24): `fabline runner serve --jobs jobs/ --web-port N`, started as the README says with no
 `--machine`, makes a simulated machine set up as the example job's profile (grbl-laser: laser mode, a 4 x 2 m bed),
-says so, and cuts a job written for that profile: its first sheet streams instead of being refused for `$32` or
-for travel, as it was on a stock controller."""
+says so, and cuts a job written for that profile to its end: its sheets stream instead of being refused for
+`$32` or for travel, as they were on a stock controller."""
 
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def test_runner_serve_as_the_readme_says_cuts_a_grbl_laser_job_on_its_default_ma
                               env={**os.environ, "XDG_STATE_HOME": str(tmp_path / "state")})
     try:
         lines = [server.stdout.readline() for _ in range(4)]
-        assert lines[3] == "  machine sim1=sim://sim1?machine=grbl-laser (profile grbl-laser: laser mode $32=1, " \
+        assert lines[3] == "  machine sim1=sim://sim1?machine=grbl-laser&time_scale=2000 (profile grbl-laser: laser mode $32=1, " \
                            "4100 x 2100 mm travel)\n", lines
         token = lines[1].removeprefix("token: ").strip()
         client = httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"X-Fabline-Token": token}, timeout=10)
@@ -62,9 +62,15 @@ def test_runner_serve_as_the_readme_says_cuts_a_grbl_laser_job_on_its_default_ma
             assert time.monotonic() < deadline, state
             time.sleep(0.2)
         assert state["state"] == "cutting", state["status"]  # not "needs attention: ... needs $32=1"
-        assert state["sheet_list"][0]["done_lines"] >= 5
         machine = client.get("/api/state").json()["machines"][0]
         assert (machine["name"], machine["state"]) == ("sim1", f"cutting job {state['id']} sheet 1 of {state['sheets']}")
+        while (state := job())["state"] not in ("done", "failed", "cancelled", "attention"):  # to the job's end
+            assert time.monotonic() < deadline, state
+            if state["state"] == "ready":  # the operator loads the next sheet
+                client.post(f"/api/jobs/{state['id']}/confirm")
+            time.sleep(0.2)
+        assert state["state"] == "done", state["status"]
+        assert [s["done_lines"] for s in state["sheet_list"]] == [s["lines"] for s in state["sheet_list"]]
     finally:
         server.send_signal(signal.SIGINT)
         server.communicate(timeout=60)

@@ -46,8 +46,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                   help="TCP port of the web page")
     hidden_alias(serve, web_port, "--port")
     serve.add_argument("--machine", action="append", default=[], metavar="NAME=PORT",
-                       help="a machine and its serial port, repeatable (default: sim1=sim://sim1?machine=grbl-laser, a simulator "
-                       "set up as the grbl-laser profile's machine: laser mode, 4100 x 2100 mm travel)")
+                       help="a machine and its serial port, repeatable (default: sim1=sim://sim1?machine=grbl-laser&time_scale=2000, "
+                       "a simulator set up as the grbl-laser profile's machine: laser mode, 4100 x 2100 mm travel, 2000 times "
+                       "the real speed)")
     serve.add_argument("--allow-host", action="append", default=[], metavar="NAME",
                        help="a host name the page may be reached by besides the loopback names and --host, repeatable "
                        "(requests naming any other host are refused)")

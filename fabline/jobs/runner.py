@@ -38,9 +38,14 @@ DEFAULT_PROFILE = "grbl-laser"
 simulated machine is set up as that machine, so the example job cuts on it with no setting typed."""
 
 
+DEFAULT_TIME_SCALE = 2000
+"""The default simulator runs as many times faster than the real machine as the example job's simulators do, so the
+example job cuts to its end in minutes (the runner reports machine time from the simulator's own clock)."""
+
+
 def default_machines() -> list[MachineConfig]:
     """`runner serve` without `--machine`: one simulator set up as the default profile's machine."""
-    return [MachineConfig("sim1", f"sim://sim1?machine={DEFAULT_PROFILE}")]
+    return [MachineConfig("sim1", f"sim://sim1?machine={DEFAULT_PROFILE}&time_scale={DEFAULT_TIME_SCALE}")]
 
 
 def describe_machine(machine: MachineConfig) -> str:
