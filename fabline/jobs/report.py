@@ -19,6 +19,7 @@ from typing import Any
 from fabline.jobs import report_shop
 from fabline.jobs.pictures import model_svg
 from fabline.units import mm
+from fabline.verdicts import verdict_text
 from fabline.unroll.structure import CHECKS, VERDICT_RULE, percent
 
 REPORT_SCHEMA = "fabline.report/1"
@@ -62,7 +63,7 @@ def report_data(result: Any) -> dict[str, Any]:
         "nesting": ({"sheets": sheets, "summary": result.nesting.summary} if result.nesting else None),
         "machine_time_s": result.export.totals().time if result.export else None,
         "bill_of_materials": report_shop.bill_of_materials(result),
-        "stream": {"sheets": result.stream,
+        "stream": {"sheets": result.stream, "wall_s": getattr(result, "stream_wall_s", None),
                    "lines": sum(s["lines"] for s in result.stream),
                    "executed": sum(s["executed"] for s in result.stream),
                    "finished": bool(result.stream) and all(s["outcome"] == "finished" for s in result.stream)},
@@ -172,8 +173,8 @@ def _survey_section(survey: dict[str, Any] | None) -> str:
     uncertain, k = s.get("uncertain", 0), s.get("k_sigma", 0)
     verdict = "every measured node within tolerance" if not s["failed"] else f"{s['failed']} node(s) out of tolerance"
     parts.append(f"<p>{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
-                 f"{e(verdict)} ({s['passed']} pass, {s['failed']} fail, {uncertain} uncertain against "
-                 f"{survey['tolerance_mm']:g} mm with {k:g} sigma of margin); {s['not_seen']} not seen. "
+                 f"{e(verdict)} ({e(verdict_text(s))}, against {survey['tolerance_mm']:g} mm with {k:g} sigma of "
+                 f"margin). "
                  f"From {e(survey['file'])}.</p>")
     rows = [("nodes measured", f"{s['measured']} of {s['nodes']}"), ("pass (deviation + k sigma within tolerance)", s["passed"]),
             ("fail (deviation - k sigma beyond tolerance)", s["failed"]), ("uncertain", uncertain), ("k (sigma)", f"{k:g}"),
