@@ -18,8 +18,7 @@ from fabline.cli import main
 from fabline.jobs.report_shop import stream_table, summary_block
 from fabline.link import Streamer, load_program
 from fabline.link.protocol_sim import close_simulator, get_simulator
-from fabline.progress import StreamBar, estimate, finish_time
-from fabline.verdicts import verdict_counts, verdict_text
+from fabline.progress import StreamBar, estimate
 
 A = 800.0  # mm/s^2 on X and Y ($120, $121); the max rates ($110, $111) 6000 mm/min, above every feed
 
@@ -101,6 +100,8 @@ def test_the_terminal_bar_shows_the_share_of_planned_time(monkeypatch):
 
 def test_an_eta_beyond_today_carries_its_date():
     """A finish later today is a clock time; one 49 hours on is that day's date and time (as datetime says it)."""
+    from fabline.progress import finish_time
+
     noon = time.mktime((2026, 12, 2, 12, 0, 0, 0, 0, -1))
     assert finish_time(noon + 3600, noon) == "13:00"
     later = noon + 49 * 3600 + 21 * 60
@@ -113,6 +114,7 @@ def test_waiting_for_the_operator_is_not_remaining_work(tmp_path, monkeypatch):
     """A sheet half cut in 100 s, then two hours in "needs attention" and an hour paused: the runner page's remaining
     time is what it was when the waiting began, and the elapsed work after each wait counts only the cutting."""
     from fabline.jobs.queue import JobQueue
+    from fabline.jobs.streaming import program_timeline
     from fabline.jobs.web import Timelines, job_eta
     from runner_support import square_program
 
@@ -138,6 +140,9 @@ def test_waiting_for_the_operator_is_not_remaining_work(tmp_path, monkeypatch):
     queue.sheet_progress(job_id, 0, lines // 2)
     before = eta()
     assert before["sheet"]["elapsed_s"] == 100
+    plan = program_timeline(program)
+    assert before["sheet"]["fraction"] == pytest.approx(plan[lines // 2 - 1] / plan[-1], abs=1e-4)  # the page's bar
+    assert before["sheet"]["fraction"] != pytest.approx(0.5, abs=0.05)  # not the share of lines
     queue.need_attention(job_id, {"reason": "link failed", "done": lines // 2, "lines": lines, "file_line": 9})
     clock[0] += 7200.0
     waiting = eta()
@@ -218,7 +223,6 @@ def test_resume_after_a_finished_run_cuts_nothing_and_reports_no_time(tmp_path, 
     assert main(["run", str(job)]) == 0
     first = capsys.readouterr().out
     count = len(json.loads((tmp_path / "out" / "report.json").read_text())["nesting"]["sheets"])
-    assert re.search(r"machine time \(summed over the machines\) planned \d+:\d\d:\d\d, taken \d+:\d\d:\d\d", first)
     assert main(["run", str(job), "--resume"]) == 0
     again = capsys.readouterr().out
     assert f"stream: nothing left to cut: all {count} sheets finished in an earlier run" in again
@@ -230,9 +234,12 @@ def test_resume_after_a_finished_run_cuts_nothing_and_reports_no_time(tmp_path, 
     table = html[html.index("<table id=stream>"):html.index("</table>", html.index("<table id=stream>"))]
     assert table.count("finished in an earlier run") == count
     assert f"{count} of {count} sheets finished ({count} in an earlier run)" in html
+    assert re.search(r"machine time \(summed over the machines\) planned \d+:\d\d:\d\d, taken \d+:\d\d:\d\d", first)
 
 
 def test_the_survey_summary_gives_all_four_counts_adding_up_to_the_nodes():
+    from fabline.verdicts import verdict_counts, verdict_text
+
     summary = {"nodes": 440, "measured": 428, "passed": 369, "failed": 17, "uncertain": 42, "not_seen": 12}
     counts = verdict_counts(summary)
     assert sum(counts.values()) == summary["nodes"]
