@@ -269,3 +269,36 @@ def test_the_deviation_map_title_prints_mm_to_a_tenth(tmp_path, monkeypatch):
     title = next(text for text in texts if "RMS" in text)
     assert "RMS 10.5 mm" in title and "max 21.0 mm" in title and "10.4966" not in title, title
     assert cv2 is measure.cv2
+
+
+def test_a_program_paused_for_the_operator_keeps_its_remaining_time_and_takes_no_machine_time(tmp_path):
+    """An M0 halfway: while the machine stands held for the operator, every progress report keeps the elapsed and
+    remaining time it had (waiting is not work); the run's machine time by the simulator's clock is the motion's
+    alone, and the time held is told apart."""
+    import threading
+
+    path = tmp_path / "pause.gcode"
+    path.write_text("G21\nG90\nG1 X100 F600\nM0\nG1 X0\n", encoding="ascii")
+    url = "sim://held-clock?time_scale=50&settings=120:800,121:800,110:6000,111:6000"
+    reports, results = [], []
+    streamer = Streamer(url, status_interval=0.02)
+    worker = threading.Thread(target=lambda: results.append(streamer.run(path, on_progress=reports.append)))
+    worker.start()
+    try:
+        deadline = time.monotonic() + 60
+        while not any(r.message for r in reports) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        time.sleep(0.3)
+        first = len(reports)
+        time.sleep(1.5)
+        held = [r for r in reports[first:] if r.message]
+        streamer.resume()
+        worker.join(60)
+    finally:
+        close_simulator("held-clock")
+    assert len(held) >= 5
+    assert max(r.elapsed for r in held) - min(r.elapsed for r in held) < 0.05
+    assert max(r.remaining for r in held) - min(r.remaining for r in held) < 0.05
+    result = results[0]
+    assert result.completed and result.held >= 1.8
+    assert result.machine == pytest.approx(2 * (100 / 10 + 10 / A), rel=1e-6)
