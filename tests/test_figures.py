@@ -302,3 +302,16 @@ def test_a_program_paused_for_the_operator_keeps_its_remaining_time_and_takes_no
     result = results[0]
     assert result.completed and result.held >= 1.8
     assert result.machine == pytest.approx(2 * (100 / 10 + 10 / A), rel=1e-6)
+
+
+def test_the_report_does_not_call_a_survey_with_uncertain_nodes_all_within_tolerance():
+    from fabline.jobs.report import _survey_section
+
+    summary = {"nodes": 440, "measured": 428, "passed": 386, "failed": 0, "uncertain": 42, "not_seen": 12,
+               "k_sigma": 2.0, "photos": 40, "photos_used": 40, "rms_deviation_mm": 4.04, "max_deviation_mm": 9.96,
+               "worst": ["N1-1"], "reprojection_rms_px": 0.3}
+    survey = {"summary": summary, "tolerance_mm": 10.0, "deviation_map": None, "file": "survey.json", "scale": None,
+              "reference": "all", "registration_rms_mm": 4.0, "truth": None, "not_seen": {}, "problems": []}
+    text = _survey_section(survey)
+    assert "every measured node within tolerance" not in text
+    assert "none out of tolerance, 42 too close to tell (386 pass, 0 fail, 42 uncertain, 12 not seen of 440 nodes" in text

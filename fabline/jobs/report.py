@@ -171,7 +171,9 @@ def _survey_section(survey: dict[str, Any] | None) -> str:
                      f"and named, uncertain nodes ringed orange, unmeasured nodes hollow."
                      "</figcaption></figure>")
     uncertain, k = s.get("uncertain", 0), s.get("k_sigma", 0)
-    verdict = "every measured node within tolerance" if not s["failed"] else f"{s['failed']} node(s) out of tolerance"
+    verdict = (f"{s['failed']} node(s) out of tolerance" if s["failed"] else
+               f"none out of tolerance, {uncertain} too close to tell" if uncertain else
+               "every measured node within tolerance")
     parts.append(f"<p>{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
                  f"{e(verdict)} ({e(verdict_text(s))}, against {survey['tolerance_mm']:g} mm with {k:g} sigma of "
                  f"margin). "
