@@ -234,6 +234,8 @@ def test_resume_after_a_finished_run_cuts_nothing_and_reports_no_time(tmp_path, 
     table = html[html.index("<table id=stream>"):html.index("</table>", html.index("<table id=stream>"))]
     assert table.count("finished in an earlier run") == count
     assert f"{count} of {count} sheets finished ({count} in an earlier run)" in html
+    for sheet in data["nesting"]["sheets"]:  # lengths at the README's precision: m to the millimetre
+        assert f"cut {sheet['cut_length_mm'] / 1000:.3f} m, planned machine time" in html
     assert re.search(r"machine time \(summed over the machines\) planned \d+:\d\d:\d\d, taken \d+:\d\d:\d\d", first)
 
 

@@ -18,7 +18,7 @@ from typing import Any
 
 from fabline.jobs import report_shop
 from fabline.jobs.pictures import model_svg
-from fabline.units import mm
+from fabline.units import metres, mm
 from fabline.verdicts import verdict_text
 from fabline.unroll.structure import CHECKS, VERDICT_RULE, percent
 
@@ -89,7 +89,7 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
                      f"{report_shop.zoomable(svg, 'sheet-' + entry['id'])}"
                      f"<figcaption>Sheet {e(entry['id'])}: {entry['width_mm']:g} x {entry['height_mm']:g} mm, "
                      f"{len(entry['parts'])} parts"
-                     + (f", cut {entry['cut_length_mm'] / 1000:.1f} m, machine time {report_shop.duration(entry['time_s'])}"
+                     + (f", cut {metres(entry['cut_length_mm'])} m, planned machine time {report_shop.duration(entry['time_s'])}"
                         if "cut_length_mm" in entry else "") + " (click to zoom)</figcaption></figure>"
                      + report_shop.preview_figure(entry))
     parts.append("</div>")
