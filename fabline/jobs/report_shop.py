@@ -185,7 +185,8 @@ def stream_table(stream: dict[str, Any], estimates: dict[str, float]) -> str:
     taken_total = sum(taken for _, taken, _, _ in machines.values()) if machines and known else None
     planned_total = sum(s.get("planned_s", estimates.get(s["sheet"])) or 0.0 for s in stream["sheets"])
     wall = stream.get("wall_s")
-    rows.append(f"<tr class=total><th>job</th><td>{f"{len(machines)} machine(s)" if machines else ""}</td><td>{stream['lines']}</td>"
+    counted = f"{len(machines)} machine(s)" if machines else ""
+    rows.append(f"<tr class=total><th>job</th><td>{counted}</td><td>{stream['lines']}</td>"
                 f"<td>{stream['executed']}</td><td></td>{cell(taken_total)}{cell(planned_total)}"
                 f"{cell(left_total if left_total else None)}<td>{_wall(wall)}</td></tr>")
     earlier = sum(bool(s.get("earlier")) for s in stream["sheets"])
