@@ -9,6 +9,7 @@ from pathlib import Path
 from fabline.cli import hidden_alias
 from fabline.cli.units import length_mm
 from fabline.units import mm, parse_length
+from fabline.verdicts import verdict_text
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
 
@@ -246,7 +247,6 @@ def _measure(args: argparse.Namespace) -> int:
     s = record["summary"]
     print(f"{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
           f"RMS deviation {mm(s['rms_deviation_mm'])} mm, max {mm(s['max_deviation_mm'])} mm; at {record['tolerance_mm']:g} mm "
-          f"({s['k_sigma']:g} sigma) {s['passed']} pass, {s['failed']} fail, {s['uncertain']} uncertain; "
-          f"{s['not_seen']} not measured; {s['tags_found_where_predicted']} tag view(s) "
+          f"({s['k_sigma']:g} sigma) {verdict_text(s)}; {s['tags_found_where_predicted']} tag view(s) "
           f"found where the reconstruction predicted them -> {Path(args.output) / 'survey.json'}")
     return 0

@@ -22,6 +22,7 @@ from fabline.jobs.jobfile import JobSpec, load_job_file, nest_options, toolpath_
 from fabline.jobs.report_shop import machine_seconds
 from fabline.progress import Eta, StreamBar, above_bars, estimate, simulated_speedup
 from fabline.units import duration, mm
+from fabline.verdicts import verdict_text
 
 if TYPE_CHECKING:  # the model stage pulls in scipy; the runner imports this package and must start fast
     from fabline.model import Network
@@ -41,6 +42,7 @@ class JobResult:
     export: Any = None
     sheet_files: list[dict] = field(default_factory=list)
     stream: list[dict] = field(default_factory=list)
+    stream_wall_s: float | None = None  # the stream stage's wall time: the machines cut in parallel, never summed
     survey: dict | None = None  # the report's survey entry (fabline.jobs.survey_stage.survey_entry)
     timings: dict[str, float] = field(default_factory=dict)
     report_path: Path | None = None
@@ -232,8 +234,8 @@ def _survey(result: JobResult, say: Say) -> None:
     summary, truth = result.survey["summary"], result.survey["truth"]
     say(f"survey: {summary['measured']} of {summary['nodes']} nodes measured in {result.survey['simulated']['measure_s']:.1f} s: "
         f"RMS deviation {mm(summary['rms_deviation_mm'])} mm, max {mm(summary['max_deviation_mm'])} mm; at "
-        f"{result.survey['tolerance_mm']:g} mm {summary['passed']} pass, {summary['failed']} fail, "
-        f"{summary['uncertain']} uncertain; against the injected truth RMS error {truth['rms_error_mm']:.2f} mm "
+        f"{result.survey['tolerance_mm']:g} mm {verdict_text(summary)}; against the injected truth RMS error "
+        f"{mm(truth['rms_error_mm'])} mm "
         f"-> {folder / 'survey.json'}")
 
 
@@ -283,7 +285,8 @@ class _JobClock:
         self.running: dict[int, Eta | None] = {}
 
     def eta(self) -> Eta:
-        """The whole job: elapsed wall time, remaining by the pace of the work done so far."""
+        """The whole job: elapsed wall time, remaining by the pace of the work done so far (time a machine stood
+        held for the operator is not work: the finished sheets count their wall time less it)."""
         done = sum(self.planned[k] for k in self.finished)
         worked = sum(self.finished.values())
         for k, eta in self.running.items():
@@ -303,15 +306,30 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
 
     from fabline.jobs.streaming import STOP_SIGNALS, journal_summary, stream_in_process
 
+    from fabline.jobs.streaming import finished_earlier
+    from fabline.link import load_program
+
     sheets = list(enumerate(result.sheet_files))
     count = len(sheets)
     entries: dict[int, dict] = {}
+    ports = machine_ports(result.spec)
+    if resume:  # a sheet an earlier run finished is not cut again: no link process, no time of this run
+        for k, sheet in list(sheets):
+            if finished_earlier(sheet["gcode"]):
+                sheets.remove((k, sheet))
+                lines = len(load_program(sheet["gcode"]).lines)
+                entries[k] = {"sheet": sheet["sheet"], "program": sheet["gcode"], "outcome": "finished", "earlier": True,
+                              "port": "", "lines": lines, "executed": lines, "seconds": None, "resumed_from": lines}
+        if not sheets:
+            result.stream = [entries[k] for k in sorted(entries)]
+            say(f"stream: nothing left to cut: all {count} sheets finished in an earlier run")
+            return
     errors: list[FablineError] = []
     running: set = set()
     lock = threading.Lock()
     context = multiprocessing.get_context("spawn")  # no fork of a process that runs threads
-    ports = machine_ports(result.spec)
-    clock = _JobClock([sheet.get("time_s", 0.0) / simulated_speedup(ports[0]) for sheet in result.sheet_files], len(ports))
+    clock = _JobClock([0.0 if k in entries else sheet.get("time_s", 0.0) / simulated_speedup(ports[0])
+                       for k, sheet in enumerate(result.sheet_files)], len(ports))
     job_bar = StreamBar("job", position=0, unit="sheet")
     say = above_bars(say)
     bars = {port: StreamBar(port.split("?", 1)[0], position=slot + 1, leave=False) for slot, port in enumerate(ports)}
@@ -373,13 +391,12 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
                      "seconds": round(time.perf_counter() - started, 3), **summary}
             with lock:
                 entries[k] = entry
-                clock.finished[k] = entry["seconds"]
+                clock.finished[k] = max(entry["seconds"] - entry.get("held_s", 0.0), 0.0)
                 if outcome != "finished":
                     errors.append(FablineError(f"stream: sheet {sheet['sheet']} on {shown}: {outcome}"))
                 job_bar.show(len(clock.finished), count, clock.eta())
-            planned = f" (planned {clock.planned[k]:.1f} s)" if clock.planned[k] else ""
             say(f"stream: sheet {k + 1} of {count} ({sheet['sheet']}) on {shown}: {entry['executed']} of {entry['lines']} lines "
-                f"{outcome} in {entry['seconds']:.1f} s{planned}; {job_eta_text()}")
+                f"{outcome}{_sheet_times(entry)}; {job_eta_text()}")
 
     threads = [threading.Thread(target=machine, args=(port,), daemon=True) for port in ports]
     for thread in threads:
@@ -400,8 +417,36 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
         for bar in (*bars.values(), job_bar):
             bar.close()
     result.stream = [entries[k] for k in sorted(entries)]
-    planned = sum(s.get("planned_s", 0.0) for s in result.stream)
-    say(f"stream: {len(result.stream)} sheet(s) on {len(ports)} machine(s) in {clock.eta().elapsed:.1f} s; machine time "
-        f"planned {duration(planned)}, taken {duration(sum(machine_seconds(s) for s in result.stream))}")
+    result.stream_wall_s = round(clock.eta().elapsed, 3)
+    say(stream_summary(result.stream, len(ports), result.stream_wall_s))
     if errors:
         raise errors[0]
+
+
+def _sheet_times(entry: dict) -> str:
+    """` in 0:10:12 machine time (planned 0:10:00 for these lines), 1.3 s wall`: the machine's own clock against the
+    planner's time for the lines this run cut; what is not known is left out."""
+    taken = machine_seconds(entry)
+    planned = (entry["planned_done_s"] - entry.get("planned_before_s", 0.0)) if "planned_done_s" in entry else None
+    parts = [f" in {duration(taken)} machine time" if taken is not None else ""]
+    parts.append(f" (planned {duration(planned)})" if planned is not None and taken is not None else "")
+    parts.append(f", {entry['seconds']:.1f} s wall" if entry.get("seconds") is not None else "")
+    return "".join(parts)
+
+
+def stream_summary(stream: list[dict], machines: int, wall: float) -> str:
+    """The stream stage in one line: sheets cut in this run on how many machines in how much wall time (the
+    machines run in parallel: one wall time for all), the machine time the planner planned for the lines cut and
+    the machine time taken (summed over the machines, each by its own clock), and the sheets an earlier run
+    finished."""
+    cut = [s for s in stream if not s.get("earlier")]
+    earlier = len(stream) - len(cut)
+    timed = [s for s in cut if machine_seconds(s) is not None and "planned_done_s" in s]
+    text = f"stream: {len(cut)} sheet(s) on {machines} machine(s) in {wall:.1f} s"
+    if timed:
+        planned = sum(s["planned_done_s"] - s.get("planned_before_s", 0.0) for s in timed)
+        text += (f"; machine time (summed over the machines) planned {duration(planned)}, "
+                 f"taken {duration(sum(machine_seconds(s) for s in timed))}")
+    if earlier:
+        text += f"; {earlier} sheet(s) finished in an earlier run"
+    return text

@@ -82,6 +82,8 @@ CREATE TABLE IF NOT EXISTS sheets (
     resume INTEGER NOT NULL DEFAULT 0,
     from_line INTEGER,
     skipped INTEGER NOT NULL DEFAULT 0,
+    waited REAL NOT NULL DEFAULT 0,
+    waiting_since REAL,
     PRIMARY KEY (job_id, k)
 );
 CREATE TABLE IF NOT EXISTS machines (
@@ -133,6 +135,13 @@ class SheetRow:
     from_line: int | None = None
     skipped: int = 0
     facts: str = "{}"
+    waited: float = 0.0
+    """Seconds the sheet, under way, stood waiting (paused, needs attention): not work, so no ETA counts it."""
+    waiting_since: float | None = None
+
+    def waiting(self, now: float) -> float:
+        """Seconds this sheet has stood waiting by `now` (a wait in progress included)."""
+        return self.waited + (now - self.waiting_since if self.waiting_since is not None else 0.0)
 
     def load_facts(self) -> dict[str, Any]:
         """The sheet's facts for the load prompt (JSON in the database)."""
@@ -307,6 +316,12 @@ class JobQueue:
             raise FablineError(f"job {job.id}: cannot go from {job.state} to {state}")
         fields = {"state": state, "updated": time.time(), **fields}
         db.execute(f"UPDATE jobs SET {', '.join(f'{k} = ?' for k in fields)} WHERE id = ?", (*fields.values(), job.id))
+        if state in ("paused", "attention"):  # a sheet under way starts waiting for the operator
+            db.execute("UPDATE sheets SET waiting_since = ? WHERE job_id = ? AND k = ? AND started IS NOT NULL "
+                       "AND finished IS NULL AND waiting_since IS NULL", (fields["updated"], job.id, job.sheet))
+        else:  # ... and stops waiting when the job moves on (the wait is kept apart from the work)
+            db.execute("UPDATE sheets SET waited = waited + (? - waiting_since), waiting_since = NULL "
+                       "WHERE job_id = ? AND waiting_since IS NOT NULL", (fields["updated"], job.id))
 
     def _locked_job(self, db: sqlite3.Connection, job_id: int) -> JobRow:
         row = db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone()

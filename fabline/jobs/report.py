@@ -20,7 +20,8 @@ from typing import Any
 from fabline.jobs import report_shop
 from fabline.jobs.pictures import model_svg
 from fabline.model.extent import plan_extent_m, extent_text
-from fabline.units import mm
+from fabline.units import metres, mm
+from fabline.verdicts import verdict_text
 from fabline.unroll.structure import CHECKS, VERDICT_RULE, percent, verdict_lines
 
 REPORT_SCHEMA = "fabline.report/1"
@@ -71,7 +72,7 @@ def report_data(result: Any) -> dict[str, Any]:
         "nesting": ({"sheets": sheets, "summary": result.nesting.summary} if result.nesting else None),
         "machine_time_s": result.export.totals().time if result.export else None,
         "bill_of_materials": report_shop.bill_of_materials(result),
-        "stream": {"sheets": result.stream,
+        "stream": {"sheets": result.stream, "wall_s": getattr(result, "stream_wall_s", None),
                    "lines": sum(s["lines"] for s in result.stream),
                    "executed": sum(s["executed"] for s in result.stream),
                    "finished": bool(result.stream) and all(s["outcome"] == "finished" for s in result.stream)},
@@ -99,7 +100,7 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
                      f"{report_shop.zoomable(svg, 'sheet-' + entry['id'])}"
                      f"<figcaption>Sheet {e(entry['id'])}: {entry['width_mm']:g} x {entry['height_mm']:g} mm, "
                      f"{len(entry['parts'])} parts"
-                     + (f", cut {entry['cut_length_mm'] / 1000:.1f} m, machine time {report_shop.duration(entry['time_s'])}"
+                     + (f", cut {metres(entry['cut_length_mm'])} m, planned machine time {report_shop.duration(entry['time_s'])}"
                         if "cut_length_mm" in entry else "") + " (click to zoom)</figcaption></figure>"
                      + report_shop.preview_figure(entry, folder))
     parts.append("</div>")
@@ -183,10 +184,12 @@ def _survey_section(survey: dict[str, Any] | None, folder: Path) -> str:
                      f"and named, uncertain nodes ringed orange, unmeasured nodes hollow."
                      "</figcaption></figure>")
     uncertain, k = s.get("uncertain", 0), s.get("k_sigma", 0)
-    verdict = "every measured node within tolerance" if not s["failed"] else f"{s['failed']} node(s) out of tolerance"
+    verdict = (f"{s['failed']} node(s) out of tolerance" if s["failed"] else
+               f"none out of tolerance, {uncertain} too close to tell" if uncertain else
+               "every measured node within tolerance")
     parts.append(f"<p>{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
-                 f"{e(verdict)} ({s['passed']} pass, {s['failed']} fail, {uncertain} uncertain against "
-                 f"{survey['tolerance_mm']:g} mm with {k:g} sigma of margin); {s['not_seen']} not seen. "
+                 f"{e(verdict)} ({e(verdict_text(s))}, against {survey['tolerance_mm']:g} mm with {k:g} sigma of "
+                 f"margin). "
                  f"From {e(survey['file'])}.</p>")
     rows = [("nodes measured", f"{s['measured']} of {s['nodes']}"), ("pass (deviation + k sigma within tolerance)", s["passed"]),
             ("fail (deviation - k sigma beyond tolerance)", s["failed"]), ("uncertain", uncertain), ("k (sigma)", f"{k:g}"),

@@ -46,6 +46,9 @@ class SheetStream:
         self.executed = 0
         self.total = 0
         self.resumed_from: int | None = None
+        self.earlier = False
+        """The journal says an earlier run finished the sheet: nothing was sent in this run."""
+        self.result = None
         self.eta: Eta | None = None
         """The last progress report's time: elapsed, remaining, the planned seconds (see `fabline.progress`)."""
 
@@ -58,7 +61,7 @@ class SheetStream:
         self.total = len(program.lines)
         previous = read_journal(self.journal_path) if self.resume_journal and self.journal_path.is_file() else None
         if previous is not None and previous.sha256 == program.sha256 and previous.finished:
-            self.executed = self.total
+            self.executed, self.earlier = self.total, True
             self.on_progress(self.total, None, None)
             return "finished"
         resume = previous is not None
@@ -73,7 +76,7 @@ class SheetStream:
 
         result = self.streamer.run(program, on_progress=progress, journal=self.journal_path, resume=resume,
                                    start_line=self.from_line, restart=not resume, identity=self.identity)
-        self.executed = result.executed
+        self.executed, self.result = result.executed, result
         self.on_progress(result.executed, None, None)
         return "finished" if result.completed else "aborted"
 
@@ -99,14 +102,22 @@ class SheetStream:
         self.streamer.abort()
 
     def summary(self) -> dict:
-        """The streaming log's figures for the report."""
+        """The streaming log's figures for the report: lines, and in machine seconds the planner's time for the program
+        (`planned_s`), for the lines done (`planned_done_s`) and for those done before this run (`planned_before_s`),
+        and `machine_s`, the machine time this run took by the controller's clock (see `StreamResult.machine`).
+        `earlier`: an earlier run had finished the sheet, so this one sent nothing and took no time."""
         summary = {"port": self.port, "lines": self.total, "executed": self.executed, "journal": str(self.journal_path),
-                   "resumed_from": self.resumed_from}
+                   "resumed_from": self.resumed_from, "earlier": self.earlier}
+        if self.result is not None and self.result.machine is not None:
+            summary.update(machine_s=round(self.result.machine, 1), held_s=round(self.result.held, 1))
         timeline = self.streamer.timeline() if getattr(self.streamer, "blocks", None) is not None else None
         if timeline is not None and len(timeline):  # machine seconds (a simulator's time scale undone)
             speedup = simulated_speedup(self.port)
-            done = float(timeline[self.executed - 1]) if self.executed else 0.0
-            summary.update(planned_s=round(float(timeline[-1]) * speedup, 1), planned_done_s=round(done * speedup, 1))
+
+            def at(count: int) -> float:
+                return round(float(timeline[count - 1]) * speedup, 1) if count else 0.0
+            summary.update(planned_s=at(len(timeline)), planned_done_s=at(self.executed),
+                           planned_before_s=at(self.resumed_from or 0))
         return summary
 
 
@@ -141,6 +152,18 @@ def stream_in_process(port: str, program: str, resume: bool, identity: dict[str,
     except FablineError as exc:
         outcome = f"stopped: {exc}"
     connection.send(("result", outcome, stream.summary()))
+
+
+def finished_earlier(program: str | os.PathLike) -> bool:
+    """Whether the journal beside `program` says an earlier run of this very program finished it."""
+    journal = default_journal_path(Path(program))
+    if not journal.is_file():
+        return False
+    try:
+        state = read_journal(journal)
+        return state.finished and state.sha256 == load_program(program).sha256
+    except FablineError:
+        return False
 
 
 def journal_summary(port: str, program: str | os.PathLike) -> dict:

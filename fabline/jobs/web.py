@@ -34,7 +34,7 @@ from fabline.jobs.console import check_line, check_override
 from fabline.jobs.jobfile import load_job_file
 from fabline.jobs.pictures import progress_svg
 from fabline.jobs.queue import JobQueue
-from fabline.progress import Eta, estimate, simulated_speedup
+from fabline.progress import Eta, estimate, finish_time, simulated_speedup
 
 TOKEN_HEADER = "X-Fabline-Token"
 ACTIONS = ("confirm", "pause", "resume", "cancel", "restart", "skip", "requeue", "frame")
@@ -275,7 +275,9 @@ def job_eta(queue: JobQueue, job: dict, machines: list[dict], timelines: Timelin
     """Elapsed and remaining time of a job's current sheet and of the whole job, from the planned time of the lines
     done and to do corrected by the pace so far (`fabline.progress.estimate`), in seconds on the job's machine
     (a simulator's time scale applied), with `finish_at` the estimated end (Unix time); None until every sheet's
-    plan is known or when the job is not under way."""
+    plan is known or when the job is not under way. Time a sheet stood waiting for the operator (paused, needs
+    attention) is not counted as work, so waiting does not make the remaining time grow; `fraction` is the share of
+    the planned machine time done, what the page's bar shows."""
     if job["state"] in ("queued", "preparing", "failed", "cancelled") or not job["sheet_list"]:
         return None
     rows = queue.sheets(job["id"])
@@ -290,7 +292,7 @@ def job_eta(queue: JobQueue, job: dict, machines: list[dict], timelines: Timelin
     for row, plan in zip(rows, plans):
         total = float(plan[-1]) / speedup
         done = float(plan[min(row.done_lines, len(plan)) - 1]) / speedup if row.done_lines else 0.0
-        elapsed = ((row.finished or now) - row.started) if row.started else 0.0
+        elapsed = max((row.finished or now) - row.started - row.waiting(now), 0.0) if row.started else 0.0
         if row.skipped:
             continue
         planned_total, planned_done, worked = planned_total + total, planned_done + done, worked + elapsed
@@ -303,9 +305,12 @@ def job_eta(queue: JobQueue, job: dict, machines: list[dict], timelines: Timelin
 
 
 def _eta_dict(eta: Eta, now: float) -> dict:
-    """Whole seconds, so the live page's snapshot changes once a second, not on every poll."""
+    """Whole seconds, so the live page's snapshot changes once a second, not on every poll; `finish` is the end as
+    a clock reads it (with its date when that is not today)."""
     return {"elapsed_s": round(eta.elapsed), "remaining_s": round(eta.remaining), "planned_s": round(eta.planned),
-            "pace": round(eta.pace, 2), "finish_at": round(now + eta.remaining)}
+            "pace": round(eta.pace, 2), "finish_at": round(now + eta.remaining),
+            "finish": finish_time(round(now + eta.remaining), now),
+            "fraction": round(eta.fraction, 4) if eta.fraction is not None else None}
 
 
 _PORTS_TTL = 5.0

@@ -117,6 +117,12 @@ class Serial(SerialBase):
         if self._simulator.connection != self._connection or not self._simulator._connected:
             raise SerialException("device disconnected (connection to the simulator was dropped)")
 
+    @property
+    def machine_time(self) -> float:
+        """The controller's own clock: seconds of machine time its planner has run (moving or dwelling) since it was
+        made, whatever wall time the process took. A side channel of the simulated port, not part of the protocol."""
+        return self._simulator.machine_time
+
     def _reconfigure_port(self, *args, **kwargs) -> None:
         """Nothing to configure on a simulated line."""
 

@@ -66,7 +66,8 @@ _MOTION_WORD = re.compile(r"G0*[0-3](?![0-9.])")
 
 @dataclass(frozen=True)
 class Progress:
-    """What a progress callback receives: lines acknowledged of total, machine state and work position, times in s."""
+    """What a progress callback receives: lines acknowledged of total, `percent` of the program's planned machine time
+    done (not of its lines: one long cut can be most of a sheet), machine state and work position, times in s."""
 
     acked: int
     total: int
@@ -79,7 +80,8 @@ class Progress:
     message: str | None = None
     """Set while the program waits for the operator: `program paused (M0) at file line N: resume to continue`."""
     eta: Eta | None = None
-    """Elapsed and remaining time from the planner's machine time per line, corrected by the pace made so far."""
+    """Elapsed and remaining time from the planner's machine time per line, corrected by the pace made so far; the
+    elapsed time leaves out the time held waiting for the operator, so waiting is not counted as work to come."""
 
 
 @dataclass(frozen=True)
@@ -92,6 +94,11 @@ class StreamResult:
     reason: str | None
     elapsed: float
     bytes_sent: int
+    machine: float | None = None
+    """Machine time of this run: the controller's own clock where the port has one (a simulator's `machine_time`),
+    else the wall time less the time held (a pause, an M0 waiting for the operator)."""
+    held: float = 0.0
+    """Wall seconds the machine stood held, waiting for the operator."""
 
 
 class StreamInterrupted(FablineError):
@@ -189,6 +196,9 @@ class Streamer:
         self._pauses: list[int] = []  # acknowledged M0 lines whose pause has not been reported yet
         self.message: str | None = None
         self._timeline, self._timeline_for = None, None
+        self.started = time.monotonic()
+        self.held, self._held_since = 0.0, None  # wall seconds held waiting for the operator in this run
+        self._machine_start = 0.0
 
     # ----- control from any thread -----------------------------------------------------------------
     def pause(self) -> None:
@@ -196,6 +206,8 @@ class Streamer:
         with self._control:
             self._realtime.append(FEED_HOLD)
             self._paused = True
+            if self._held_since is None:
+                self._held_since = time.monotonic()
 
     def resume(self) -> None:
         """Cycle start after a pause."""
@@ -203,6 +215,9 @@ class Streamer:
             self._realtime.append(CYCLE_START)
             self._paused = False
             self.message = None
+            if self._held_since is not None:
+                self.held += time.monotonic() - self._held_since
+                self._held_since = None
 
     def abort(self) -> None:
         """Stop the job safely (feed hold, then reset); the journal allows a later resume."""
@@ -396,6 +411,9 @@ class Streamer:
         preamble = self._preamble(executed) if previous is not None else []
         self.acked = self.done = self.sent = self.first_index = executed
         self.started = time.monotonic()  # elapsed counts streaming, not the handshake
+        with self._control:
+            self.held, self._held_since = 0.0, (self.started if self._paused else None)
+        self._machine_start = self._machine_clock()
         while True:
             try:
                 return self._stream(preamble)
@@ -479,7 +497,8 @@ class Streamer:
                 self.journal.record("finished")
                 self.journal.commit()
                 self._report()
-                return StreamResult(True, self.done, len(lines), None, time.monotonic() - self.started, self.bytes_sent)
+                return StreamResult(True, self.done, len(lines), None, time.monotonic() - self.started, self.bytes_sent,
+                                    self._machine_elapsed(), self._held_now())
             if time.monotonic() >= next_report:
                 self._report()
                 next_report = time.monotonic() + 0.1
@@ -538,6 +557,8 @@ class Streamer:
         with self._control:
             self._paused = True
             self.message = f"program paused (M0) at file line {line}: resume to continue"
+            if self._held_since is None:
+                self._held_since = time.monotonic()
         self.journal.record("paused", line=line)
         self._exchange("#", self.message)
         self._report()
@@ -569,7 +590,7 @@ class Streamer:
         self.journal.commit()
         self._report()
         return StreamResult(False, executed, len(self.program.lines), "aborted", time.monotonic() - self.started,
-                            self.bytes_sent)
+                            self.bytes_sent, self._machine_elapsed(), self._held_now())
 
     def _stop_unrecorded(self, failure: JournalError) -> None:
         """The journal cannot be written: stop the machine so that no line runs unrecorded, and name the line to
@@ -1081,19 +1102,40 @@ class Streamer:
             self._exchange("#", f"unlocked after {explain_alarm(alarm) if alarm else 'alarm'}")
 
     # ----- reporting ----------------------------------------------------------------------------------
+    def _held_now(self) -> float:
+        """Wall seconds held waiting for the operator so far in this run, a hold in progress included."""
+        with self._control:
+            since = self._held_since
+            return self.held + (time.monotonic() - since if since is not None else 0.0)
+
+    def _machine_clock(self) -> float | None:
+        """The controller's own clock (seconds), where the port has one (`sim://`); None for a real machine."""
+        clock = getattr(self._port, "machine_time", None)
+        return float(clock) if isinstance(clock, (int, float)) else None
+
+    def _machine_elapsed(self) -> float:
+        """Machine time of this run so far: the controller's clock since the stream began, or for a real machine
+        (no clock of its own) the wall time less the time held."""
+        clock = self._machine_clock()
+        if clock is not None and self._machine_start is not None:
+            return max(clock - self._machine_start, 0.0)
+        return max(time.monotonic() - self.started - self._held_now(), 0.0)
+
     def _report(self) -> None:
         """Tell `on_progress` where the job stands (the stream loop decides how often)."""
         if self.on_progress is None:
             return
         total = len(self.program.lines)
-        elapsed = time.monotonic() - self.started
+        elapsed = time.monotonic() - self.started - self._held_now()  # waiting for the operator is not work
         timeline = self.timeline()
         planned = timeline[-1] - self._planned_at(self.first_index)
         eta = estimate(planned, self._planned_at(self.acked) - self._planned_at(self.first_index), elapsed)
         remaining = eta.remaining
         status = self.status
+        whole = float(timeline[-1]) if len(timeline) else 0.0
+        percent = 100.0 * (self._planned_at(self.acked) / whole if whole > 0 else self.acked / total)
         self.on_progress(Progress(
-            acked=self.acked, total=total, percent=100.0 * self.acked / total, state=status.state if status else "?",
+            acked=self.acked, total=total, percent=percent, state=status.state if status else "?",
             position=status.work_position(self._wco) if status else None, elapsed=elapsed,
             remaining=remaining, file_line=self._file_line(self.acked - 1) if self.acked else None,
             message=self.message, eta=eta))
