@@ -314,6 +314,6 @@ def test_the_report_does_not_call_a_survey_with_uncertain_nodes_all_within_toler
                "worst": ["N1-1"], "reprojection_rms_px": 0.3}
     survey = {"summary": summary, "tolerance_mm": 10.0, "deviation_map": None, "file": "survey.json", "scale": None,
               "reference": "all", "registration_rms_mm": 4.0, "truth": None, "not_seen": {}, "problems": []}
-    text = _survey_section(survey)
+    text = _survey_section(survey, Path("."))
     assert "every measured node within tolerance" not in text
     assert "none out of tolerance, 42 too close to tell (386 pass, 0 fail, 42 uncertain, 12 not seen of 440 nodes" in text
