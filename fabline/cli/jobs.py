@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import secrets
 import shlex
 import signal
@@ -175,40 +176,90 @@ def _stop_on_signals():
 
 
 def run_serve(args: argparse.Namespace) -> int:
-    """Start the runner's threads and the web page; stop cleanly on Ctrl-C (the queue keeps its state)."""
+    """Run the runner's threads and the web page until SIGINT, SIGTERM or SIGHUP; then stop everything it started
+    (the export's worker processes included), withdraw its record and token, and exit the process with 130, 143 or
+    129 after one line saying so (the queue keeps its state: a restart goes on from it)."""
     import uvicorn
 
     from fabline.jobs.discovery import page_url, remove_records, write_records
+    from fabline.jobs.lifecycle import STOP_SIGNALS, end_descendants, exit_code, guard_forks
     from fabline.jobs.runner import Runner, default_machines, describe_machine, parse_machine
     from fabline.jobs.web import create_app
-    from fabline.locks import exclusive_lock
+    from fabline.locks import exclusive_lock, lock_path
 
-    jobs = Path(args.jobs)
+    jobs, db = Path(args.jobs), _db(args)
     if not jobs.is_dir():
         raise FablineError(f"--jobs {args.jobs}: not a folder")
     machines = [parse_machine(m) for m in args.machine] or default_machines()
     described = [describe_machine(m) for m in machines]  # a bad profile name is refused before anything starts
     token = args.token or secrets.token_urlsafe(18)
     hosts = (*args.allow_host, *([args.host] if args.host not in ("0.0.0.0", "::") else []))
-    with exclusive_lock(Path(f"{_db(args)}.lock"), f"runner queue {_db(args)}"):  # one runner per queue
-        runner = Runner(_db(args), machines, auto_confirm=args.auto_confirm)
-        runner.watch_folder(jobs, args.scan)
-        runner.start()
-        print(f"fabline runner: {len(machines)} machine(s); queue {_db(args)}", flush=True)
-        print(f"token: {token}", flush=True)
-        print(f"open http://{args.host}:{args.web_port}/?token={token}", flush=True)
-        for line in described:
-            print(f"  machine {line}", flush=True)
-        records = write_records(_db(args), page_url(args.host, args.web_port), token)
-        print(f"found by `fabline runner status` and the other commands through {' and '.join(map(str, records))}",
-              flush=True)
-        try:
-            uvicorn.Server(uvicorn.Config(create_app(_db(args), token, hosts=hosts, jobs=jobs), host=args.host, port=args.web_port,
-                                          log_level="warning")).run()
-        finally:
-            remove_records(_db(args))
-            runner.stop()
-    return 0
+    queue_lock = Path(f"{db}.lock")
+    received: list[int] = []
+    stopping = threading.Event()
+
+    def on_signal(number: int, frame) -> None:
+        received.append(number)
+        stopping.set()
+
+    def taken_over(pid: int) -> None:
+        print(f"fabline runner: process {pid} ended without stopping its runner of queue {db}; its lock "
+              f"{queue_lock} is taken over", flush=True)
+
+    previous = {number: signal.signal(number, on_signal) for number in STOP_SIGNALS}
+    try:
+        with exclusive_lock(queue_lock, f"runner queue {db}", taken_over), \
+                _listen(args.host, args.web_port) as listening:  # one runner per queue
+            guard_forks([listening.fileno()], [queue_lock, lock_path(jobs).parent])
+            runner = Runner(db, machines, auto_confirm=args.auto_confirm)
+            for name in runner.removed:
+                print(f"fabline runner: machine {name} removed (not given with --machine)", flush=True)
+            runner.watch_folder(jobs, args.scan)
+            runner.start()
+            print(f"fabline runner: {len(machines)} machine(s); queue {db}", flush=True)
+            print(f"token: {token}", flush=True)
+            print(f"open http://{args.host}:{args.web_port}/?token={token}", flush=True)
+            for line in described:
+                print(f"  machine {line}", flush=True)
+            records = write_records(db, page_url(args.host, args.web_port), token)
+            print(f"found by `fabline runner status` and the other commands through {' and '.join(map(str, records))}",
+                  flush=True)
+            server = uvicorn.Server(uvicorn.Config(create_app(db, token, hosts=hosts, jobs=jobs), host=args.host,
+                                                   port=args.web_port, log_level="warning"))
+            web = threading.Thread(target=server.run, kwargs={"sockets": [listening]}, name="web", daemon=True)
+            web.start()  # outside the main thread uvicorn leaves the signals to us
+            try:
+                while web.is_alive() and not stopping.wait(0.5):
+                    pass
+            finally:
+                server.should_exit = True
+                given_back = runner.stop()
+                workers = end_descendants()
+                web.join(10)
+                remove_records(db)
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+    if not received:
+        raise FablineError(f"runner: the web page on {args.host}:{args.web_port} stopped by itself; the runner stopped")
+    again = f"; job(s) {', '.join(map(str, given_back))} prepared afresh at the next start" if given_back else ""
+    print(f"fabline runner: stopped by {signal.Signals(received[0]).name} ({workers} worker process(es) ended{again}); "
+          f"queue {db} keeps its state", file=sys.stderr, flush=True)
+    sys.stdout.flush()
+    os._exit(exit_code(received[0]))  # not the interpreter's exit: it would join the export pool's manager thread,
+    # which waits forever for the rest of a result a worker was writing when it was ended
+
+
+def _listen(host: str, port: int):
+    """The page's listening socket, bound now so that a port in use is one line, before anything starts."""
+    import socket
+
+    try:
+        return socket.create_server((host, port), family=socket.AF_INET6 if ":" in host else socket.AF_INET,
+                                    backlog=2048)
+    except OSError as exc:
+        raise FablineError(f"--web-port {port}: cannot listen on {host}:{port}: {exc.strerror}; stop what uses "
+                           "it or choose another port") from None
 
 
 def _runner(args: argparse.Namespace):

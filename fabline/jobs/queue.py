@@ -347,8 +347,8 @@ class JobQueue:
         cancelled meanwhile). `lines`: the programs' command lines when known (reused sheets), else counted."""
         with self.transaction() as db:
             job = self._locked_job(db, job_id)
-            if job.state in FINAL_STATES:
-                return
+            if job.state != "preparing" and not (job.state == "paused" and job.paused_from == "preparing"):
+                return  # cancelled, failed, or given back to the queue by a stopping runner: nothing is recorded
             self._add_sheets(db, job_id, programs, lines)
             if job.state == "paused":
                 db.execute("UPDATE jobs SET paused_from = 'ready', report = ?, output = ? WHERE id = ?",
@@ -356,6 +356,19 @@ class JobQueue:
             else:
                 self._move(db, job, "ready", report=report, output=output)
             self._event(db, job_id, None, f"job {job_id} prepared: {len(programs)} sheet(s)")
+
+    def give_back_preparation(self) -> list[int]:
+        """A stopping runner's unfinished preparations go back to the queue, all at once (preparation is repeatable:
+        the next start prepares them afresh); returns their ids."""
+        with self.transaction() as db:
+            rows = db.execute("SELECT id FROM jobs WHERE state = 'preparing' OR (state = 'paused' AND "
+                              "paused_from = 'preparing') ORDER BY id").fetchall()
+            db.execute("UPDATE jobs SET state = 'queued', updated = ? WHERE state = 'preparing'", (time.time(),))
+            db.execute("UPDATE jobs SET paused_from = 'queued' WHERE state = 'paused' AND paused_from = 'preparing'")
+            for row in rows:
+                self._event(db, row["id"], None, f"job {row['id']}: the runner stopped during its preparation; "
+                            "it is prepared afresh at the next start")
+        return [row["id"] for row in rows]
 
     def fail(self, job_id: int, error: str) -> None:
         """A job cannot go on: failed, with the one-line reason."""
@@ -374,6 +387,25 @@ class JobQueue:
             db.execute("INSERT INTO machines (name, port, updated) VALUES (?, ?, ?) "
                        "ON CONFLICT(name) DO UPDATE SET port = excluded.port, updated = excluded.updated",
                        (name, port, time.time()))
+
+    def keep_machines(self, names: list[str]) -> list[str]:
+        """Forget every machine not in `names` (the machines this start drives): gone from the page and the status;
+        a job that waited on one with its sheet not yet started goes back to whichever machine is free, the sheet
+        to be confirmed loaded again there. Returns the names forgotten."""
+        with self.transaction() as db:
+            known = [row["name"] for row in db.execute("SELECT name FROM machines ORDER BY name")]
+            gone = [name for name in known if name not in names]
+            for name in gone:
+                db.execute("DELETE FROM machines WHERE name = ?", (name,))
+                db.execute("UPDATE jobs SET machine = NULL, confirmed = MIN(confirmed, sheet - 1), updated = ? "
+                           "WHERE machine = ? AND (state = 'ready' OR (state = 'paused' AND paused_from != 'cutting'))",
+                           (time.time(), name))
+                held = [row["id"] for row in db.execute("SELECT id FROM jobs WHERE machine = ? AND state IN "
+                                                        "('cutting', 'paused', 'attention')", (name,))]
+                self._event(db, None, name, f"machine {name} removed (not among the runner's machines)" +
+                            "".join(f"; job {job}'s sheet was being cut on it: start the runner with {name} again to "
+                                    "go on, or cancel the job" for job in held))
+        return gone
 
     def machines(self) -> list[dict[str, Any]]:
         """Every machine: name, port, state, job, position."""
@@ -647,6 +679,8 @@ class JobQueue:
         with self.transaction() as db:
             count = db.execute("UPDATE jobs SET state = 'queued', updated = ? WHERE state = 'preparing'",
                                (time.time(),)).rowcount
+            count += db.execute("UPDATE jobs SET paused_from = 'queued' WHERE state = 'paused' AND "
+                                "paused_from = 'preparing'").rowcount
             if count:
                 self._event(db, None, None, f"runner restarted: {count} job(s) back to queued for preparation")
         return count

@@ -104,6 +104,8 @@ class Runner:
             where = checkpoint(sheet.program, sheet.journal, "the runner stopped while the sheet was being cut")
             position = next((m["position"] for m in queue.machines() if m["name"] == job.machine), None)
             queue.need_attention(job.id, {**where, "position": position})
+        self.removed = queue.keep_machines([m.name for m in machines])
+        """The machines of an earlier start that this one does not drive: forgotten."""
         for machine in machines:
             queue.register_machine(machine.name, machine.port)
         queue.close()
@@ -142,11 +144,26 @@ class Runner:
                 break
         queue.close()
 
-    def stop(self, timeout: float = 10.0) -> None:
-        """Ask every thread to stop after its current step and wait for them."""
+    def stop(self, timeout: float = 10.0) -> list[int]:
+        """Ask every thread to stop after its current step and wait for them (a sheet being cut stops with a feed
+        hold and a reset, its journal kept); a preparation still running is given back to the queue whole, to be
+        prepared afresh at the next start, and its result, should it still come, is not recorded. Returns the
+        ids of the jobs given back."""
         self._stop.set()
         for thread in self._threads:
-            thread.join(timeout)
+            if thread.name != "preparer":
+                thread.join(timeout)
+        queue = JobQueue(self.db_path)
+        try:
+            given_back = queue.give_back_preparation()
+            for machine in self.machines:
+                queue.set_machine(machine.name, state="stopped: the runner is not running")
+        finally:
+            queue.close()
+        for thread in self._threads:
+            if thread.name == "preparer":
+                thread.join(0.5)  # it ends now unless a stage holds it; a process exit ends it then
+        return given_back
 
     def run_until_idle(self, timeout: float) -> None:
         """Block until no job is left unfinished (every one done, failed or cancelled) or `timeout` passes."""
@@ -188,10 +205,11 @@ class Runner:
                         report = str(result.report_path) if result.report_path else None
                         lines = prepared_output.record(spec.output_folder, key, programs, report)
                 queue.prepared(job.id, programs, report, str(spec.output_folder), lines)
-            except FablineError as exc:
-                queue.fail(job.id, str(exc))
             except Exception as exc:  # a bug in a stage must not take the runner down; the job records it
-                queue.fail(job.id, f"internal error while preparing: {type(exc).__name__}: {exc}")
+                if self._stop.is_set():  # the stop ended the stage's workers: the job goes back whole (stop())
+                    break
+                queue.fail(job.id, str(exc) if isinstance(exc, FablineError) else
+                           f"internal error while preparing: {type(exc).__name__}: {exc}")
         queue.close()
 
     # --- machines ---------------------------------------------------------------------------------------
