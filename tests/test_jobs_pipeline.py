@@ -53,7 +53,7 @@ SURVEY_TOLERANCE_MM = 10.0
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("job")
-    log = folder / "executed.log"
+    log = folder / "out" / "executed.log"  # a port writes only inside the output folder
     job = folder / "tiny.toml"
     job.write_text(JOB.format(log=log), encoding="utf-8")
     import io
@@ -343,7 +343,7 @@ def test_ctrl_c_or_a_service_stop_stops_every_machine_safely_and_resume_cuts_eac
     import sys
     import time
 
-    log = tmp_path / "executed.log"
+    log = tmp_path / "out" / "executed.log"
     job = tmp_path / "job.toml"
     job.write_text(INTERRUPTED_JOB.format(log=log), encoding="utf-8")
     command = [sys.executable, "-m", "fabline", "run", str(job)]

@@ -20,6 +20,7 @@ from pathlib import Path
 from fabline.errors import FablineError
 from fabline.jobs.queue import JobQueue, JobRow, SheetRow
 from fabline.jobs.streaming import SheetStream, checkpoint, frame_sheet
+from fabline.link import check_port
 from fabline.locks import exclusive_lock, lock_path
 
 
@@ -46,6 +47,11 @@ class Runner:
                  poll: float = 0.2, prepare: bool = True, runs: str | Path | None = None):
         if len({m.name for m in machines}) != len(machines):
             raise FablineError("runner: two machines with the same name")
+        for machine in machines:  # the operator's ports, checked as `fabline stream` checks its --port
+            try:
+                check_port(machine.port)
+            except FablineError as exc:
+                raise FablineError(f"runner: machine {machine.name}: {exc}") from None
         self.db_path = Path(db_path)
         self.runs = Path(runs) if runs else self.db_path.parent / "runs"
         self.machines = machines
@@ -132,6 +138,11 @@ class Runner:
                 continue
             try:
                 spec = replace(load_job_file(job.job_file), output_folder=self.runs / f"job-{job.id}")
+                for port in spec.machine["ports"]:  # never opened here, but a queued job file writes nothing of its own
+                    try:
+                        check_port(port, files=False)
+                    except FablineError as exc:
+                        raise FablineError(f"{Path(job.job_file).name}: machine.ports: {exc}") from None
                 with exclusive_lock(lock_path(spec.output_folder), f"job folder {spec.output_folder}"):
                     prepared = prepare_job(spec)
                 queue.prepared(job.id, prepared.sheet_programs(), str(prepared.report_path), str(spec.output_folder))
