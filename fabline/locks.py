@@ -11,6 +11,7 @@ import fcntl
 import hashlib
 import os
 import re
+import stat
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -42,6 +43,28 @@ def exclusive_lock(lock_path: str | os.PathLike, what: str) -> Iterator[Path]:
         yield path
     finally:
         os.close(fd)  # closing releases the flock
+
+
+def lock_holder(lock_path: str | os.PathLike) -> int | None:
+    """The pid that holds the lock at `lock_path` (as it wrote it), or None when no process holds it (or there is
+    no such lock file); nothing is created, and a symbolic link or anything but a regular file holds nothing."""
+    try:
+        fd = os.open(lock_path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except OSError:
+        return None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
+                return None
+            text = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+            return int(text) if text.isdigit() else 0  # held, by a process that has not written its pid yet
+        return None
+    finally:
+        os.close(fd)
 
 
 def _holder(fd: int) -> str:
