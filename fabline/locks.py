@@ -8,9 +8,7 @@ from __future__ import annotations
 
 import errno
 import fcntl
-import hashlib
 import os
-import re
 import stat
 import tempfile
 from contextlib import contextmanager
@@ -18,6 +16,7 @@ from pathlib import Path
 from typing import Iterator
 
 from fabline.errors import FablineError
+from fabline.naming import file_stem
 
 
 @contextmanager
@@ -81,6 +80,4 @@ def lock_path(resource: str | os.PathLike) -> Path:
     resource whatever path names it (a symlink such as /dev/serial/by-id/... and /dev/ttyUSB0 share one), kept
     in the temp folder so that taking it writes nothing into the user's folders."""
     name = str(resource) if "://" in str(resource) else os.path.realpath(resource)
-    slug = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("_")[-60:]
-    digest = hashlib.sha256(name.encode("utf-8")).hexdigest()[:12]
-    return Path(tempfile.gettempdir()) / "fabline-locks" / f"{slug}-{digest}.lock"
+    return Path(tempfile.gettempdir()) / "fabline-locks" / f"{file_stem(name)}.lock"
