@@ -307,9 +307,8 @@ def find_runner(search: Search, say: Callable[[str], None] = _say) -> LocalRunne
         if remote.answers():
             return remote
     if not (search.db or search.jobs) and user_record() not in untrusted:
-        try:
-            _read_own(user_record(), "record file")  # its database is opened only if the record is the user's
-            record = _read_record(user_record())
+        try:  # its database is opened only if the record is the user's own
+            record = _fields(_json(_read_own(user_record(), "record file")))
         except Untrusted:
             record = None
         if record is not None:
