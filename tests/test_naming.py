@@ -70,3 +70,47 @@ def test_lamella_ids_that_name_other_folders_keep_the_previews_in_theirs(cli, tm
     strips = json.loads(model.with_name("parts.json").read_text())["parts"]
     assert len(names) == len([p for p in strips if p["kind"] in ("strip", "curved-strip", "joint")]) >= len(ids) + 3
     assert sorted(f"{file_stem(p['id'])}.svg" for p in strips if p["kind"] in ("strip", "curved-strip", "joint")) == names
+
+
+def test_a_job_in_the_runner_keeps_hostile_previews_in_its_own_folder(tmp_path):
+    """The probe's runner case: a queued job whose model names lamellas `../../../outside/TRAV` and an absolute
+    path, with unroll.previews, writes every file under `runs/job-N/`."""
+    import time
+
+    from fabline.jobs.queue import JobQueue
+    from fabline.jobs.runner import MachineConfig, Runner
+
+    outside = tmp_path / "outside"
+    steps = np.linspace(0.0, 1.0, 41)
+    curves = []
+    for k, lam_id in enumerate(["../../../outside/TRAV", str(outside / "ABS")]):
+        points = np.column_stack([steps * 1200.0, np.full_like(steps, 300.0 * k), np.zeros_like(steps)])
+        curves.append((lam_id, "A", points, np.tile([0.0, 0.0, 1.0], (len(steps), 1)), [0, 20, 40]))
+    for j in range(3):
+        points = np.column_stack([np.full_like(steps, 600.0 * j), steps * 300.0, np.zeros_like(steps)])
+        curves.append((f"B-{j}", "B", points, np.tile([0.0, 0.0, 1.0], (len(steps), 1)), [0, 40]))
+    shop = tmp_path / "a" / "b" / "shop"
+    shop.mkdir(parents=True)
+    save_network(network_of(curves, "hostile"), shop / "hostile.network.json")
+    job = shop / "hostile.toml"
+    job.write_text('name = "hostile"\nstages = ["unroll", "nest", "export"]\n[model]\nfile = "hostile.network.json"\n'
+                   '[unroll]\npreviews = true\n[output]\nfolder = "out"\n', encoding="utf-8")
+    db = shop / "runner.sqlite"
+    runner = Runner(db, [MachineConfig("m1", "sim://hostile-m1?time_scale=1000")], poll=0.05)
+    queue = JobQueue(db)
+    job_id = queue.submit("hostile", str(job))
+    runner.start()
+    try:
+        deadline = time.monotonic() + 240
+        while queue.job(job_id).state in ("queued", "preparing"):
+            assert time.monotonic() < deadline, "timed out"
+            time.sleep(0.1)
+        assert queue.job(job_id).state == "ready", queue.job(job_id).describe()
+    finally:
+        runner.stop()
+        queue.close()
+    folder = shop / "runs" / f"job-{job_id}"
+    previews = sorted(p.name for p in (folder / "previews").iterdir())
+    assert f"{file_stem('../../../outside/TRAV-L')}.svg" in previews and len(previews) >= 5, previews
+    strays = [p for p in tmp_path.rglob("*.svg") if folder not in p.parents]
+    assert strays == [] and not outside.exists(), strays
