@@ -10,15 +10,15 @@ from __future__ import annotations
 
 import errno
 import fcntl
-import hashlib
 import os
-import re
+import stat
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
 from fabline.errors import FablineError
+from fabline.naming import file_stem
 
 
 @contextmanager
@@ -52,6 +52,28 @@ def exclusive_lock(lock_path: str | os.PathLike, what: str,
             os.ftruncate(fd, 0)  # released: no pid left in the file
     finally:
         os.close(fd)  # closing releases the flock
+
+
+def lock_holder(lock_path: str | os.PathLike) -> int | None:
+    """The pid that holds the lock at `lock_path` (as it wrote it), or None when no process holds it (or there is
+    no such lock file); nothing is created, and a symbolic link or anything but a regular file holds nothing."""
+    try:
+        fd = os.open(lock_path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except OSError:
+        return None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
+                return None
+            text = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+            return int(text) if text.isdigit() else 0  # held, by a process that has not written its pid yet
+        return None
+    finally:
+        os.close(fd)
 
 
 def _pid(fd: int) -> int | None:
@@ -111,6 +133,4 @@ def lock_path(resource: str | os.PathLike) -> Path:
     resource whatever path names it (a symlink such as /dev/serial/by-id/... and /dev/ttyUSB0 share one), kept
     in the temp folder so that taking it writes nothing into the user's folders."""
     name = str(resource) if "://" in str(resource) else os.path.realpath(resource)
-    slug = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("_")[-60:]
-    digest = hashlib.sha256(name.encode("utf-8")).hexdigest()[:12]
-    return Path(tempfile.gettempdir()) / "fabline-locks" / f"{slug}-{digest}.lock"
+    return Path(tempfile.gettempdir()) / "fabline-locks" / f"{file_stem(name)}.lock"

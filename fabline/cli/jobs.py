@@ -37,6 +37,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        help="continue an interrupted run from the sheets' journals instead of cutting every sheet afresh")
     again.add_argument("--restart", action="store_true",
                        help="cut every sheet afresh although an earlier run of this job stopped before finishing")
+    run.add_argument("--from-line", type=positive(int), metavar="N",
+                     help="with --resume: continue the one interrupted sheet from its file line N (the operator's "
+                          "choice, when the machine's position cannot tell)")
     run.set_defaults(func=run_job_command)
 
     runner = subparsers.add_parser("runner", help="the shop-floor runner: a persistent job queue with a web page")
@@ -123,7 +126,7 @@ def run_job_command(args: argparse.Namespace) -> int:
     try:
         with exclusive_lock(lock_path(spec.output_folder), f"job output folder {spec.output_folder}"):
             result = run_job(spec, say, confirm if real_machine and not args.yes else None, resume=args.resume,
-                             restart=args.restart)
+                             restart=args.restart, from_line=args.from_line)
     except KeyboardInterrupt:
         print(f"fabline run: interrupted; the machines stopped safely and their journals are kept: "
               f"{shlex.join(['fabline', 'run', args.job, '--resume'])} continues where they stopped", file=sys.stderr)

@@ -109,21 +109,26 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
 
 def run_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None,
             confirm_sheet: Callable[[int, int, dict], None] | None = None, resume: bool = False,
-            restart: bool = False) -> JobResult:
+            restart: bool = False, from_line: int | None = None) -> JobResult:
     """The whole job: prepare, then stream every sheet (asking `confirm_sheet(k, n, sheet)` before each one
     when given, `sheet` its entry of `sheet_files`: id, files and `load_facts`), then the survey, then the report with the streaming log and the survey. `resume` continues
     an interrupted run from the sheets' journals (finished sheets are not cut again); otherwise every sheet
-    is cut afresh, which an interrupted earlier run refuses unless `restart` says so. The caller holds the
+    is cut afresh, which an interrupted earlier run refuses unless `restart` says so; `from_line` (with `resume`)
+    continues the one interrupted sheet from that file line, the operator's choice. The caller holds the
     output folder's lock (`fabline.locks`), so no other run touches these journals meanwhile."""
     spec = job if isinstance(job, JobSpec) else load_job_file(job)
+    if from_line is not None and not resume:
+        raise FablineError("--from-line needs --resume (it names where the interrupted sheet continues)")
     if "stream" in spec.stages and not resume and not restart:
         _refuse_over_an_interrupted_run(spec)
+    interrupted = _interrupted_sheet(spec) if from_line is not None else None
     result = prepare_job(spec, say)
     if "stream" not in spec.stages and "survey" not in spec.stages:
         return result
     try:
         if "stream" in spec.stages:
-            _timed(result.timings, "stream", lambda: _stream_all(result, say, confirm_sheet, resume))
+            _timed(result.timings, "stream", lambda: _stream_all(result, say, confirm_sheet, resume,
+                                                                    (interrupted, from_line)))
         if "survey" in spec.stages:
             _timed(result.timings, "survey", lambda: _survey(result, say))
     finally:  # the report shows the streaming log, also of a run that stopped
@@ -255,9 +260,8 @@ def machine_ports(spec: JobSpec) -> list[str]:
     return ports
 
 
-def _refuse_over_an_interrupted_run(spec: JobSpec) -> None:
-    """An earlier run of this job stopped before it finished a sheet: a new run would cut that sheet from its
-    first line again, so it must be asked for (--restart) or the old run continued (--resume)."""
+def _unfinished(spec: JobSpec) -> list[str]:
+    """The programs (file names) whose journal in the job's G-code folder says their run did not finish."""
     from fabline.link import read_journal
 
     unfinished = []
@@ -267,6 +271,23 @@ def _refuse_over_an_interrupted_run(spec: JobSpec) -> None:
                 unfinished.append(journal.name.removesuffix(".journal"))
         except FablineError:
             unfinished.append(journal.name.removesuffix(".journal"))
+    return unfinished
+
+
+def _interrupted_sheet(spec: JobSpec) -> str:
+    """The one program an earlier run left unfinished, which --from-line names a line of."""
+    unfinished = _unfinished(spec)
+    if len(unfinished) != 1:
+        raise FablineError(f"{spec.path.name}: --from-line names a line of the one interrupted sheet, but "
+                           + (f"{len(unfinished)} sheets were interrupted ({', '.join(unfinished[:3])}): resume "
+                              "without it, each sheet from its journal" if unfinished else "no sheet was interrupted"))
+    return unfinished[0]
+
+
+def _refuse_over_an_interrupted_run(spec: JobSpec) -> None:
+    """An earlier run of this job stopped before it finished a sheet: a new run would cut that sheet from its
+    first line again, so it must be asked for (--restart) or the old run continued (--resume)."""
+    unfinished = _unfinished(spec)
     if unfinished:
         raise FablineError(f"{spec.path.name}: an earlier run stopped before finishing {', '.join(unfinished[:3])}"
                            f"{' and more' if len(unfinished) > 3 else ''}; continue it with --resume, "
@@ -298,10 +319,11 @@ class _JobClock:
 
 
 def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, dict], None] | None,
-                resume: bool) -> None:
+                resume: bool, start: tuple[str | None, int | None] = (None, None)) -> None:
     """Cut every sheet: each machine takes the next sheet when it is free (one sheet at a time per machine);
     after a failure no new sheet starts, the ones running finish, and the first error is raised. Each sheet
-    streams from a process of its own, so that machines stream on all CPU cores; Ctrl-C stops them safely."""
+    streams from a process of its own, so that machines stream on all CPU cores; Ctrl-C stops them safely.
+    `start` is (program file name, file line): that sheet continues from that line (--from-line)."""
     import multiprocessing
 
     from fabline.jobs.streaming import STOP_SIGNALS, journal_summary, stream_in_process
@@ -354,7 +376,8 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
             started = time.perf_counter()
             receiver, sender = context.Pipe(duplex=False)
             link = context.Process(target=stream_in_process, daemon=True,
-                                   args=(port, sheet["gcode"], resume, {"job": result.spec.name}, sender))
+                                   args=(port, sheet["gcode"], resume, {"job": result.spec.name}, sender,
+                                         start[1] if Path(sheet["gcode"]).name == start[0] else None))
             with lock:
                 signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS))  # inherited: a signal waits for the handlers
                 link.start()

@@ -21,7 +21,7 @@ from fabline.errors import FablineError
 from fabline.jobs import prepared as prepared_output
 from fabline.jobs.queue import JobQueue, JobRow, SheetRow
 from fabline.jobs.streaming import SheetStream, checkpoint, frame_sheet
-from fabline.link import Streamer
+from fabline.link import Streamer, check_port
 from fabline.locks import exclusive_lock, lock_path
 
 
@@ -89,6 +89,11 @@ class Runner:
                  poll: float = 0.2, prepare: bool = True, runs: str | Path | None = None):
         if len({m.name for m in machines}) != len(machines):
             raise FablineError("runner: two machines with the same name")
+        for machine in machines:  # the operator's ports, checked as `fabline stream` checks its --port
+            try:
+                check_port(machine.port)
+            except FablineError as exc:
+                raise FablineError(f"runner: machine {machine.name}: {exc}") from None
         self.db_path = Path(db_path)
         self.runs = Path(runs) if runs else self.db_path.parent / "runs"
         self.machines = machines
@@ -192,6 +197,11 @@ class Runner:
                 continue
             try:
                 spec = replace(load_job_file(job.job_file), output_folder=self.runs / f"job-{job.id}")
+                for port in spec.machine["ports"]:  # never opened here, but a queued job file writes nothing of its own
+                    try:
+                        check_port(port, files=False)
+                    except FablineError as exc:
+                        raise FablineError(f"{Path(job.job_file).name}: machine.ports: {exc}") from None
                 key = prepared_output.job_key(spec)
                 with exclusive_lock(lock_path(spec.output_folder), f"job folder {spec.output_folder}"):
                     earlier = prepared_output.find(self.runs, key, prefer=spec.output_folder)

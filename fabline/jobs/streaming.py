@@ -125,8 +125,10 @@ PROGRESS_INTERVAL = 0.2
 """Seconds between the progress messages a sheet's process sends to `fabline run`."""
 
 
-def stream_in_process(port: str, program: str, resume: bool, identity: dict[str, str], connection) -> None:
-    """Process target: stream one sheet (continuing its journal with `resume`), stop it safely on any of
+def stream_in_process(port: str, program: str, resume: bool, identity: dict[str, str], connection,
+                      from_line: int | None = None) -> None:
+    """Process target: stream one sheet (continuing its journal with `resume`, from file line `from_line` if
+    given), stop it safely on any of
     STOP_SIGNALS (feed hold, reset, journal kept). Sends ("progress", lines done, lines, Eta or None) through
     `connection` at most every PROGRESS_INTERVAL s, then ("result", outcome in words, summary).
     A program pause (M0) is said on standard error; SIGUSR1 continues it (cycle start)."""
@@ -142,7 +144,7 @@ def stream_in_process(port: str, program: str, resume: bool, identity: dict[str,
             sent[0] = now
             connection.send(("progress", done, stream.total, stream.eta))
 
-    stream = SheetStream(port, program, progress, resume=resume, identity=identity)
+    stream = SheetStream(port, program, progress, resume=resume, from_line=from_line, identity=identity)
     for number in STOP_SIGNALS:
         signal.signal(number, lambda signum, frame: stream.stop())
     signal.signal(signal.SIGUSR1, lambda signum, frame: stream.resume())

@@ -13,7 +13,8 @@ from fabline.link.journal import default_journal_path, read_journal
 from fabline.link.program import Program, load_program, parse_program
 from fabline.link.server import SimulatorServer, executed_file_lines
 from fabline.link.simulator import Faults, GrblSimulator
-from fabline.link.streamer import STOP_SIGNALS, Progress, Streamer, StreamInterrupted, StreamResult, check_port
+from fabline.link.ports import check_port
+from fabline.link.streamer import STOP_SIGNALS, Progress, Streamer, StreamInterrupted, StreamResult
 
 if "fabline.link" not in serial.protocol_handler_packages:
     serial.protocol_handler_packages.append("fabline.link")

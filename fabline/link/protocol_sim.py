@@ -20,6 +20,10 @@ from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Tim
 from fabline.link.build import STOCK_BUILD, BuildInfo
 from fabline.link.simulator import ConnectionDropped, Faults, GrblSimulator
 
+SIM_OPTIONS = ("time_scale", "line_time", "log", "machine", "settings", "drop_at", "corrupt_at", "error_line",
+               "error_code", "alarm_line", "alarm_code", "stall_at", "stall_seconds", "build_options", "planner_blocks",
+               "rx_buffer")
+"""The options a sim:// URL takes (the module's docstring says what each does)."""
 _SIMULATORS: dict[str, GrblSimulator] = {}
 _REGISTRY_LOCK = threading.Lock()
 

@@ -23,7 +23,7 @@ its machine profile (`fabline.link.compat`); the port and the journal are locked
 
 from __future__ import annotations
 
-import importlib.util
+import contextlib
 import math
 import os
 import re
@@ -37,11 +37,12 @@ from typing import Callable
 import serial
 
 from fabline.errors import FablineError
-from fabline.fileio import check_outputs, open_append
+from fabline.fileio import open_append
 from fabline.link.build import ANY_BUILD, STOCK_BUILD, BuildInfo
 from fabline.link.codes import explain_alarm, explain_error, listing
 from fabline.link.compat import controller_problems, program_machine
 from fabline.link.gcode import ModalState, Vector
+from fabline.link.ports import check_port, port_endpoints
 from fabline.link.journal import Journal, JournalError, JournalState, default_journal_path, read_journal
 from fabline.link.program import TAG_CYCLE, Program, line_tag, load_program
 from fabline.link.protocol import (CYCLE_START, FEED_HOLD, OVERRIDES, SOFT_RESET, STATUS_QUERY, CharacterCounter,
@@ -121,18 +122,6 @@ class _Lost(Exception):
 
 class _Undecided(Exception):
     """The stopped position does not tell which line was executing: the operator must say (--from-line)."""
-
-
-def check_port(url: str) -> None:
-    """Refuse a port URL whose scheme no pyserial handler (nor fabline's sim://) serves, before any work is done;
-    a device path or a URL with a known scheme passes (whether it opens is found out when it is opened)."""
-    scheme = url.split("://", 1)[0] if "://" in url else None
-    if scheme is None:
-        return
-    if not re.fullmatch(r"[a-z0-9_]+", scheme) or not any(
-            importlib.util.find_spec(f"{package}.protocol_{scheme}") for package in serial.protocol_handler_packages):
-        raise FablineError(f"port {url}: unknown scheme {scheme}:// (use a device such as /dev/ttyUSB0, or "
-                           "socket://, rfc2217://, loop:// or sim://)")
 
 
 def _checked_identity(identity: dict[str, str] | None) -> dict[str, str] | None:
@@ -291,6 +280,9 @@ class Streamer:
         same program and identity unless `restart` says so. `identity` (e.g. job and run ids) is written to the
         journal; a resume must give the same. `machine` (a profile name or path) overrides the profile the
         program's header names; `force` streams despite controller conflicts (logged in journal and log)."""
+        if resume and restart:
+            raise FablineError("--resume and --restart contradict each other: give --resume to continue the "
+                               "interrupted run, or --restart to start it over")
         if not isinstance(program, Program):
             path = Path(program)
             program = load_program(path, build=ANY_BUILD)  # the controller's own build is checked once it answers
@@ -300,15 +292,14 @@ class Streamer:
         if start_line is not None and not resume:
             raise FablineError("--from-line needs --resume")
         identity = _checked_identity(identity)
-        check_outputs(files=(Path(journal),))
+        outputs = (Path(journal), *([self.exchange_log_path] if self.exchange_log_path is not None else []))
+        check_port(self.url, inputs=(program.name,), outputs=outputs)  # before pyserial parses (spy's file=)
         self.program, self.journal_path, self.force = program, Path(journal), force
         self.profile = program_machine(program, machine)
-        device = self.url.split("?", 1)[0]  # one lock per device, whatever options the URL has
-        if device.startswith("sim://"):
-            device += f"#{os.getpid()}"  # sim:// controllers live in their process: another process has its own
-        port_lock = lock_path(device)
-        with exclusive_lock(port_lock, f"port {self.url}"), \
-                exclusive_lock(lock_path(str(self.journal_path)), f"journal {self.journal_path}"):
+        with contextlib.ExitStack() as locks:
+            for endpoint in port_endpoints(self.url):  # one lock per device or address, whatever names it
+                locks.enter_context(exclusive_lock(lock_path(endpoint), f"port {self.url}"))
+            locks.enter_context(exclusive_lock(lock_path(str(self.journal_path)), f"journal {self.journal_path}"))
             previous = self._previous_job(resume, restart, identity)
             self.on_progress = on_progress
             self._open()
