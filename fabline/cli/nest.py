@@ -10,9 +10,6 @@ from fabline.cli import hidden_alias
 from fabline.cli.units import length_mm, size
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
-from fabline.nest import (NestOptions, StockItem, load_nesting, load_stock, nest, parts_path,
-                          save_nesting, save_stock, stock_after, validate_nesting, write_sheet_svgs)
-from fabline.unroll import load_parts
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -44,6 +41,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_nest(args: argparse.Namespace) -> int:
     """Nest and print the sheet table, or validate with --check."""
+    from fabline.nest import NestOptions, StockItem, load_stock, nest, save_nesting, save_stock, stock_after, write_sheet_svgs
+    from fabline.unroll import load_parts
+
     if args.check:
         return _check(args.check)
     if not args.parts or not args.output:
@@ -86,6 +86,9 @@ def run_nest(args: argparse.Namespace) -> int:
 
 def _check(path: str) -> int:
     """Validate a nesting against its parts file; list every problem, exit 1 if there are any."""
+    from fabline.nest import load_nesting, parts_path, validate_nesting
+    from fabline.unroll import load_parts
+
     nesting = load_nesting(path)
     partset = load_parts(parts_path(path, nesting))
     problems = validate_nesting(nesting, partset)

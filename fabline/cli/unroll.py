@@ -6,13 +6,10 @@ import argparse
 import json
 import sys
 
-from fabline.cli.units import length_mm
+from fabline.cli.choices import SINGULARITY_MODES
+from fabline.cli.units import length_mm, profile
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
-from fabline.model import load_network
-from fabline.unroll import SINGULARITY_MODES, UnrollOptions, get_material, limits, parse_profile, save_parts, unroll_network
-from fabline.unroll.preview import write_previews
-from fabline.unroll.structure import percent
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -65,13 +62,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _material_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--profile", default="100x1.5", help="strip height x thickness in mm")
+    parser.add_argument("--profile", type=profile, default="100x1.5", metavar="HxT", help="strip height x thickness in mm")
     parser.add_argument("--material", default="steel-s235", help="material name (built-in: steel-s235, stainless)")
     parser.add_argument("--materials", metavar="FILE", help="TOML file with more materials (E, G, f_y, density)")
 
 
 def run_unroll(args: argparse.Namespace) -> int:
     """Unroll, write the parts (and previews), print the lamella table; warnings to stderr."""
+    from fabline.model import load_network
+    from fabline.unroll import UnrollOptions, get_material, parse_profile, save_parts, unroll_network
+    from fabline.unroll.preview import write_previews
+    from fabline.unroll.structure import percent
+
     check_outputs(files=(args.output,), folders=(args.svg,), inputs=(args.model, args.materials))
     network = load_network(args.model)
     options = UnrollOptions(
@@ -124,6 +126,9 @@ def _print_table(rows: list[dict]) -> None:
 
 def run_limits(args: argparse.Namespace) -> int:
     """Print the profile's minimum radius and maximum twist, and stresses at a given radius or twist."""
+    from fabline.unroll import get_material, limits, parse_profile
+    from fabline.unroll.structure import percent
+
     for name, value in (("--radius", args.radius), ("--twist", args.twist)):
         if value is not None and not value > 0:
             raise FablineError(f"{name}: must be positive, got {value:g}")
