@@ -70,9 +70,7 @@ def _material_arguments(parser: argparse.ArgumentParser) -> None:
 def run_unroll(args: argparse.Namespace) -> int:
     """Unroll, write the parts (and previews), print the lamella table; warnings to stderr."""
     from fabline.model import load_network
-    from fabline.unroll import UnrollOptions, get_material, parse_profile, save_parts, unroll_network
-    from fabline.unroll.preview import write_previews
-    from fabline.unroll.structure import percent
+    from fabline.unroll import UnrollOptions, get_material, parse_profile, save_parts
 
     check_outputs(files=(args.output,), folders=(args.svg,), inputs=(args.model, args.materials))
     network = load_network(args.model)
@@ -85,6 +83,10 @@ def run_unroll(args: argparse.Namespace) -> int:
         singularity=args.singularity, hardware=not args.no_hardware, text_height=args.text_height,
         min_crossing_angle=args.min_crossing_angle, strict=args.strict, edge_members=args.edge_members,
         edge_width=args.edge_width)
+    from fabline.unroll import unroll_network  # after the model and the options are checked: it takes a second
+    from fabline.unroll.preview import write_previews
+    from fabline.unroll.structure import percent
+
     try:
         partset = unroll_network(network, options)
     except FablineError as exc:
@@ -115,6 +117,8 @@ def run_unroll(args: argparse.Namespace) -> int:
 
 
 def _print_table(rows: list[dict]) -> None:
+    from fabline.unroll.structure import percent
+
     print(f"{'lamella':<10}{'length m':>10}{'min r m':>10}{'twist /m':>10}{'sigma_b':>9}{'tau':>8}{'sigma_H':>9}"
           f"{'util %':>8}{'helix top/bot mm':>18}")
     for r in rows:
