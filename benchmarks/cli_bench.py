@@ -4,14 +4,16 @@ of a few real commands (each a fresh process, as a user starts it).
 Usage: python benchmarks/cli_bench.py [--repeat 5] [--only-help]
 
 Prints one row per command: the median wall time from start to the first line of output (stdout or stderr) over
-N runs, the median to the process's end, and its peak resident memory (MB); the load average is printed first,
-since on a shared machine the figures scale with it.
+N runs, the median to the process's end, and its peak resident memory (MB, from wait4); the load average is
+printed first, since on a shared machine the figures scale with it.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -23,21 +25,23 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def commands_with_help() -> list[list[str]]:
-    """`fabline --help` and `fabline ... --help` of every command and sub-command."""
-    sys.path.insert(0, str(ROOT))
-    from fabline.cli import build_parser
-
-    found = []
-
-    def walk(parser: argparse.ArgumentParser, path: list[str]) -> None:
-        found.append(path + ["--help"])
-        for action in parser._actions:
-            if isinstance(action, argparse._SubParsersAction):
-                for name, sub in action.choices.items():
-                    walk(sub, path + [name])
-
-    walk(build_parser(), [])
-    return found
+    """`fabline --help` and `fabline ... --help` of every command and sub-command, listed by a process of its own:
+    a child inherits its parent's peak memory on Linux, so this process must not grow by building the parser."""
+    script = """
+import argparse, json
+from fabline.cli import build_parser
+found = []
+def walk(parser, path):
+    found.append(path + ["--help"])
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                walk(sub, path + [name])
+walk(build_parser(), [])
+print(json.dumps(found))
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True, env=_env())
+    return json.loads(done.stdout)
 
 
 def real_commands(folder: Path) -> list[list[str]]:
@@ -79,7 +83,8 @@ def main() -> int:
     parser.add_argument("--only-help", action="store_true", help="only the --help commands")
     options = parser.parse_args()
     print(f"load average {' '.join(f'{v:.2f}' for v in os.getloadavg())}; {os.cpu_count()} cores; "
-          f"median of {options.repeat} runs")
+          f"median of {options.repeat} runs; peak RSS is at least this process's "
+          f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.1f} MB (a child inherits it)")
     print(f"{'command':<44}{'first line s':>13}{'end s':>8}{'peak RSS MB':>13}")
     with tempfile.TemporaryDirectory(prefix="fabline-cli-bench-") as folder:
         commands = commands_with_help() + ([] if options.only_help else real_commands(Path(folder)))
