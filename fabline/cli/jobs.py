@@ -12,7 +12,7 @@ import sys
 import threading
 from pathlib import Path
 
-from fabline.cli import hidden_alias, positive
+from fabline.cli import hidden_alias, positive, quiet_stdout
 from fabline.units import duration
 from fabline.errors import FablineError
 
@@ -106,7 +106,10 @@ def run_job_command(args: argparse.Namespace) -> int:
     def say(text: str) -> None:
         if not args.quiet:
             with said:
-                print(text, flush=True)
+                try:
+                    print(text, flush=True)
+                except BrokenPipeError:  # the reader of the output went away (`| head`): the job goes on unseen
+                    quiet_stdout()
 
     def confirm(k: int, count: int, sheet: dict) -> None:
         facts = load_facts(sheet)
