@@ -12,11 +12,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from fabline.geometry.darboux import LamellaGeometry
 from fabline.unroll.materials import Material, Profile
+
+if TYPE_CHECKING:  # type hints only: `fabline limits` needs no scipy (darboux imports it)
+    from fabline.geometry.darboux import LamellaGeometry
 
 MM_PER_M = 1000.0
 SEPARATE_CHECKS = ("bending", "shear", "helix")
