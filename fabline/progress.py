@@ -8,6 +8,7 @@ all use it.
 from __future__ import annotations
 
 import sys
+import time
 import urllib.parse
 from dataclasses import dataclass
 from typing import Callable, Iterable, TypeVar
@@ -23,20 +24,29 @@ PRIOR_SHARE = 0.05
 
 
 class StreamBar:
-    """A terminal bar for a program being streamed: lines done of all, elapsed and remaining time (`Eta`) and a
-    status text; silent unless stderr is a terminal. `position` stacks several (one per machine)."""
+    """A terminal bar for a program being streamed: its length and percentage the share of the planned machine time
+    done (`Eta.fraction`: a sheet whose one long cut is most of its time is not nearly done when most of its short
+    lines are), then lines done of all, elapsed and remaining time and a status text; silent unless stderr is a
+    terminal. `position` stacks several (one per machine)."""
+
+    SCALE = 1000
+    """Steps of the bar (a tenth of a percent)."""
 
     def __init__(self, desc: str = "", position: int = 0, leave: bool = True, unit: str = "line"):
-        self.bar = tqdm(total=None, unit=unit, desc=desc, position=position, leave=leave, dynamic_ncols=True,
-                        disable=not sys.stderr.isatty(), bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt}{postfix}")
+        self.unit = unit
+        self.bar = tqdm(total=self.SCALE, unit=unit, desc=desc, position=position, leave=leave, dynamic_ncols=True,
+                        disable=not sys.stderr.isatty(), bar_format="{l_bar}{bar}|")
 
     def show(self, done: int, total: int, eta: "Eta | None", status: str = "", desc: str | None = None) -> None:
-        """Redraw with `done` of `total` lines, the time and `status` (and a new `desc`)."""
-        self.bar.total, self.bar.n = total, done
+        """Redraw with `done` of `total` lines (or sheets), the time and `status` (and a new `desc`); the bar by the
+        planned machine time of `eta`, by `done` of `total` only while no plan is known."""
+        fraction = eta.fraction if eta is not None and eta.fraction is not None else (done / total if total else 0.0)
+        self.bar.n = round(self.SCALE * min(max(fraction, 0.0), 1.0))
         if desc is not None:
             self.bar.set_description_str(desc, refresh=False)
-        self.bar.set_postfix_str("; ".join(text for text in (eta.describe() if eta else "", status) if text),
-                                 refresh=False)
+        counted = f"{done}/{total}" + ("" if self.unit == "line" else f" {self.unit}s")
+        text = ", ".join(part for part in (counted, eta.describe() if eta else "") if part) + (f"; {status}" if status else "")
+        self.bar.bar_format = "{l_bar}{bar}| " + text.replace("{", "{{").replace("}", "}}")
         self.bar.refresh()
 
     def write(self, text: str) -> None:
@@ -76,6 +86,12 @@ class Eta:
         """Estimated seconds from start to finish."""
         return self.elapsed + self.remaining
 
+    @property
+    def fraction(self) -> float | None:
+        """The share of the work done by planned machine time (what progress bars and percentages show); None
+        when nothing is planned."""
+        return min(self.planned_done / self.planned, 1.0) if self.planned > 0 else None
+
     def as_dict(self) -> dict:
         """JSON-ready, seconds to 0.1."""
         return {"elapsed_s": round(self.elapsed, 1), "remaining_s": round(self.remaining, 1),
@@ -95,6 +111,17 @@ def estimate(planned_total: float, planned_done: float, elapsed: float) -> Eta:
     prior = PRIOR_SHARE * planned_total
     pace = (elapsed + prior) / (planned_done + prior) if planned_done + prior > 0 else 1.0
     return Eta(elapsed, (planned_total - planned_done) * pace, planned_total, pace, planned_done)
+
+
+def finish_time(finish_at: float, now: float) -> str:
+    """When work ends (Unix times), as a clock on the wall reads it: `14:05` today, with its date from tomorrow on
+    (`Thu 3 Dec 14:05`, and the year when it is another year): a 49-hour job does not end at a time of today."""
+    end, today = time.localtime(finish_at), time.localtime(now)
+    clock = time.strftime("%H:%M", end)
+    if end[:3] == today[:3]:
+        return clock
+    day = f"{time.strftime('%a', end)} {end.tm_mday} {time.strftime('%b', end)}"
+    return f"{day} {end.tm_year} {clock}" if end.tm_year != today.tm_year else f"{day} {clock}"
 
 
 def simulated_speedup(port: str) -> float:

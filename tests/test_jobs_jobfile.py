@@ -32,7 +32,7 @@ def write(tmp_path: Path, text: str, name: str = "job.toml") -> Path:
 def test_example_job_parses_with_defaults_filled_in():
     spec = load_job_file(REPO / "jobs" / "pavilion.toml")
     assert spec.name == "pavilion"
-    assert spec.model == {"design": "enneper", "options": {"size": (9.0, 12.0), "spacing": 0.35, "k_max": 1.1}}
+    assert spec.model == {"design": "enneper", "options": {"size": (9.0, 12.0), "spacing": 0.35, "k_max": 1.05}}
     assert spec.machine["ports"] == [f"sim://grbl-{k}" for k in range(1, 7)]
     assert spec.stages == ("unroll", "nest", "export", "stream", "survey", "report")
     assert spec.survey == {"result": None, "simulate": True, "photos": 12, "resolution": "3600x2400", "coverage": 0.7,

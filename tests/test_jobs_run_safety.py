@@ -71,7 +71,7 @@ def test_a_second_run_of_one_job_is_refused_naming_the_first(tmp_path, cli):
 
 
 def test_a_new_run_over_an_interrupted_one_needs_restart_or_resume(tmp_path, cli):
-    log = tmp_path / "executed.log"
+    log = tmp_path / "out" / "executed.log"  # a port writes only inside the output folder
     job = write_job(tmp_path, f"sim://safety-restart?time_scale=1000&log={log}")
     interrupted = tmp_path / "out" / "gcode" / "safety_S001.gcode.journal"
     with Journal(interrupted) as journal:  # what a killed run leaves: started, never finished

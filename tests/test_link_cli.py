@@ -16,7 +16,7 @@ import serial
 
 from conftest import without_usage
 from fabline.cli import main
-from fabline.link import executed_file_lines
+from fabline.link import executed_file_lines, load_program
 from fabline.link.protocol_sim import close_simulator
 
 PROGRAM = "G21\nG90\nM4 S600\n" + "".join(f"G1 X{i % 7} Y{i % 5} F3000\n" for i in range(1, 60)) + "M5\nG0 X0 Y0\n"
@@ -237,3 +237,27 @@ def test_a_stopped_stream_prints_a_resume_command_quoted_for_any_shell(cli, gcod
     assert code == 1, err
     hint = err.split("continue with: ", 1)[1].strip()
     assert shlex.quote(slow) in hint and shlex.split(hint) == ["fabline", "stream", str(gcode), "--port", slow, "--resume"]
+
+
+def test_grbl_sim_machine_option_makes_the_profiles_machine_so_its_programs_stream(cli, tmp_path):
+    """The README's `fabline grbl-sim --transport tcp --machine grbl-laser` is the example job's laser: a grbl-laser
+    program that a stock Grbl refuses ($32=0, 200 mm travel) streams to it over TCP."""
+    program = tmp_path / "laser.gcode"
+    program.write_text("; machine grbl-laser (Grbl 1.1), mode laser\nG21 G90 G17 G94\nM4 S0\nG0 X3000 Y1500\n"
+                       "G1 X3010 Y1500 S800 F3000\nG0 X0 Y0\nM5\nM2\n", encoding="ascii")
+    log = tmp_path / "executed.log"
+    command = [sys.executable, "-c", "import sys; from fabline.cli import main; sys.exit(main())", "grbl-sim",
+               "--transport", "tcp", "--machine", "grbl-laser", "--log", str(log), "--time-scale", "1000"]
+    server = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])})
+    try:
+        url = server.stdout.readline().strip()
+        assert url.startswith("socket://127.0.0.1:"), server.stderr.read()
+        code, out, err = cli("stream", program, "--port", url)
+    finally:
+        server.terminate()
+        server.wait()
+        server.stdout.close()
+        server.stderr.close()
+    assert code == 0, err
+    assert executed_file_lines(log) == [line.file_line for line in load_program(program).lines]

@@ -116,3 +116,15 @@ def test_readme_block_runs(block, folder):
     done = subprocess.run(command, cwd=folder, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert done.returncode == 0, (f"README line {block.line} failed (exit {done.returncode}):\n{block.text}\n"
                                   f"--- stdout\n{done.stdout[-3000:]}\n--- stderr\n{done.stderr[-3000:]}")
+
+
+def test_readme_blocks_leave_nothing_for_git(folder):
+    """Every file the README's blocks wrote (they ran above, in this folder laid out as the repository) is one that
+    .gitignore covers, so running them in a checkout leaves its `git status` clean."""
+    shipped = {p.relative_to(REPO).as_posix() for name in ("jobs", "examples") for p in (REPO / name).rglob("*")}
+    written = sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*")
+                     if p.is_file() and p.relative_to(folder).as_posix() not in shipped)
+    kept = subprocess.run(["git", "check-ignore", "--no-index", "--verbose", "--non-matching", "--stdin"], cwd=REPO,
+                          input="\n".join(written), capture_output=True, text=True).stdout.splitlines()
+    unignored = [line.split("\t", 1)[1] for line in kept if line.startswith("::")]
+    assert not unignored, f"README blocks write files git would show (add them to .gitignore): {unignored[:20]}"

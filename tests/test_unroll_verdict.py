@@ -65,8 +65,9 @@ def test_the_job_report_says_colours_and_lists_by_the_same_rule(pavilion_parts):
     rows = [{k: v for k, v in row.items() if k != "intervals"} for row in pavilion_parts.report["lamellas"]]
     failing = [row["lamella"] for row in rows if not row["passes"]]
     page = _structure_table({"lamellas": rows, "max_utilisation": max(r["utilisation"] for r in rows),
-                             "failing": failing, "passes": not failing, "rule": VERDICT_RULE})
-    assert failing and f"{len(failing)} lamella(s) exceed yield" in page and "every lamella passes" not in page
+                             "failing": failing, "passes": not failing, "rule": VERDICT_RULE,
+                             "verdict": pavilion_parts.report["verdict"]})
+    assert failing and f"{len(failing)} of {len(rows)} lamellas exceed yield" in page and "lamellas pass" not in page
     assert "von Mises" in page
     coloured = re.findall(r"<tr class=(\w+)><td>([^<]+)</td>", page)
     assert len(coloured) == len(rows)

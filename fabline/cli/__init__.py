@@ -2,7 +2,8 @@
 
 Each module listed in STAGE_COMMANDS defines `register(subparsers)`, which adds its subcommands
 and sets `func` on each parser; `func(args)` returns the exit code (0 on success). `main` imports only
-the module of the command it runs (the stages' libraries take seconds to import); help shows them all.
+the module of the command it runs, and no module here imports a stage until its command runs (the stages'
+libraries take seconds to import): `fabline --help` and every command's `--help` need none.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import argparse
 import difflib
 import importlib
 import math
+import os
 import re
 import signal
 import sys
@@ -30,6 +32,12 @@ STAGE_COMMANDS = {"model": ("design", "inspect"), "importing": ("import",), "unr
 KEEPS_PARTIAL_OUTPUTS = ("run", "runner", "stream", "grbl-sim")
 """Commands whose files must outlive a failure (journals, logs, the programs an interrupted run resumes): their
 stages keep their own output sets. Every other command is one `OutputSet`: it fails or is interrupted whole."""
+CLOSED_PIPE = 141
+"""Exit code when the reader of the output went away (`fabline runner status | head -1`): 128 + SIGPIPE, as a
+shell reports a command that a closed pipe stopped."""
+NEGATIVE_NUMBER = re.compile(r"^-\.?\d")
+"""An argument that is a value, not an option: a negative number, point or length (`-0.22,0.04,0.006`, `-1e-3`,
+`-25mm`); argparse's own pattern takes only plain numbers (no option of fabline's starts with a digit)."""
 
 
 def positive(kind: type, most: float = math.inf) -> Callable[[str], int | float]:
@@ -93,6 +101,7 @@ class OneLineParser(argparse.ArgumentParser):
 
     def __init__(self, *args, formatter_class: type = HelpFormatter, **kwargs):
         super().__init__(*args, formatter_class=formatter_class, **kwargs)
+        self._negative_number_matcher = NEGATIVE_NUMBER  # read by argparse's option parsing (3.10 to 3.13)
 
     def error(self, message: str):
         wrong = re.search(r"invalid choice: '([^']*)'", message)
@@ -107,7 +116,7 @@ class OneLineParser(argparse.ArgumentParser):
         namespace, extras = self.parse_known_args(args, namespace)
         if extras:
             parser = _chosen_command(self, namespace)
-            unknown = next((a for a in extras if a.startswith("-")), None)
+            unknown = next((a for a in extras if a.startswith("-") and not NEGATIVE_NUMBER.match(a)), None)
             if unknown is None:
                 parser.error(f"unexpected argument(s): {' '.join(extras)}")
             name = unknown.split("=", 1)[0]
@@ -153,7 +162,33 @@ def _bound_numbers(parser: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point: run one subcommand; a user's mistake becomes one line on stderr and exit code 2."""
+    """Entry point: run one subcommand; a user's mistake becomes one line on stderr and exit code 2; output into a
+    closed pipe ends quietly (CLOSED_PIPE), as Python's documentation on SIGPIPE advises."""
+    try:
+        try:
+            return _main(argv)
+        finally:
+            sys.stdout.flush()  # here, not at exit, where a closed pipe would be a note on stderr
+    except BrokenPipeError:
+        quiet_stdout()
+        return CLOSED_PIPE
+
+
+def quiet_stdout() -> None:
+    """Point standard output at the null device, after its reader went away: what is still buffered or printed
+    later (a running job's lines, the flush at exit) goes nowhere instead of failing again."""
+    try:
+        descriptor = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # not a file (a test's buffer): nothing to point
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, descriptor)
+    os.close(devnull)
+
+
+def _main(argv: list[str] | None) -> int:
+    from fabline.fileio import OutputSet
+
     argv = sys.argv[1:] if argv is None else argv
     command = argv[0] if argv else None
     module = next((name for name, commands in STAGE_COMMANDS.items() if command in commands), None)
@@ -169,6 +204,8 @@ def main(argv: list[str] | None = None) -> int:
     except FablineError as exc:
         print(f"fabline {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the output's reader went away: not a path of the user's (main ends quietly)
+        raise
     except OSError as exc:  # a path the user named that cannot be read or written, found where no stage looked
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"fabline {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)

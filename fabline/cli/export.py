@@ -6,12 +6,11 @@ import argparse
 import math
 from pathlib import Path
 
+from fabline.cli.choices import STOCK_BUILD_OPTIONS
 from fabline.cli.units import length_mm
 from fabline.units import duration, metres
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
-from fabline.export import ToolpathOptions, check_gcode, export_nesting, load_machine
-from fabline.link.build import STOCK_BUILD, BuildInfo
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -42,14 +41,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                               "with the tool on; recompute cut length, travel and run time.")
     check.add_argument("file", help="G-code program")
     check.add_argument("--machine", default="grbl-laser", help="machine profile name or .toml path")
-    check.add_argument("--build-options", default=STOCK_BUILD.options, metavar="LETTERS",
+    check.add_argument("--build-options", default=STOCK_BUILD_OPTIONS, metavar="LETTERS",
                        help="the option letters of the Grbl build's $I answer [OPT:LETTERS,...]: M accepts M7, R M56 "
-                            f"({STOCK_BUILD.options}: a stock Grbl 1.1h)")
+                            f"({STOCK_BUILD_OPTIONS}: a stock Grbl 1.1h)")
     check.set_defaults(func=run_check)
 
 
 def run_export(args: argparse.Namespace) -> int:
     """Export and print a per-sheet summary table."""
+    from fabline.export import ToolpathOptions, export_nesting, load_machine
+
     profile = load_machine(args.machine)
     kerf = profile.kerf if args.kerf is None else args.kerf
     for name, value, low in (("--kerf", kerf, 0.0), ("--lead-in", args.lead_in, 0.0), ("--tabs", args.tabs, 0),
@@ -87,6 +88,9 @@ def default_export_folder(nesting: str | Path) -> Path:
 
 def run_check(args: argparse.Namespace) -> int:
     """Check one program; exit 1 when problems were found."""
+    from fabline.export import check_gcode, load_machine
+    from fabline.link.build import BuildInfo
+
     build = BuildInfo(options=args.build_options)
     report = check_gcode(args.file, load_machine(args.machine), build)
     for problem in report.problems:

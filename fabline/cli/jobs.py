@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import secrets
 import shlex
 import signal
@@ -11,7 +12,7 @@ import sys
 import threading
 from pathlib import Path
 
-from fabline.cli import hidden_alias, positive
+from fabline.cli import hidden_alias, positive, quiet_stdout
 from fabline.units import duration
 from fabline.errors import FablineError
 
@@ -36,6 +37,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        help="continue an interrupted run from the sheets' journals instead of cutting every sheet afresh")
     again.add_argument("--restart", action="store_true",
                        help="cut every sheet afresh although an earlier run of this job stopped before finishing")
+    run.add_argument("--from-line", type=positive(int), metavar="N",
+                     help="with --resume: continue the one interrupted sheet from its file line N (the operator's "
+                          "choice, when the machine's position cannot tell)")
     run.set_defaults(func=run_job_command)
 
     runner = subparsers.add_parser("runner", help="the shop-floor runner: a persistent job queue with a web page")
@@ -46,7 +50,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                   help="TCP port of the web page")
     hidden_alias(serve, web_port, "--port")
     serve.add_argument("--machine", action="append", default=[], metavar="NAME=PORT",
-                       help="a machine and its serial port, repeatable (default: sim1=sim://sim1)")
+                       help="a machine and its serial port, repeatable (default: sim1=sim://sim1?machine=grbl-laser&time_scale=2000, "
+                       "a simulator set up as the grbl-laser profile's machine: laser mode, 4100 x 2100 mm travel, 2000 times "
+                       "the real speed)")
     serve.add_argument("--allow-host", action="append", default=[], metavar="NAME",
                        help="a host name the page may be reached by besides the loopback names and --host, repeatable "
                        "(requests naming any other host are refused)")
@@ -91,7 +97,7 @@ def run_job_command(args: argparse.Namespace) -> int:
     """Run every stage of the job and print where the report is; Ctrl-C, SIGTERM and SIGHUP stop the machines
     safely (exit 130, resumable with --resume)."""
     from fabline.jobs.jobfile import load_job_file
-    from fabline.jobs.pipeline import load_facts, run_job
+    from fabline.jobs.pipeline import load_facts, run_job, structure_lines
     from fabline.jobs.queue import describe_load
     from fabline.locks import exclusive_lock, lock_path
 
@@ -100,7 +106,10 @@ def run_job_command(args: argparse.Namespace) -> int:
     def say(text: str) -> None:
         if not args.quiet:
             with said:
-                print(text, flush=True)
+                try:
+                    print(text, flush=True)
+                except BrokenPipeError:  # the reader of the output went away (`| head`): the job goes on unseen
+                    quiet_stdout()
 
     def confirm(k: int, count: int, sheet: dict) -> None:
         facts = load_facts(sheet)
@@ -120,7 +129,7 @@ def run_job_command(args: argparse.Namespace) -> int:
     try:
         with exclusive_lock(lock_path(spec.output_folder), f"job output folder {spec.output_folder}"):
             result = run_job(spec, say, confirm if real_machine and not args.yes else None, resume=args.resume,
-                             restart=args.restart)
+                             restart=args.restart, from_line=args.from_line)
     except KeyboardInterrupt:
         print(f"fabline run: interrupted; the machines stopped safely and their journals are kept: "
               f"{shlex.join(['fabline', 'run', args.job, '--resume'])} continues where they stopped", file=sys.stderr)
@@ -128,6 +137,8 @@ def run_job_command(args: argparse.Namespace) -> int:
     finally:
         stop_signals()
     total = sum(result.timings.values())
+    for line in structure_lines(result):
+        print(line)
     if result.report_path:
         print(f"report: {result.report_path} (JSON: {result.report_path.with_suffix('.json')}); {duration(total)}")
     else:
@@ -171,38 +182,90 @@ def _stop_on_signals():
 
 
 def run_serve(args: argparse.Namespace) -> int:
-    """Start the runner's threads and the web page; stop cleanly on Ctrl-C (the queue keeps its state)."""
+    """Run the runner's threads and the web page until SIGINT, SIGTERM or SIGHUP; then stop everything it started
+    (the export's worker processes included), withdraw its record and token, and exit the process with 130, 143 or
+    129 after one line saying so (the queue keeps its state: a restart goes on from it)."""
     import uvicorn
 
     from fabline.jobs.discovery import page_url, remove_records, write_records
-    from fabline.jobs.runner import MachineConfig, Runner, parse_machine
+    from fabline.jobs.lifecycle import STOP_SIGNALS, end_descendants, exit_code, guard_forks
+    from fabline.jobs.runner import Runner, default_machines, describe_machine, parse_machine
     from fabline.jobs.web import create_app
-    from fabline.locks import exclusive_lock
+    from fabline.locks import exclusive_lock, lock_path
 
-    jobs = Path(args.jobs)
+    jobs, db = Path(args.jobs), _db(args)
     if not jobs.is_dir():
         raise FablineError(f"--jobs {args.jobs}: not a folder")
-    machines = [parse_machine(m) for m in args.machine] or [MachineConfig("sim1", "sim://sim1")]
+    machines = [parse_machine(m) for m in args.machine] or default_machines()
+    described = [describe_machine(m) for m in machines]  # a bad profile name is refused before anything starts
     token = args.token or secrets.token_urlsafe(18)
     hosts = (*args.allow_host, *([args.host] if args.host not in ("0.0.0.0", "::") else []))
-    with exclusive_lock(Path(f"{_db(args)}.lock"), f"runner queue {_db(args)}"):  # one runner per queue
-        runner = Runner(_db(args), machines, auto_confirm=args.auto_confirm)
-        runner.watch_folder(jobs, args.scan)
-        runner.start()
-        print(f"fabline runner: {len(machines)} machine(s): {', '.join(f'{m.name}={m.port}' for m in machines)}; "
-              f"queue {_db(args)}", flush=True)
-        print(f"token: {token}", flush=True)
-        print(f"open http://{args.host}:{args.web_port}/?token={token}", flush=True)
-        records = write_records(_db(args), page_url(args.host, args.web_port), token)
-        print(f"found by `fabline runner status` and the other commands through {' and '.join(map(str, records))}",
-              flush=True)
-        try:
-            uvicorn.Server(uvicorn.Config(create_app(_db(args), token, hosts=hosts), host=args.host, port=args.web_port,
-                                          log_level="warning")).run()
-        finally:
-            remove_records(_db(args))
-            runner.stop()
-    return 0
+    queue_lock = Path(f"{db}.lock")
+    received: list[int] = []
+    stopping = threading.Event()
+
+    def on_signal(number: int, frame) -> None:
+        received.append(number)
+        stopping.set()
+
+    def taken_over(pid: int) -> None:
+        print(f"fabline runner: process {pid} ended without stopping its runner of queue {db}; its lock "
+              f"{queue_lock} is taken over", flush=True)
+
+    previous = {number: signal.signal(number, on_signal) for number in STOP_SIGNALS}
+    try:
+        with exclusive_lock(queue_lock, f"runner queue {db}", taken_over), \
+                _listen(args.host, args.web_port) as listening:  # one runner per queue
+            guard_forks([listening.fileno()], [queue_lock, lock_path(jobs).parent])
+            runner = Runner(db, machines, auto_confirm=args.auto_confirm)
+            for name in runner.removed:
+                print(f"fabline runner: machine {name} removed (not given with --machine)", flush=True)
+            runner.watch_folder(jobs, args.scan)
+            runner.start()
+            print(f"fabline runner: {len(machines)} machine(s); queue {db}", flush=True)
+            print(f"token: {token}", flush=True)
+            print(f"open http://{args.host}:{args.web_port}/?token={token}", flush=True)
+            for line in described:
+                print(f"  machine {line}", flush=True)
+            records = write_records(db, page_url(args.host, args.web_port), token)
+            print(f"found by `fabline runner status` and the other commands through {' and '.join(map(str, records))}",
+                  flush=True)
+            server = uvicorn.Server(uvicorn.Config(create_app(db, token, hosts=hosts, jobs=jobs), host=args.host,
+                                                   port=args.web_port, log_level="warning"))
+            web = threading.Thread(target=server.run, kwargs={"sockets": [listening]}, name="web", daemon=True)
+            web.start()  # outside the main thread uvicorn leaves the signals to us
+            try:
+                while web.is_alive() and not stopping.wait(0.5):
+                    pass
+            finally:
+                server.should_exit = True
+                given_back = runner.stop()
+                workers = end_descendants()
+                web.join(10)
+                remove_records(db)
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+    if not received:
+        raise FablineError(f"runner: the web page on {args.host}:{args.web_port} stopped by itself; the runner stopped")
+    again = f"; job(s) {', '.join(map(str, given_back))} prepared afresh at the next start" if given_back else ""
+    print(f"fabline runner: stopped by {signal.Signals(received[0]).name} ({workers} worker process(es) ended{again}); "
+          f"queue {db} keeps its state", file=sys.stderr, flush=True)
+    sys.stdout.flush()
+    os._exit(exit_code(received[0]))  # not the interpreter's exit: it would join the export pool's manager thread,
+    # which waits forever for the rest of a result a worker was writing when it was ended
+
+
+def _listen(host: str, port: int):
+    """The page's listening socket, bound now so that a port in use is one line, before anything starts."""
+    import socket
+
+    try:
+        return socket.create_server((host, port), family=socket.AF_INET6 if ":" in host else socket.AF_INET,
+                                    backlog=2048)
+    except OSError as exc:
+        raise FablineError(f"--web-port {port}: cannot listen on {host}:{port}: {exc.strerror}; stop what uses "
+                           "it or choose another port") from None
 
 
 def _runner(args: argparse.Namespace):

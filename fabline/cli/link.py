@@ -13,13 +13,15 @@ import termios
 import threading
 import tty
 import urllib.parse
+from typing import TYPE_CHECKING
 
 from fabline.cli import positive
+from fabline.cli.choices import STREAM_MODES
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
-from fabline.link import STOP_SIGNALS, Progress, Streamer, default_journal_path
-from fabline.link.streamer import MODES
-from fabline.progress import StreamBar
+
+if TYPE_CHECKING:
+    from fabline.link import Progress, Streamer
 
 KEYS_HELP = "keys: p = pause/resume (feed hold), q = abort safely"
 STOPPED = 1
@@ -47,7 +49,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="stream although the controller's settings conflict with the program (logged)")
     stream.add_argument("--journal", help="journal file (default: <gcode>.journal)")
     stream.add_argument("--log", help="exchange log (default: <gcode>.link.log)")
-    stream.add_argument("--mode", choices=MODES, default="counting",
+    stream.add_argument("--mode", choices=STREAM_MODES, default="counting",
                         help="character counting or simple send-response")
     stream.add_argument("--status-rate", type=float, default=5.0, help="status reports per second (Hz)")
     stream.add_argument("--connect-timeout", type=positive(float), default=5.0, help="seconds to wait for GRBL")
@@ -69,6 +71,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="the build's $I option letters (V: a stock build; VN adds Ln: line numbers)")
     sim.add_argument("--planner-blocks", type=positive(int), default=15, help="planner size in blocks")
     sim.add_argument("--rx-buffer", type=positive(int), default=128, help="serial receive buffer, bytes")
+    sim.add_argument("--machine", metavar="NAME",
+                     help="set the controller up as this machine profile (name or .toml): its $N settings, e.g. "
+                     "grbl-laser for the example job's programs (laser mode $32=1, 4100 x 2100 mm travel)")
     sim.add_argument("--setting", action="append", default=[], metavar="N=VALUE",
                      help="a Grbl $N setting other than its default, e.g. --setting 32=1 for laser mode")
     sim.add_argument("--fault", action="append", default=[], metavar="KEY=VALUE",
@@ -77,6 +82,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _stream(args: argparse.Namespace) -> int:
+    from fabline.link import Streamer, default_journal_path
+    from fabline.progress import StreamBar
+
     if args.status_rate <= 0:
         raise FablineError(f"--status-rate must be positive, got {args.status_rate}")
     streamer = Streamer(args.port, baud=args.baud, mode=args.mode, status_interval=1.0 / args.status_rate,
@@ -154,6 +162,8 @@ def _keyboard(streamer: Streamer, interactive: bool):
 def _abort_on_interrupt(streamer: Streamer):
     """Ctrl-C, SIGTERM and SIGHUP stop the machine safely (feed hold, reset, "stopped" in the journal) instead of
     abandoning it mid-move; SIGUSR1 is cycle start after a program pause (M0) when no keyboard is attached."""
+    from fabline.link import STOP_SIGNALS
+
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -171,6 +181,8 @@ def _grbl_sim(args: argparse.Namespace) -> int:
 
     options = {"time_scale": args.time_scale, "line_time": args.line_time, "build_options": args.build_options,
                "planner_blocks": args.planner_blocks, "rx_buffer": args.rx_buffer}
+    if args.machine:
+        options["machine"] = args.machine
     if args.setting:
         options["settings"] = ",".join(setting.replace("=", ":", 1) for setting in args.setting)
     if args.log:

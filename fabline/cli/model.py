@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 
-from fabline.cli import positive
-from fabline.cli.units import length_m, size
+from fabline.cli.choices import BOUNDARIES, MODEL_UNITS
+from fabline.cli.units import length_m, length_model, profile, size
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
-from fabline.geometry import analyse, lamella_table
-from fabline.model import UNIT_TO_MM, load_network, save_network
-from fabline.model.designs import BOUNDARIES, DESIGNS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -48,22 +46,28 @@ def _register_surface_designs(kinds: argparse._SubParsersAction) -> None:
     """`design asymptotic` (trace a network on a designer's surface) and `design minimal` (a surface from its edges)."""
     traced = kinds.add_parser("asymptotic", help="trace an asymptotic network on an anticlastic mesh or .3dm surface")
     traced.add_argument("--surface", required=True, help="surface: OBJ, STL, PLY (trimesh) or .3dm (rhino3dm)")
-    traced.add_argument("--spacing", type=positive(float), required=True, help="node spacing along the curves, model units")
-    traced.add_argument("--seed", type=_point, help="x,y,z of the point the rails start from (default: the surface's centre)")
+    traced.add_argument("--spacing", type=length_model, required=True,
+                        help="node spacing along the curves, in model units (the surface's) or with a unit: 0.35, 17mm")
+    traced.add_argument("--seed", type=_point, metavar="X,Y,Z",
+                        help="the point the rails start from, model units, e.g. -0.22,0.04,0.006 (default: the "
+                             "surface's centre)")
     traced.add_argument("--supports", help="nodes matching this rule are supports, e.g. z<0.05")
     traced.add_argument("--seed-curves", help="one or two curves on the surface (.dxf or .json) to use as the rail and "
                         "the middle curve")
-    traced.add_argument("--units", choices=sorted(UNIT_TO_MM), help="units of a mesh file that declares none (default m)")
-    traced.add_argument("--step", type=positive(float), help="tracing step, model units (default spacing/4)")
+    traced.add_argument("--units", choices=MODEL_UNITS, help="units of a mesh file that declares none (default m)")
+    traced.add_argument("--step", type=length_model,
+                        help="tracing step, in model units or with a unit (default spacing/4)")
     traced.add_argument("--material", default="steel-s235", help="lamella material for the limits")
-    traced.add_argument("--profile", default="100x1.5", help="lamella profile HxT in mm for the limits")
+    traced.add_argument("--profile", type=profile, default="100x1.5", metavar="HxT",
+                        help="lamella profile height x thickness in mm for the limits")
     traced.add_argument("--json", action="store_true", help="print the quality report as JSON")
     traced.add_argument("-o", "--output", required=True, help="network JSON to write")
     traced.set_defaults(func=run_asymptotic)
     minimal = kinds.add_parser("minimal", help="discrete minimal surface spanning closed boundary curves")
     minimal.add_argument("--boundary", required=True, help="closed curves: .dxf (polylines, circles, splines) or .json")
-    minimal.add_argument("--mesh-size", type=positive(float), required=True, help="triangle size, model units")
-    minimal.add_argument("--units", choices=sorted(UNIT_TO_MM), help="units of a file that declares none (default m)")
+    minimal.add_argument("--mesh-size", type=length_model, required=True,
+                         help="triangle size, in model units (the boundary file's) or with a unit: 0.1, 100mm")
+    minimal.add_argument("--units", choices=MODEL_UNITS, help="units of a file that declares none (default m)")
     minimal.add_argument("-o", "--output", required=True, help="surface mesh to write (.obj, .stl, .ply, .off)")
     minimal.set_defaults(func=run_minimal)
 
@@ -72,12 +76,15 @@ def _point(text: str) -> tuple[float, float, float]:
     try:
         x, y, z = (float(v) for v in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"a point must look like 0.2,1.5,0, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"a point must look like 0.2,1.5,0 or -0.22,0.04,0.006, got {text!r}") from None
+    if not all(math.isfinite(v) for v in (x, y, z)):
+        raise argparse.ArgumentTypeError(f"a point's coordinates must be finite numbers, got {text!r}")
     return x, y, z
 
 
 def run_asymptotic(args: argparse.Namespace) -> int:
     """Trace the network, write it, print what was found and the quality report."""
+    from fabline.model import save_network
     from fabline.model.surfaces import design_asymptotic, summary_lines
     from fabline.model.surfaces.curves import read_curves
 
@@ -111,10 +118,12 @@ def run_asymptotic(args: argparse.Namespace) -> int:
 
 def run_minimal(args: argparse.Namespace) -> int:
     """Compute the minimal surface and write it as a mesh."""
-    from fabline.model.surfaces.minimal import minimal_surface, read_boundaries, write_mesh
+    from fabline.model.surfaces.minimal import MESH_SIZE_MM, minimal_surface, read_boundaries, write_mesh
+    from fabline.model_units import model_length
 
     curves, names, units = read_boundaries(args.boundary, args.units)
-    mesh = minimal_surface(curves, args.mesh_size, args.boundary, names)
+    mesh_size = model_length(args.mesh_size, units, "--mesh-size", MESH_SIZE_MM, "a triangle size")
+    mesh = minimal_surface(curves, mesh_size, args.boundary, names)
     write_mesh(mesh, args.output)
     print(f"{args.output}: minimal surface spanning {len(curves)} boundary curve{'s' * (len(curves) > 1)}, "
           f"{len(mesh.faces)} triangles, area {mesh.area:.4g} {units}2 (units {units})")
@@ -123,16 +132,25 @@ def run_minimal(args: argparse.Namespace) -> int:
 
 def run_design(args: argparse.Namespace) -> int:
     """Build the chosen design and write it."""
+    from fabline.model import save_network
+    from fabline.model.designs import DESIGNS
+
     check_outputs(files=(args.output,))
     options = {k: v for k, v in vars(args).items() if k not in ("command", "design", "output", "func")}
     network = DESIGNS[args.design](**options)
     save_network(network, args.output)
-    print(f"{args.output}: {args.design} network, {len(network.nodes)} nodes, {len(network.lamellas)} lamellas (units m)")
+    from fabline.model.extent import extent_text
+
+    print(f"{args.output}: {args.design} network, {len(network.nodes)} nodes, {len(network.lamellas)} lamellas (units m), "
+          f"{extent_text(network)}")
     return 0
 
 
 def run_inspect(args: argparse.Namespace) -> int:
     """Print the lamella table and a one-line summary for the whole network."""
+    from fabline.geometry import analyse, lamella_table
+    from fabline.model import load_network
+
     network = load_network(args.model)
     try:
         rows = lamella_table(analyse(network))

@@ -11,9 +11,6 @@ from fabline.cli import hidden_alias
 from fabline.cli.units import length_mm, size
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
-from fabline.nest import (NestOptions, StockItem, load_nesting, load_stock, nest, parts_path,
-                          save_nesting, save_stock, stock_after, validate_nesting, write_sheet_svgs)
-from fabline.unroll import load_parts
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -45,16 +42,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_nest(args: argparse.Namespace) -> int:
     """Nest and print the sheet table, or validate with --check."""
+    from fabline.unroll import load_parts
+
     if args.check:
         return _check(args.check)
     if not args.parts or not args.output:
         raise FablineError("give a parts file and -o nesting.json (or --check nesting.json)")
+    check_outputs(files=(args.output, args.stock_out), folders=(args.svg,), inputs=(args.parts, args.stock))
+    partset = load_parts(args.parts)  # a missing or broken parts file is told before the nester is imported
+    from fabline.nest import NestOptions, StockItem, load_stock, nest, save_nesting, save_stock, stock_after, write_sheet_svgs
+
     options = NestOptions(kerf=args.kerf, gap=args.gap, margin=args.sheet_margin, rotation_steps=args.rotations,
                           common_line=args.common_line, fill_holes=args.fill_holes,
                           remnants_first=args.remnants_first, time_limit=args.time_limit, remnant_min=args.remnant_min)
-    check_outputs(files=(args.output, args.stock_out), folders=(args.svg,), inputs=(args.parts, args.stock))
     stock = load_stock(args.stock) if args.stock else [StockItem("sheet", *args.sheet_size)]
-    partset = load_parts(args.parts)
     relative = os.path.relpath(Path(args.parts).resolve(), Path(args.output).resolve().parent)
     try:
         result = nest(partset, stock, options, parts_file=relative)
@@ -88,6 +89,9 @@ def run_nest(args: argparse.Namespace) -> int:
 def _check(path: str) -> int:
     """Validate a nesting against its parts file; list every problem on stderr, one line each naming the sheet and
     part, and the verdict on stdout; exit 1 if there are any."""
+    from fabline.nest import load_nesting, parts_path, validate_nesting
+    from fabline.unroll import load_parts
+
     nesting = load_nesting(path)
     partset = load_parts(parts_path(path, nesting))
     problems = validate_nesting(nesting, partset)

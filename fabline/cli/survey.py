@@ -243,10 +243,11 @@ def _measure(args: argparse.Namespace) -> int:
               f"+/- {sigma.get('f', 0):.3g} px, principal point ({fitted['cx']}, {fitted['cy']}) +/- "
               f"({sigma.get('cx', 0):.2g}, {sigma.get('cy', 0):.2g}) px, k1 {fitted['distortion'][0]:.4f} "
               f"+/- {sigma.get('k1', 0):.2g}, k2 {fitted['distortion'][1]:.4f} +/- {sigma.get('k2', 0):.2g}")
+    from fabline.verdicts import verdict_text
+
     s = record["summary"]
     print(f"{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
           f"RMS deviation {mm(s['rms_deviation_mm'])} mm, max {mm(s['max_deviation_mm'])} mm; at {record['tolerance_mm']:g} mm "
-          f"({s['k_sigma']:g} sigma) {s['passed']} pass, {s['failed']} fail, {s['uncertain']} uncertain; "
-          f"{s['not_seen']} not measured; {s['tags_found_where_predicted']} tag view(s) "
+          f"({s['k_sigma']:g} sigma) {verdict_text(s)}; {s['tags_found_where_predicted']} tag view(s) "
           f"found where the reconstruction predicted them -> {Path(args.output) / 'survey.json'}")
     return 0

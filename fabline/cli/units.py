@@ -7,6 +7,7 @@ import argparse
 from typing import Callable
 
 from fabline.fileio import MAX_MM
+from fabline.model_units import Length, parse_model_length
 from fabline.units import MM_PER_UNIT, parse_length, parse_size
 
 
@@ -23,6 +24,23 @@ def length(unit: str) -> Callable[[str], float]:
     parse.__name__ = "float"  # argparse names the type in its messages; the campaign test finds number options
     parse.unit = unit
     return parse
+
+
+def length_model(text: str) -> Length:
+    """The argparse type of a positive length in the model's units (`--spacing 0.35` on a surface in m), or with
+    a unit (`17mm`, `0.35 m`); the stage converts it once it has read the model's units, and checks it is
+    plausible in them."""
+    try:
+        length = parse_model_length(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    if not length.value > 0:
+        raise argparse.ArgumentTypeError(f"must be a positive length, got {text!r}")
+    return length
+
+
+length_model.__name__ = "float"  # argparse names the type in its messages; the campaign test finds number options
+length_model.unit = "model units"
 
 
 def size(unit: str) -> Callable[[str], tuple[float, float]]:
@@ -43,6 +61,21 @@ def size(unit: str) -> Callable[[str], tuple[float, float]]:
     parse.unit = unit
     return parse
 
+
+def profile(text: str) -> str:
+    """The argparse type of a strip profile HEIGHTxTHICKNESS (`--profile 100x1.5`, `10cm x 1.5mm`): plain numbers
+    in mm; given to the stage as the plain "HxT" in mm it reads (`fabline.unroll.parse_profile`)."""
+    try:
+        height, thickness = parse_size(text, "mm")
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected HEIGHTxTHICKNESS in mm or with a unit: 100x1.5, 10cm x 1.5mm; "
+                                         f"got {text!r}") from None
+    if not (height > 0 and thickness > 0):
+        raise argparse.ArgumentTypeError(f"height and thickness must be positive, got {text!r}")
+    return "x".join(f"{value:.9f}".rstrip("0").rstrip(".") for value in (height, thickness))
+
+
+profile.unit = "mm"
 
 length_mm = length("mm")
 length_m = length("m")

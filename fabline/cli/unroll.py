@@ -6,13 +6,10 @@ import argparse
 import json
 import sys
 
-from fabline.cli.units import length_mm
+from fabline.cli.choices import SINGULARITY_MODES
+from fabline.cli.units import length_mm, profile
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
-from fabline.model import load_network
-from fabline.unroll import SINGULARITY_MODES, UnrollOptions, get_material, limits, parse_profile, save_parts, unroll_network
-from fabline.unroll.preview import write_previews
-from fabline.unroll.structure import percent
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -65,13 +62,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _material_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--profile", default="100x1.5", help="strip height x thickness in mm")
+    parser.add_argument("--profile", type=profile, default="100x1.5", metavar="HxT", help="strip height x thickness in mm")
     parser.add_argument("--material", default="steel-s235", help="material name (built-in: steel-s235, stainless)")
     parser.add_argument("--materials", metavar="FILE", help="TOML file with more materials (E, G, f_y, density)")
 
 
 def run_unroll(args: argparse.Namespace) -> int:
     """Unroll, write the parts (and previews), print the lamella table; warnings to stderr."""
+    from fabline.model import load_network
+    from fabline.unroll import UnrollOptions, get_material, parse_profile, save_parts
+
     check_outputs(files=(args.output,), folders=(args.svg,), inputs=(args.model, args.materials))
     network = load_network(args.model)
     options = UnrollOptions(
@@ -83,6 +83,10 @@ def run_unroll(args: argparse.Namespace) -> int:
         singularity=args.singularity, hardware=not args.no_hardware, text_height=args.text_height,
         min_crossing_angle=args.min_crossing_angle, strict=args.strict, edge_members=args.edge_members,
         edge_width=args.edge_width)
+    from fabline.unroll import unroll_network  # after the model and the options are checked: it takes a second
+    from fabline.unroll.preview import write_previews
+    from fabline.unroll.structure import percent, verdict_lines
+
     try:
         partset = unroll_network(network, options)
     except FablineError as exc:
@@ -103,6 +107,8 @@ def run_unroll(args: argparse.Namespace) -> int:
     print(f"\n{args.output}: {s['parts']} parts ({kinds}) from {s['lamellas']} lamellas, {s['strips']} strips, "
           f"{s['strip_length_m']:.3f} m of strip; max utilisation {percent(s['max_utilisation'])} "
           f"({s['governing_check']}, lamella {s['governing_lamella']}); {s['warnings']} warnings")
+    if report["verdict"]:
+        print("\n".join(verdict_lines(report["verdict"])))
     if "edges" in report:
         edges = report["edges"]
         worst = max(edges["members"], key=lambda row: row["utilisation"], default=None)
@@ -113,6 +119,8 @@ def run_unroll(args: argparse.Namespace) -> int:
 
 
 def _print_table(rows: list[dict]) -> None:
+    from fabline.unroll.structure import percent
+
     print(f"{'lamella':<10}{'length m':>10}{'min r m':>10}{'twist /m':>10}{'sigma_b':>9}{'tau':>8}{'sigma_H':>9}"
           f"{'util %':>8}{'helix top/bot mm':>18}")
     for r in rows:
@@ -124,6 +132,9 @@ def _print_table(rows: list[dict]) -> None:
 
 def run_limits(args: argparse.Namespace) -> int:
     """Print the profile's minimum radius and maximum twist, and stresses at a given radius or twist."""
+    from fabline.unroll import get_material, limits, parse_profile
+    from fabline.unroll.structure import percent
+
     for name, value in (("--radius", args.radius), ("--twist", args.twist)):
         if value is not None and not value > 0:
             raise FablineError(f"{name}: must be positive, got {value:g}")
@@ -135,7 +146,8 @@ def run_limits(args: argparse.Namespace) -> int:
           f"f_y {result['f_y']:g}, tau_y {result['tau_y']:.1f} N/mm2")
     print(f"minimum bending radius (weak axis)  {result['min_bending_radius_mm']:.1f} mm")
     print(f"maximum twist                       {result['max_twist_rad_per_m']:.3f} rad/m "
-          f"({result['max_twist_deg_per_m']:.1f} deg/m)")
+          f"({result['max_twist_deg_per_m']:.1f} deg/m) by shear alone; "
+          f"{result['combined_max_twist_rad_per_m']:.3f} rad/m by the combined check (the verdict's)")
     if "at_radius" in result:
         r = result["at_radius"]
         print(f"at radius {r['radius_mm']:g} mm: bending stress {r['bending_stress']:.1f} N/mm2, "

@@ -28,7 +28,8 @@ from fabline.export.motion import MotionSummary, summarise
 from fabline.export.preview import PREVIEW_SUFFIX, cut_order_svg
 from fabline.export.toolpath import Toolpath, ToolpathOptions, check_placements, sheet_toolpaths
 from fabline.fileio import atomic_output
-from fabline.nest.layout import Nesting, Sheet, load_nesting, parts_path, sheet_file_stem
+from fabline.naming import file_stem
+from fabline.nest.layout import Nesting, Sheet, load_nesting, parts_path
 from fabline.nest.validate import validate_nesting
 from fabline.progress import progress
 from fabline.unroll.parts import Part, load_parts
@@ -107,7 +108,7 @@ def export_job(nesting: Nesting, parts: dict[str, Part], profile: MachineProfile
         results, outputs = [], {}
         for future in progress(futures, "export", count):
             done, drawing, order = future.result()
-            stem = f"{name}_{sheet_file_stem(done.sheet)}"
+            stem = f"{name}_{file_stem(done.sheet)}"
             if gcode_dir is not None:
                 outputs[Path(gcode_dir) / f"{stem}.gcode"] = done.gcode
             if order is not None:
@@ -156,7 +157,7 @@ def _export_sheet(sheet: Sheet, number: int, count: int, profile: MachineProfile
     summary = summarise(moves, profile.acceleration, profile.junction_deviation, profile.rapid_rate)
     header = _header(name, sheet, number, count, profile, options, summary)
     program = header_block(header, profile) + body
-    order = (cut_order_svg(program.encode("ascii"), f"{name}_{sheet_file_stem(sheet.id)}.gcode", sheet.width, sheet.height,
+    order = (cut_order_svg(program.encode("ascii"), f"{name}_{file_stem(sheet.id)}.gcode", sheet.width, sheet.height,
                            f"{name} sheet {sheet.id}") if preview else None)
     return (SheetExport(sheet.id, len(sheet.placements), summary, program),
             dxf.drawing_text([sheet], parts) if drawing else None, order)

@@ -1,6 +1,10 @@
-"""The geometry stage: arc length, Darboux frame and curvatures along every lamella, crossing angles at nodes."""
+"""The geometry stage: arc length, Darboux frame and curvatures along every lamella, crossing angles at nodes.
 
-from fabline.geometry.darboux import (CurveFit, LamellaGeometry, NetworkGeometry, analyse, lamella_geometry,
-                                     lamella_table)
+The names below load their module on first use (`fabline.lazy`).
+"""
 
-__all__ = ["CurveFit", "LamellaGeometry", "NetworkGeometry", "analyse", "lamella_geometry", "lamella_table"]
+from fabline.lazy import lazy_surface
+
+__getattr__, __all__ = lazy_surface(__name__, {
+    "darboux": ("CurveFit", "LamellaGeometry", "NetworkGeometry", "analyse", "lamella_geometry", "lamella_table"),
+})

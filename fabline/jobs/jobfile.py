@@ -179,10 +179,25 @@ def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
                    unroll=data["unroll"], export=data["export"])
     if spec.nest["stock_out"] is not None:
         spec.output(spec.nest["stock_out"])  # refused here if it would leave the output folder
+    _check_port_files(spec, where)
     report = spec.output(spec.report_name)
     if report.suffix != ".html":
         raise FablineError(f"{where}: output.report: {spec.report_name!r} must end in .html")
     return spec
+
+
+def _check_port_files(spec: JobSpec, where: str) -> None:
+    """Each port URL checked as the link stage will open it: known options only, and a file it writes (a spy's
+    file=, a simulator's log=) inside the output folder and none of the job's inputs."""
+    from fabline.link import check_port
+
+    inputs = (spec.path, spec.model.get("file"), spec.lamella["materials_file"], spec.stock["file"],
+              spec.survey.get("result"))
+    for port in spec.machine["ports"]:
+        try:
+            check_port(port, inputs=tuple(i for i in inputs if i), within=spec.output_folder)
+        except FablineError as exc:
+            raise FablineError(f"{where}: machine.ports: {exc}") from None
 
 
 def _check_table(raw: Any, schema: dict[str, Any], where: str, prefix: str) -> dict[str, Any]:
@@ -400,7 +415,6 @@ def toolpath_options(export: dict[str, Any], machine_kerf: float) -> "ToolpathOp
 def _check_values(data: dict[str, Any], where: str) -> None:
     """Ranges and vocabularies: sheet size, profile, material, machine profile, positive numbers."""
     from fabline.export.machine import available_machines
-    from fabline.link import check_port
     from fabline.nest.stock import parse_sheet_size
     from fabline.unroll.materials import load_materials, parse_profile
 
@@ -432,5 +446,3 @@ def _check_values(data: dict[str, Any], where: str) -> None:
         value = data["export"][key]
         if value is not None and not low <= value < math.inf:
             raise FablineError(f"{where}: export.{key}: must be a finite number, at least {low:g}, got {value}")
-    for port in data["machine"]["ports"]:
-        wrapped("machine.ports", check_port, port)

@@ -24,6 +24,7 @@ if TYPE_CHECKING:  # the runner's web page imports this module; keep its start-u
     from fabline.unroll.parts import Part
 
 FAMILY_COLOURS = {"A": "#1f6fb4", "B": "#d9622b"}
+LABEL_PX = 14.0  # the largest part label on a sheet picture (picture units, 900 to the sheet's width)
 _VIEWBOX = re.compile(r'viewBox="([^"]+)"')
 
 
@@ -78,33 +79,41 @@ def sheet_svg(sheet: "Sheet", parts: dict[str, "Part"], width: int = 900) -> str
     shapes, labels = [], []
     for placement in sheet.placements:
         part = parts[placement.part]
-        outline = place(flatten_contour(part.outline, 0.5)[:, :2], placement)
+        flat_outline = flatten_contour(part.outline, 0.5)[:, :2]
+        flat_holes = tuple(flatten_contour(hole, 0.5)[:, :2] for hole in part.holes)
+        outline = place(flat_outline, placement)
         d = "M" + " L".join(f"{_fmt(x)},{_fmt(y)}" for x, y in to_screen(outline)) + " Z"
-        for hole in part.holes:
-            d += " M" + " L".join(f"{_fmt(x)},{_fmt(y)}" for x, y in
-                                  to_screen(place(flatten_contour(hole, 0.5)[:, :2], placement))) + " Z"
+        for hole in flat_holes:
+            d += " M" + " L".join(f"{_fmt(x)},{_fmt(y)}" for x, y in to_screen(place(hole, placement))) + " Z"
         shapes.append(f'<path d="{d}" fill="#dfe8f1" fill-rule="evenodd" stroke="#234" stroke-width="0.6">'
                       f'<title>{html.escape(part.id)}</title></path>')
         for mark in part.marks:
             shapes.append(f'<polyline points="{_points(to_screen(place(np.asarray(mark)[:, :2], placement)))}" '
                           'fill="none" stroke="#8a5" stroke-width="0.5"/>')
-        cx, cy = to_screen(outline[:-1].mean(axis=0, keepdims=True))[0]
-        extent = np.ptp(outline, axis=0) * scale
-        along, across = (extent[1], extent[0]) if extent[1] > 2 * extent[0] else (extent[0], extent[1])
-        size = max(1.5, min(14.0, along / (0.62 * max(len(part.id), 1)), 0.8 * across))
-        half = 0.35 * size * len(part.id)           # half the label's length, generously: keep it on the sheet
-        if extent[1] > 2 * extent[0]:
-            cy = min(max(cy, half), height - half)
-        else:
-            cx = min(max(cx, half), width - half)
-        rotate = f' transform="rotate(-90 {_fmt(cx)} {_fmt(cy)})"' if extent[1] > 2 * extent[0] else ""
-        labels.append(f'<text x="{_fmt(cx)}" y="{_fmt(cy)}" font-size="{_fmt(size)}" text-anchor="middle" '
-                      f'dominant-baseline="middle" fill="#102a43"{rotate}>{html.escape(part.id)}</text>')
+        labels.append(_label(part.id, flat_outline, flat_holes, placement, scale, to_screen))
     return (f'<svg xmlns="http://www.w3.org/2000/svg" class="sheet" font-family="sans-serif" viewBox="0 0 {_fmt(width)} {_fmt(height)}" '
             f'width="{_fmt(width)}" height="{_fmt(height)}" data-sheet="{html.escape(sheet.id)}" '
             f'data-mm-per-unit="{1 / scale:.6g}">'
             f'<rect width="100%" height="100%" fill="#f7f7f2" stroke="#999"/>' + "".join(shapes) + "".join(labels)
             + "</svg>")
+
+
+def _label(text: str, outline: np.ndarray, holes: tuple[np.ndarray, ...], placement, scale: float, to_screen) -> str:
+    """A part's id on the sheet picture, inside its material and clear of its holes (`fabline.jobs.labels`), along
+    the outline there (a strip's or edge bar's centre line), upright, at most LABEL_PX high."""
+    from fabline.jobs.labels import label_spot
+    from fabline.nest.layout import place
+
+    spot = label_spot(outline, holes, text, LABEL_PX / scale)
+    if spot is None:
+        return ""
+    ends = to_screen(place(np.array([[spot.x, spot.y], [spot.x + spot.dx, spot.y + spot.dy]]), placement))
+    (cx, cy), (ex, ey) = ends
+    angle = math.degrees(math.atan2(ey - cy, ex - cx))
+    angle = angle - 180.0 if angle > 90.0 else angle + 180.0 if angle <= -90.0 else angle  # never upside down
+    rotate = f' transform="rotate({angle:.1f} {_fmt(cx)} {_fmt(cy)})"' if abs(angle) >= 0.05 else ""
+    return (f'<text x="{_fmt(cx)}" y="{_fmt(cy)}" font-size="{spot.size * scale:.2f}" text-anchor="middle" '
+            f'dominant-baseline="central" fill="#102a43"{rotate}>{html.escape(text)}</text>')
 
 
 @lru_cache(maxsize=32)

@@ -22,6 +22,7 @@ from fabline.jobs.jobfile import JobSpec, load_job_file, nest_options, toolpath_
 from fabline.jobs.report_shop import machine_seconds
 from fabline.progress import Eta, StreamBar, above_bars, estimate, simulated_speedup
 from fabline.units import duration, mm
+from fabline.verdicts import verdict_text
 
 if TYPE_CHECKING:  # the model stage pulls in scipy; the runner imports this package and must start fast
     from fabline.model import Network
@@ -41,6 +42,7 @@ class JobResult:
     export: Any = None
     sheet_files: list[dict] = field(default_factory=list)
     stream: list[dict] = field(default_factory=list)
+    stream_wall_s: float | None = None  # the stream stage's wall time: the machines cut in parallel, never summed
     survey: dict | None = None  # the report's survey entry (fabline.jobs.survey_stage.survey_entry)
     timings: dict[str, float] = field(default_factory=dict)
     report_path: Path | None = None
@@ -74,6 +76,7 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
     """Run the job's stages up to export and write the report; returns the result with the sheet programs. The
     stages are one `OutputSet`: a stage that refuses its input leaves the output folder as it was."""
     from fabline.model import save_network
+    from fabline.model.extent import extent_text
 
     spec = job if isinstance(job, JobSpec) else load_job_file(job)
     timings: dict[str, float] = {}
@@ -85,10 +88,13 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
                       inputs=(spec.path, spec.model.get("file")))
         result = JobResult(spec, network=_timed(timings, "model", lambda: build_network(spec)), timings=timings)
         save_network(result.network, spec.output("network.json"))
-        say(f"model: {result.network.name}, {len(result.network.lamellas)} lamellas, {len(result.network.nodes)} nodes")
+        say(f"model: {result.network.name}, {len(result.network.lamellas)} lamellas, {len(result.network.nodes)} nodes, "
+            f"{extent_text(result.network)}")
         if "unroll" in spec.stages:
             _timed(result.timings, "unroll", lambda: _unroll(result))
             say(f"unroll: {len(result.partset.parts)} parts -> {spec.output('parts.json')}")
+            for line in structure_lines(result):
+                say(line)
         if "nest" in spec.stages:
             _timed(result.timings, "nest", lambda: _nest(result))
             say(f"nest: {len(result.nesting.sheets)} sheet(s) -> {spec.output('nesting.json')}")
@@ -106,21 +112,26 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
 
 def run_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None,
             confirm_sheet: Callable[[int, int, dict], None] | None = None, resume: bool = False,
-            restart: bool = False) -> JobResult:
+            restart: bool = False, from_line: int | None = None) -> JobResult:
     """The whole job: prepare, then stream every sheet (asking `confirm_sheet(k, n, sheet)` before each one
     when given, `sheet` its entry of `sheet_files`: id, files and `load_facts`), then the survey, then the report with the streaming log and the survey. `resume` continues
     an interrupted run from the sheets' journals (finished sheets are not cut again); otherwise every sheet
-    is cut afresh, which an interrupted earlier run refuses unless `restart` says so. The caller holds the
+    is cut afresh, which an interrupted earlier run refuses unless `restart` says so; `from_line` (with `resume`)
+    continues the one interrupted sheet from that file line, the operator's choice. The caller holds the
     output folder's lock (`fabline.locks`), so no other run touches these journals meanwhile."""
     spec = job if isinstance(job, JobSpec) else load_job_file(job)
+    if from_line is not None and not resume:
+        raise FablineError("--from-line needs --resume (it names where the interrupted sheet continues)")
     if "stream" in spec.stages and not resume and not restart:
         _refuse_over_an_interrupted_run(spec)
+    interrupted = _interrupted_sheet(spec) if from_line is not None else None
     result = prepare_job(spec, say)
     if "stream" not in spec.stages and "survey" not in spec.stages:
         return result
     try:
         if "stream" in spec.stages:
-            _timed(result.timings, "stream", lambda: _stream_all(result, say, confirm_sheet, resume))
+            _timed(result.timings, "stream", lambda: _stream_all(result, say, confirm_sheet, resume,
+                                                                    (interrupted, from_line)))
         if "survey" in spec.stages:
             _timed(result.timings, "survey", lambda: _survey(result, say))
     finally:  # the report shows the streaming log, also of a run that stopped
@@ -129,16 +140,26 @@ def run_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None,
     return result
 
 
+def structure_lines(result: JobResult) -> list[str]:
+    """The unroll stage's structural verdict in the words `fabline unroll` and the report use (none without it)."""
+    from fabline.unroll.structure import verdict_lines
+
+    verdict = result.partset.report.get("verdict") if result.partset else None
+    return verdict_lines(verdict) if verdict else []
+
+
 def write_report(result: JobResult) -> Path:
-    """Write the HTML report and its JSON twin into the output folder; returns the HTML's path."""
+    """Write the HTML report and its JSON twin into the output folder (the pictures it links, cut-order previews and
+    the deviation map, are their stages' files there); returns the HTML's path."""
     from fabline.jobs.report import render_report, report_data
 
     spec = result.spec
     data = report_data(result)
     result.report_path = spec.output(spec.report_name)
-    write_json(spec.output(Path(spec.report_name).with_suffix(".json")), data)
-    with atomic_output(result.report_path) as handle:
-        handle.write(render_report(result, data))
+    with OutputSet():  # the page and its twin as one: a failure leaves the last complete pair
+        write_json(spec.output(Path(spec.report_name).with_suffix(".json")), data)
+        with atomic_output(result.report_path) as handle:
+            handle.write(render_report(result, data))
     return result.report_path
 
 
@@ -221,8 +242,8 @@ def _survey(result: JobResult, say: Say) -> None:
     summary, truth = result.survey["summary"], result.survey["truth"]
     say(f"survey: {summary['measured']} of {summary['nodes']} nodes measured in {result.survey['simulated']['measure_s']:.1f} s: "
         f"RMS deviation {mm(summary['rms_deviation_mm'])} mm, max {mm(summary['max_deviation_mm'])} mm; at "
-        f"{result.survey['tolerance_mm']:g} mm {summary['passed']} pass, {summary['failed']} fail, "
-        f"{summary['uncertain']} uncertain; against the injected truth RMS error {truth['rms_error_mm']:.2f} mm "
+        f"{result.survey['tolerance_mm']:g} mm {verdict_text(summary)}; against the injected truth RMS error "
+        f"{mm(truth['rms_error_mm'])} mm "
         f"-> {folder / 'survey.json'}")
 
 
@@ -242,9 +263,8 @@ def machine_ports(spec: JobSpec) -> list[str]:
     return ports
 
 
-def _refuse_over_an_interrupted_run(spec: JobSpec) -> None:
-    """An earlier run of this job stopped before it finished a sheet: a new run would cut that sheet from its
-    first line again, so it must be asked for (--restart) or the old run continued (--resume)."""
+def _unfinished(spec: JobSpec) -> list[str]:
+    """The programs (file names) whose journal in the job's G-code folder says their run did not finish."""
     from fabline.link import read_journal
 
     unfinished = []
@@ -254,6 +274,23 @@ def _refuse_over_an_interrupted_run(spec: JobSpec) -> None:
                 unfinished.append(journal.name.removesuffix(".journal"))
         except FablineError:
             unfinished.append(journal.name.removesuffix(".journal"))
+    return unfinished
+
+
+def _interrupted_sheet(spec: JobSpec) -> str:
+    """The one program an earlier run left unfinished, which --from-line names a line of."""
+    unfinished = _unfinished(spec)
+    if len(unfinished) != 1:
+        raise FablineError(f"{spec.path.name}: --from-line names a line of the one interrupted sheet, but "
+                           + (f"{len(unfinished)} sheets were interrupted ({', '.join(unfinished[:3])}): resume "
+                              "without it, each sheet from its journal" if unfinished else "no sheet was interrupted"))
+    return unfinished[0]
+
+
+def _refuse_over_an_interrupted_run(spec: JobSpec) -> None:
+    """An earlier run of this job stopped before it finished a sheet: a new run would cut that sheet from its
+    first line again, so it must be asked for (--restart) or the old run continued (--resume)."""
+    unfinished = _unfinished(spec)
     if unfinished:
         raise FablineError(f"{spec.path.name}: an earlier run stopped before finishing {', '.join(unfinished[:3])}"
                            f"{' and more' if len(unfinished) > 3 else ''}; continue it with --resume, "
@@ -272,7 +309,8 @@ class _JobClock:
         self.running: dict[int, Eta | None] = {}
 
     def eta(self) -> Eta:
-        """The whole job: elapsed wall time, remaining by the pace of the work done so far."""
+        """The whole job: elapsed wall time, remaining by the pace of the work done so far (time a machine stood
+        held for the operator is not work: the finished sheets count their wall time less it)."""
         done = sum(self.planned[k] for k in self.finished)
         worked = sum(self.finished.values())
         for k, eta in self.running.items():
@@ -284,23 +322,39 @@ class _JobClock:
 
 
 def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, dict], None] | None,
-                resume: bool) -> None:
+                resume: bool, start: tuple[str | None, int | None] = (None, None)) -> None:
     """Cut every sheet: each machine takes the next sheet when it is free (one sheet at a time per machine);
     after a failure no new sheet starts, the ones running finish, and the first error is raised. Each sheet
-    streams from a process of its own, so that machines stream on all CPU cores; Ctrl-C stops them safely."""
+    streams from a process of its own, so that machines stream on all CPU cores; Ctrl-C stops them safely.
+    `start` is (program file name, file line): that sheet continues from that line (--from-line)."""
     import multiprocessing
 
     from fabline.jobs.streaming import STOP_SIGNALS, journal_summary, stream_in_process
 
+    from fabline.jobs.streaming import finished_earlier
+    from fabline.link import load_program
+
     sheets = list(enumerate(result.sheet_files))
     count = len(sheets)
     entries: dict[int, dict] = {}
+    ports = machine_ports(result.spec)
+    if resume:  # a sheet an earlier run finished is not cut again: no link process, no time of this run
+        for k, sheet in list(sheets):
+            if finished_earlier(sheet["gcode"]):
+                sheets.remove((k, sheet))
+                lines = len(load_program(sheet["gcode"]).lines)
+                entries[k] = {"sheet": sheet["sheet"], "program": sheet["gcode"], "outcome": "finished", "earlier": True,
+                              "port": "", "lines": lines, "executed": lines, "seconds": None, "resumed_from": lines}
+        if not sheets:
+            result.stream = [entries[k] for k in sorted(entries)]
+            say(f"stream: nothing left to cut: all {count} sheets finished in an earlier run")
+            return
     errors: list[FablineError] = []
     running: set = set()
     lock = threading.Lock()
     context = multiprocessing.get_context("spawn")  # no fork of a process that runs threads
-    ports = machine_ports(result.spec)
-    clock = _JobClock([sheet.get("time_s", 0.0) / simulated_speedup(ports[0]) for sheet in result.sheet_files], len(ports))
+    clock = _JobClock([0.0 if k in entries else sheet.get("time_s", 0.0) / simulated_speedup(ports[0])
+                       for k, sheet in enumerate(result.sheet_files)], len(ports))
     job_bar = StreamBar("job", position=0, unit="sheet")
     say = above_bars(say)
     bars = {port: StreamBar(port.split("?", 1)[0], position=slot + 1, leave=False) for slot, port in enumerate(ports)}
@@ -325,7 +379,8 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
             started = time.perf_counter()
             receiver, sender = context.Pipe(duplex=False)
             link = context.Process(target=stream_in_process, daemon=True,
-                                   args=(port, sheet["gcode"], resume, {"job": result.spec.name}, sender))
+                                   args=(port, sheet["gcode"], resume, {"job": result.spec.name}, sender,
+                                         start[1] if Path(sheet["gcode"]).name == start[0] else None))
             with lock:
                 signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS))  # inherited: a signal waits for the handlers
                 link.start()
@@ -362,13 +417,12 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
                      "seconds": round(time.perf_counter() - started, 3), **summary}
             with lock:
                 entries[k] = entry
-                clock.finished[k] = entry["seconds"]
+                clock.finished[k] = max(entry["seconds"] - entry.get("held_s", 0.0), 0.0)
                 if outcome != "finished":
                     errors.append(FablineError(f"stream: sheet {sheet['sheet']} on {shown}: {outcome}"))
                 job_bar.show(len(clock.finished), count, clock.eta())
-            planned = f" (planned {clock.planned[k]:.1f} s)" if clock.planned[k] else ""
             say(f"stream: sheet {k + 1} of {count} ({sheet['sheet']}) on {shown}: {entry['executed']} of {entry['lines']} lines "
-                f"{outcome} in {entry['seconds']:.1f} s{planned}; {job_eta_text()}")
+                f"{outcome}{_sheet_times(entry)}; {job_eta_text()}")
 
     threads = [threading.Thread(target=machine, args=(port,), daemon=True) for port in ports]
     for thread in threads:
@@ -389,8 +443,36 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
         for bar in (*bars.values(), job_bar):
             bar.close()
     result.stream = [entries[k] for k in sorted(entries)]
-    planned = sum(s.get("planned_s", 0.0) for s in result.stream)
-    say(f"stream: {len(result.stream)} sheet(s) on {len(ports)} machine(s) in {clock.eta().elapsed:.1f} s; machine time "
-        f"planned {duration(planned)}, taken {duration(sum(machine_seconds(s) for s in result.stream))}")
+    result.stream_wall_s = round(clock.eta().elapsed, 3)
+    say(stream_summary(result.stream, len(ports), result.stream_wall_s))
     if errors:
         raise errors[0]
+
+
+def _sheet_times(entry: dict) -> str:
+    """` in 0:10:12 machine time (planned 0:10:00 for these lines), 1.3 s wall`: the machine's own clock against the
+    planner's time for the lines this run cut; what is not known is left out."""
+    taken = machine_seconds(entry)
+    planned = (entry["planned_done_s"] - entry.get("planned_before_s", 0.0)) if "planned_done_s" in entry else None
+    parts = [f" in {duration(taken)} machine time" if taken is not None else ""]
+    parts.append(f" (planned {duration(planned)})" if planned is not None and taken is not None else "")
+    parts.append(f", {entry['seconds']:.1f} s wall" if entry.get("seconds") is not None else "")
+    return "".join(parts)
+
+
+def stream_summary(stream: list[dict], machines: int, wall: float) -> str:
+    """The stream stage in one line: sheets cut in this run on how many machines in how much wall time (the
+    machines run in parallel: one wall time for all), the machine time the planner planned for the lines cut and
+    the machine time taken (summed over the machines, each by its own clock), and the sheets an earlier run
+    finished."""
+    cut = [s for s in stream if not s.get("earlier")]
+    earlier = len(stream) - len(cut)
+    timed = [s for s in cut if machine_seconds(s) is not None and "planned_done_s" in s]
+    text = f"stream: {len(cut)} sheet(s) on {machines} machine(s) in {wall:.1f} s"
+    if timed:
+        planned = sum(s["planned_done_s"] - s.get("planned_before_s", 0.0) for s in timed)
+        text += (f"; machine time (summed over the machines) planned {duration(planned)}, "
+                 f"taken {duration(sum(machine_seconds(s) for s in timed))}")
+    if earlier:
+        text += f"; {earlier} sheet(s) finished in an earlier run"
+    return text

@@ -61,6 +61,7 @@ CREATE TABLE IF NOT EXISTS jobs (
     report TEXT,
     attention TEXT,
     output TEXT,
+    stopped TEXT,
     created REAL NOT NULL,
     updated REAL NOT NULL
 );
@@ -81,6 +82,8 @@ CREATE TABLE IF NOT EXISTS sheets (
     resume INTEGER NOT NULL DEFAULT 0,
     from_line INTEGER,
     skipped INTEGER NOT NULL DEFAULT 0,
+    waited REAL NOT NULL DEFAULT 0,
+    waiting_since REAL,
     PRIMARY KEY (job_id, k)
 );
 CREATE TABLE IF NOT EXISTS machines (
@@ -89,6 +92,16 @@ CREATE TABLE IF NOT EXISTS machines (
     state TEXT NOT NULL DEFAULT 'idle',
     job_id INTEGER,
     position TEXT NOT NULL DEFAULT '[0, 0, 0]',
+    updated REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS commands (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    machine TEXT NOT NULL,
+    line TEXT,
+    override TEXT,
+    state TEXT NOT NULL DEFAULT 'pending',
+    answer TEXT,
+    created REAL NOT NULL,
     updated REAL NOT NULL
 );
 CREATE TABLE IF NOT EXISTS events (
@@ -122,6 +135,13 @@ class SheetRow:
     from_line: int | None = None
     skipped: int = 0
     facts: str = "{}"
+    waited: float = 0.0
+    """Seconds the sheet, under way, stood waiting (paused, needs attention): not work, so no ETA counts it."""
+    waiting_since: float | None = None
+
+    def waiting(self, now: float) -> float:
+        """Seconds this sheet has stood waiting by `now` (a wait in progress included)."""
+        return self.waited + (now - self.waiting_since if self.waiting_since is not None else 0.0)
 
     def load_facts(self) -> dict[str, Any]:
         """The sheet's facts for the load prompt (JSON in the database)."""
@@ -158,6 +178,7 @@ class JobRow:
     updated: float
     attention: str | None = None
     output: str | None = None
+    stopped: str | None = None
 
     def describe(self) -> str:
         """The state as an operator reads it: 'cutting sheet 2 of 3', 'ready: load sheet 1 of 3'."""
@@ -244,13 +265,29 @@ class JobQueue:
             self._event(db, job_id, None, f"job {job_id} {name} submitted ({state}{': ' + error if error else ''})")
         return job_id
 
-    def _add_sheets(self, db: sqlite3.Connection, job_id: int, programs: list[tuple]) -> None:
+    def submit_once(self, name: str, job_file: str, error: str | None = None) -> tuple[int, bool]:
+        """Queue a job file unless a job of that file is queued already (in one transaction, so the folder watcher
+        and an upload never queue a file twice); (the job's id, whether it is new)."""
+        with self.transaction() as db:
+            row = db.execute("SELECT id FROM jobs WHERE job_file = ? ORDER BY id DESC LIMIT 1", (job_file,)).fetchone()
+            if row is not None:
+                return int(row["id"]), False
+            now = time.time()
+            state = "failed" if error else "queued"
+            cursor = db.execute("INSERT INTO jobs (name, job_file, state, error, created, updated) "
+                                "VALUES (?, ?, ?, ?, ?, ?)", (name, job_file, state, error, now, now))
+            job_id = int(cursor.lastrowid)
+            self._event(db, job_id, None, f"job {job_id} {name} submitted ({state}{': ' + error if error else ''})")
+        return job_id, True
+
+    def _add_sheets(self, db: sqlite3.Connection, job_id: int, programs: list[tuple],
+                    lines: list[int] | None = None) -> None:
         if not programs:
             raise FablineError(f"job {job_id}: no sheets to cut")
         for k, (name, program, svg, *facts) in enumerate(programs):
             db.execute("INSERT INTO sheets (job_id, k, name, program, svg, facts, lines) VALUES (?, ?, ?, ?, ?, ?, ?)",
                        (job_id, k, name, str(program), svg, json.dumps(facts[0] if facts else {}),
-                        _count_lines(program)))
+                        lines[k] if lines is not None else _count_lines(program)))
         db.execute("UPDATE jobs SET sheets = ? WHERE id = ?", (len(programs), job_id))
 
     def job(self, job_id: int) -> JobRow:
@@ -279,6 +316,12 @@ class JobQueue:
             raise FablineError(f"job {job.id}: cannot go from {job.state} to {state}")
         fields = {"state": state, "updated": time.time(), **fields}
         db.execute(f"UPDATE jobs SET {', '.join(f'{k} = ?' for k in fields)} WHERE id = ?", (*fields.values(), job.id))
+        if state in ("paused", "attention"):  # a sheet under way starts waiting for the operator
+            db.execute("UPDATE sheets SET waiting_since = ? WHERE job_id = ? AND k = ? AND started IS NOT NULL "
+                       "AND finished IS NULL AND waiting_since IS NULL", (fields["updated"], job.id, job.sheet))
+        else:  # ... and stops waiting when the job moves on (the wait is kept apart from the work)
+            db.execute("UPDATE sheets SET waited = waited + (? - waiting_since), waiting_since = NULL "
+                       "WHERE job_id = ? AND waiting_since IS NOT NULL", (fields["updated"], job.id))
 
     def _locked_job(self, db: sqlite3.Connection, job_id: int) -> JobRow:
         row = db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone()
@@ -299,20 +342,33 @@ class JobQueue:
         return self.job(job.id)
 
     def prepared(self, job_id: int, programs: list[tuple], report: str | None,
-                 output: str | None = None) -> None:
+                 output: str | None = None, lines: list[int] | None = None) -> None:
         """A job's sheet programs are made (in its output folder): preparing -> ready (unless it was paused or
-        cancelled meanwhile)."""
+        cancelled meanwhile). `lines`: the programs' command lines when known (reused sheets), else counted."""
         with self.transaction() as db:
             job = self._locked_job(db, job_id)
-            if job.state in FINAL_STATES:
-                return
-            self._add_sheets(db, job_id, programs)
+            if job.state != "preparing" and not (job.state == "paused" and job.paused_from == "preparing"):
+                return  # cancelled, failed, or given back to the queue by a stopping runner: nothing is recorded
+            self._add_sheets(db, job_id, programs, lines)
             if job.state == "paused":
                 db.execute("UPDATE jobs SET paused_from = 'ready', report = ?, output = ? WHERE id = ?",
                            (report, output, job_id))
             else:
                 self._move(db, job, "ready", report=report, output=output)
             self._event(db, job_id, None, f"job {job_id} prepared: {len(programs)} sheet(s)")
+
+    def give_back_preparation(self) -> list[int]:
+        """A stopping runner's unfinished preparations go back to the queue, all at once (preparation is repeatable:
+        the next start prepares them afresh); returns their ids."""
+        with self.transaction() as db:
+            rows = db.execute("SELECT id FROM jobs WHERE state = 'preparing' OR (state = 'paused' AND "
+                              "paused_from = 'preparing') ORDER BY id").fetchall()
+            db.execute("UPDATE jobs SET state = 'queued', updated = ? WHERE state = 'preparing'", (time.time(),))
+            db.execute("UPDATE jobs SET paused_from = 'queued' WHERE state = 'paused' AND paused_from = 'preparing'")
+            for row in rows:
+                self._event(db, row["id"], None, f"job {row['id']}: the runner stopped during its preparation; "
+                            "it is prepared afresh at the next start")
+        return [row["id"] for row in rows]
 
     def fail(self, job_id: int, error: str) -> None:
         """A job cannot go on: failed, with the one-line reason."""
@@ -331,6 +387,25 @@ class JobQueue:
             db.execute("INSERT INTO machines (name, port, updated) VALUES (?, ?, ?) "
                        "ON CONFLICT(name) DO UPDATE SET port = excluded.port, updated = excluded.updated",
                        (name, port, time.time()))
+
+    def keep_machines(self, names: list[str]) -> list[str]:
+        """Forget every machine not in `names` (the machines this start drives): gone from the page and the status;
+        a job that waited on one with its sheet not yet started goes back to whichever machine is free, the sheet
+        to be confirmed loaded again there. Returns the names forgotten."""
+        with self.transaction() as db:
+            known = [row["name"] for row in db.execute("SELECT name FROM machines ORDER BY name")]
+            gone = [name for name in known if name not in names]
+            for name in gone:
+                db.execute("DELETE FROM machines WHERE name = ?", (name,))
+                db.execute("UPDATE jobs SET machine = NULL, confirmed = MIN(confirmed, sheet - 1), updated = ? "
+                           "WHERE machine = ? AND (state = 'ready' OR (state = 'paused' AND paused_from != 'cutting'))",
+                           (time.time(), name))
+                held = [row["id"] for row in db.execute("SELECT id FROM jobs WHERE machine = ? AND state IN "
+                                                        "('cutting', 'paused', 'attention')", (name,))]
+                self._event(db, None, name, f"machine {name} removed (not among the runner's machines)" +
+                            "".join(f"; job {job}'s sheet was being cut on it: start the runner with {name} again to "
+                                    "go on, or cancel the job" for job in held))
+        return gone
 
     def machines(self) -> list[dict[str, Any]]:
         """Every machine: name, port, state, job, position."""
@@ -489,11 +564,13 @@ class JobQueue:
             db.execute("UPDATE jobs SET request = NULL WHERE id = ?", (job_id,))
         return row["request"]
 
-    def set_cutting_state(self, job_id: int, state: str) -> None:
-        """The worker carried out a request on a cutting job: paused, cutting again, or cancelled."""
+    def set_cutting_state(self, job_id: int, state: str, stopped: dict[str, Any] | None = None) -> None:
+        """The worker carried out a request on a cutting job: paused, cutting again, or cancelled (with `stopped`,
+        where its sheet stopped, as `JobRow.checkpoint` says it)."""
         with self.transaction() as db:
             job = self._locked_job(db, job_id)
-            self._move(db, job, state, paused_from="cutting" if state == "paused" else None)
+            extra = {"stopped": json.dumps(stopped)} if stopped is not None else {}
+            self._move(db, job, state, paused_from="cutting" if state == "paused" else None, **extra)
             if state == "cancelled":
                 db.execute("UPDATE machines SET job_id = NULL WHERE name = ?", (job.machine,))
             self._event(db, job_id, job.machine, f"job {job_id}: {state}")
@@ -524,7 +601,7 @@ class JobQueue:
                 if last:
                     db.execute("UPDATE machines SET job_id = NULL WHERE name = ?", (job.machine,))
             else:
-                self._move(db, job, "cancelled", attention=None)
+                self._move(db, job, "cancelled", attention=None, stopped=job.attention)
                 db.execute("UPDATE machines SET job_id = NULL WHERE name = ?", (job.machine,))
             line = f" from file line {from_line}" if from_line else ""
             self._event(db, job_id, job.machine, f"job {job_id}: operator chose to {choice} sheet {job.sheet + 1}{line}"
@@ -558,6 +635,43 @@ class JobQueue:
                                 "ORDER BY id").fetchall()
         return [JobRow(**dict(r)) for r in rows]
 
+    # --- the machines' console ---------------------------------------------------------------------------
+
+    def add_command(self, machine: str, line: str | None = None, override: str | None = None) -> int:
+        """An operator's console command for a machine's worker to carry out: a checked console `line` or a
+        real-time `override` by name (see fabline.jobs.console); returns its id (state pending)."""
+        now = time.time()
+        with self.transaction() as db:
+            if db.execute("SELECT 1 FROM machines WHERE name = ?", (machine,)).fetchone() is None:
+                raise FablineError(f"no machine named {machine!r}")
+            cursor = db.execute("INSERT INTO commands (machine, line, override, created, updated) VALUES (?, ?, ?, ?, ?)",
+                                (machine, line, override, now, now))
+        return int(cursor.lastrowid)
+
+    def pending_commands(self, machine: str) -> list[dict[str, Any]]:
+        """The machine's console commands not carried out yet, oldest first."""
+        return [dict(r) for r in self._db.execute("SELECT * FROM commands WHERE machine = ? AND state = 'pending' "
+                                                  "ORDER BY id", (machine,))]
+
+    def command(self, command_id: int) -> dict[str, Any]:
+        """One console command: its line or override, state (pending, done, refused, failed) and answer."""
+        row = self._db.execute("SELECT * FROM commands WHERE id = ?", (command_id,)).fetchone()
+        if row is None:
+            raise FablineError(f"console command {command_id}: no such command")
+        return {**dict(row), "answer": json.loads(row["answer"]) if row["answer"] else None}
+
+    def finish_command(self, command_id: int, state: str, answer: list[str]) -> None:
+        """A console command was carried out (done: `answer` is the controller's), refused or failed (`answer`
+        says why); the command and its answer go into the event log too."""
+        with self.transaction() as db:
+            row = db.execute("SELECT * FROM commands WHERE id = ?", (command_id,)).fetchone()
+            db.execute("UPDATE commands SET state = ?, answer = ?, updated = ? WHERE id = ?",
+                       (state, json.dumps(answer), time.time(), command_id))
+            what = row["line"] if row["line"] is not None else f"override {row['override']}"
+            said = " | ".join(answer) if answer else "sent"
+            self._event(db, None, row["machine"], f"console on {row['machine']}: {what} -> "
+                        + (said if state == "done" else f"{state}: {said}"))
+
     # --- recovery and log -------------------------------------------------------------------------------
 
     def recover(self) -> int:
@@ -565,6 +679,8 @@ class JobQueue:
         with self.transaction() as db:
             count = db.execute("UPDATE jobs SET state = 'queued', updated = ? WHERE state = 'preparing'",
                                (time.time(),)).rowcount
+            count += db.execute("UPDATE jobs SET paused_from = 'queued' WHERE state = 'paused' AND "
+                                "paused_from = 'preparing'").rowcount
             if count:
                 self._event(db, None, None, f"runner restarted: {count} job(s) back to queued for preparation")
         return count
@@ -584,6 +700,20 @@ class JobQueue:
                                 "ORDER BY id", (after, limit)).fetchall()
         return [dict(r) for r in rows]
 
+    def what_was_cut(self, job: JobRow, sheets: list[SheetRow]) -> dict[str, Any] | None:
+        """For a cancelled or failed job: the sheets finished (names, parts on them) and where the sheet being cut
+        stopped (its name, lines executed and acknowledged, the last file line of each), or None for other jobs."""
+        if job.state not in ("cancelled", "failed") or not sheets:
+            return None
+        finished = [s for s in sheets if s.finished is not None and not s.skipped]
+        stopped = json.loads(job.stopped) if job.stopped else None
+        if stopped is not None:
+            stopped = {**stopped, "sheet": sheets[job.sheet].name, "k": job.sheet}
+        return {"sheets_finished": [s.name for s in finished], "sheets": len(sheets),
+                "parts_finished": sum(s.load_facts().get("parts", 0) for s in finished)
+                if all("parts" in s.load_facts() for s in finished) else None,
+                "stopped": stopped}
+
     def snapshot(self) -> dict[str, Any]:
         """Queue, machines and sheet progress as plain data for the web page and `fabline runner status`."""
         jobs = []
@@ -592,6 +722,7 @@ class JobQueue:
             skipped = sum(s.skipped for s in sheets)
             status = job.describe() + (f" ({skipped} sheet(s) skipped)" if skipped else "")
             jobs.append({**job.__dict__, "status": status, "checkpoint": job.checkpoint(),
+                         "cut": self.what_was_cut(job, sheets),
                          "sheet_list": [{"k": s.k, "name": s.name, "lines": s.lines, "done_lines": s.done_lines,
                                          "machine": s.machine, "skipped": bool(s.skipped), "facts": s.load_facts(),
                                          "load": describe_load(s.name, s.k, len(sheets), s.load_facts())}

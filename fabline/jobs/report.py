@@ -1,15 +1,16 @@
-"""The job report: one self-contained HTML page (pictures first) and its JSON twin with the same figures.
+"""The job report: one HTML page (pictures first) and its JSON twin with the same figures.
 
 Order on the page: a summary (`report_shop`), the model in 3D (inline SVG projection), every sheet as an SVG
 with its parts labelled and its cut-order preview, the bill of materials, then the strips table with the
 structural check, the streaming log summary, the survey when there is one (its deviation map first, then its figures and, for a simulated survey, the comparison with
-the injected truth), and the stage timings. No external files, scripts or fonts (a click zooms a picture by a
-CSS checkbox): the page works offline.
+the injected truth), and the stage timings. The large pictures (cut-order previews, the deviation map) are the
+files in the output folder, linked relatively and loaded when shown, so the page opens at once and still works
+when the folder is moved; a picture outside the folder is inlined. No scripts, fonts or other sites (a click
+zooms a picture by a CSS checkbox): the page works offline, and fits a phone's width (wide tables scroll).
 """
 
 from __future__ import annotations
 
-import base64
 import html
 import time
 from collections import Counter
@@ -18,18 +19,24 @@ from typing import Any
 
 from fabline.jobs import report_shop
 from fabline.jobs.pictures import model_svg
-from fabline.units import mm
-from fabline.unroll.structure import CHECKS, VERDICT_RULE, percent
+from fabline.model.extent import plan_extent_m, extent_text
+from fabline.units import metres, mm
+from fabline.verdicts import verdict_text
+from fabline.unroll.structure import CHECKS, VERDICT_RULE, percent, verdict_lines
 
 REPORT_SCHEMA = "fabline.report/1"
 _STYLE = """
 body{font:14px/1.4 system-ui,sans-serif;margin:24px;color:#1b1b1b;max-width:1400px}
+p,figcaption,summary{overflow-wrap:anywhere}
+@media (max-width:600px){body{margin:8px}}
 h1{margin:0 0 4px}h2{margin:28px 0 8px;border-bottom:1px solid #ccc}
 .pictures{display:flex;flex-wrap:wrap;gap:16px;align-items:flex-start}
-figure{margin:0;border:1px solid #ddd;padding:6px;background:#fff}figure svg{max-width:100%;height:auto}
-figure.sheet-figure{flex:1 1 100%}figure.sheet-figure svg{width:100%}
+figure{margin:0;border:1px solid #ddd;padding:6px;background:#fff;max-width:100%;box-sizing:border-box}
+figure svg,figure img{max-width:100%;height:auto}
+figure.sheet-figure{flex:1 1 100%}figure.sheet-figure svg,figure.sheet-figure img{width:100%}
 figcaption{font-size:12px;color:#444}
-table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ddd;padding:2px 6px;text-align:right}
+table{border-collapse:collapse;font-size:12px;display:block;overflow-x:auto;max-width:100%}
+td,th{border:1px solid #ddd;padding:2px 6px;text-align:right}
 th{background:#f0f0ea}td:first-child,th:first-child{text-align:left}
 .fail{background:#fbd5d5}.ok{background:#e3f3e0}.note{color:#555}
 """
@@ -53,16 +60,19 @@ def report_data(result: Any) -> dict[str, Any]:
         "job": spec.to_dict(),
         "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "model": {"name": network.name, "units": network.units, "lamellas": len(network.lamellas),
-                  "nodes": len(network.nodes), "meta": network.meta},
+                  "nodes": len(network.nodes), "meta": network.meta,
+                  "extent": {"plan_m": [round(v, 3) for v in plan_extent_m(network)],
+                             "asked_m": network.meta.get("size_m"), "text": extent_text(network)}},
         "parts": ({"count": len(result.partset.parts),
                    "by_kind": dict(Counter(p.kind for p in result.partset.parts))} if result.partset else None),
         "structure": {"lamellas": structure, "max_utilisation": max((r["utilisation"] for r in structure), default=None),
-                      "failing": failing, "passes": not failing, "rule": VERDICT_RULE},
+                      "failing": failing, "passes": not failing, "rule": VERDICT_RULE,
+                      "verdict": result.partset.report.get("verdict") if result.partset else None},
         "edge_members": result.partset.report.get("edges") if result.partset else None,
         "nesting": ({"sheets": sheets, "summary": result.nesting.summary} if result.nesting else None),
         "machine_time_s": result.export.totals().time if result.export else None,
         "bill_of_materials": report_shop.bill_of_materials(result),
-        "stream": {"sheets": result.stream,
+        "stream": {"sheets": result.stream, "wall_s": getattr(result, "stream_wall_s", None),
                    "lines": sum(s["lines"] for s in result.stream),
                    "executed": sum(s["executed"] for s in result.stream),
                    "finished": bool(result.stream) and all(s["outcome"] == "finished" for s in result.stream)},
@@ -72,10 +82,12 @@ def report_data(result: Any) -> dict[str, Any]:
 
 
 def render_report(result: Any, data: dict[str, Any]) -> str:
-    """The self-contained HTML page for a job result and its report data."""
+    """The HTML page for a job result and its report data (its big pictures linked from the output folder)."""
     spec = result.spec
     e = html.escape
-    parts = [f"<!doctype html><html lang=en><head><meta charset=utf-8><title>fabline report: {e(spec.name)}</title>"
+    folder = Path(result.report_path or spec.output(spec.report_name)).parent
+    parts = [f"<!doctype html><html lang=en><head><meta charset=utf-8>"
+             f"<meta name=viewport content=\"width=device-width,initial-scale=1\"><title>fabline report: {e(spec.name)}</title>"
              f"<style>{_STYLE}{report_shop.ZOOM_STYLE}</style></head><body>",
              f"<h1>{e(spec.name)}</h1><p class=note>{e(spec.description)} Report made {e(data['created'])} "
              f"from {e(str(spec.path))}.</p>", report_shop.summary_block(data),
@@ -88,16 +100,16 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
                      f"{report_shop.zoomable(svg, 'sheet-' + entry['id'])}"
                      f"<figcaption>Sheet {e(entry['id'])}: {entry['width_mm']:g} x {entry['height_mm']:g} mm, "
                      f"{len(entry['parts'])} parts"
-                     + (f", cut {entry['cut_length_mm'] / 1000:.1f} m, machine time {report_shop.duration(entry['time_s'])}"
+                     + (f", cut {metres(entry['cut_length_mm'])} m, planned machine time {report_shop.duration(entry['time_s'])}"
                         if "cut_length_mm" in entry else "") + " (click to zoom)</figcaption></figure>"
-                     + report_shop.preview_figure(entry))
+                     + report_shop.preview_figure(entry, folder))
     parts.append("</div>")
     parts.append(report_shop.bom_section(data["bill_of_materials"]))
     parts.append(_structure_table(data["structure"]))
     parts.append(_edge_table(data["edge_members"]))
     estimates = {s["id"]: s["time_s"] for s in data["nesting"]["sheets"] if "time_s" in s} if data["nesting"] else {}
     parts.append(report_shop.stream_table(data["stream"], estimates))
-    parts.append(_survey_section(data["survey"]))
+    parts.append(_survey_section(data["survey"], folder))
     timings = ", ".join(f"{k} {v:.1f} s" for k, v in data["timings_s"].items())
     parts.append(f"<h2>Run</h2><p>Stages: {e(', '.join(spec.stages))}. Time per stage: {e(timings)}.</p>")
     if data["parts"]:
@@ -108,14 +120,14 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
 
 
 def _structure_table(structure: dict[str, Any]) -> str:
+    """Every lamella's utilisations by check, its combined limit (the twist allowed at its worst interval's radius)
+    and verdict, under the verdict in `fabline unroll`'s and `fabline run`'s words (`verdict_lines`)."""
     rows = structure["lamellas"]
     if not rows:
         return "<h2>Strips and structural check</h2><p>No unroll stage in this job.</p>"
-    worst = max(rows, key=lambda row: row["utilisation"])
-    verdict = ("every lamella passes" if structure["passes"]
-               else f"{len(structure['failing'])} lamella(s) exceed yield: {', '.join(structure['failing'])}")
     head = ("<tr><th>lamella</th><th>length m</th><th>min radius mm</th><th>max twist rad/m</th>"
-            "<th>bending %</th><th>shear %</th><th>helix %</th><th>combined %</th><th>governing</th><th>verdict</th></tr>")
+            "<th>allowed twist rad/m</th><th>bending %</th><th>shear %</th><th>helix %</th><th>combined %</th>"
+            "<th>governing</th><th>verdict</th></tr>")
     body = []
     for row in rows:
         css = "ok" if row["passes"] else "fail"
@@ -123,14 +135,15 @@ def _structure_table(structure: dict[str, Any]) -> str:
         cells = "".join(f"<td class={'fail' if row[f'utilisation_{k}'] > 1.0 else 'ok'}>"
                         f"{percent(row[f'utilisation_{k}'])[:-2]}</td>" for k in CHECKS)
         body.append(f"<tr class={css}><td>{html.escape(row['lamella'])}</td><td>{row['length_mm'] / 1000:.3f}</td>"
-                    f"<td>{radius}</td><td>{row['max_twist_rad_per_m']:.3f}</td>{cells}"
+                    f"<td>{radius}</td><td>{row['max_twist_rad_per_m']:.3f}</td>"
+                    f"<td>{row['allowed_twist_at_radius_rad_per_m']:.3f}</td>{cells}"
                     f"<td>{row['governing']}</td><td>{'passes' if row['passes'] else 'exceeds yield'}</td></tr>")
-    first = rows[0]
+    lines = verdict_lines(structure["verdict"])
+    said = "".join(f"<p class=note>{html.escape(line.strip())}</p>" for line in lines[1:])
     return (f"<h2>Strips and structural check</h2><p id=verdict class={'ok' if structure['passes'] else 'fail'}>"
-            f"{html.escape(verdict)}; largest utilisation {percent(worst['utilisation'])} ({worst['governing']}, "
-            f"lamella {html.escape(worst['lamella'])}; allowed radius {first['min_allowed_radius_mm']:.0f} mm, "
-            f"twist {first['max_allowed_twist_rad_per_m']:.3f} rad/m).</p><p class=note>Rule: "
-            f"{html.escape(structure['rule'])}</p><table id=strips>{head}{''.join(body)}</table>")
+            f"{html.escape(lines[0].removeprefix('structure: '))}</p>{said}<p class=note>Rule: "
+            f"{html.escape(structure['rule'])} The allowed twist is the combined limit at the bending radius of the "
+            f"lamella's worst interval.</p><table id=strips>{head}{''.join(body)}</table>")
 
 
 def _edge_table(edges: dict[str, Any] | None) -> str:
@@ -155,25 +168,28 @@ def _edge_table(edges: dict[str, Any] | None) -> str:
             f"regardless ({len(edges['warnings'])} warnings).</p><table id=edges>{head}{''.join(body)}</table>")
 
 
-def _survey_section(survey: dict[str, Any] | None) -> str:
-    """The deviation map first, then the summary, the comparison with the truth (simulated surveys), the gaps."""
+def _survey_section(survey: dict[str, Any] | None, folder: Path) -> str:
+    """The deviation map first (the survey's picture, linked from the report's `folder`), then the summary, the
+    comparison with the truth (simulated surveys), the gaps."""
     if not survey:
         return ""
     e = html.escape
     s = survey["summary"]
     parts = ["<h2>Survey</h2>"]
     if survey["deviation_map"] and Path(survey["deviation_map"]).is_file():
-        data = base64.b64encode(Path(survey["deviation_map"]).read_bytes()).decode("ascii")
-        parts.append(f'<figure id=deviation-map><img alt="deviation map" src="data:image/png;base64,{data}" '
-                     f'style="max-width:900px"><figcaption>Measured deviation from the design per node along its normal, '
+        source = report_shop.picture_source(Path(survey["deviation_map"]), folder, "image/png")
+        parts.append(f'<figure id=deviation-map style="max-width:912px"><img alt="deviation map" src="{source}" '
+                     f'loading=lazy><figcaption>Measured deviation from the design per node along its normal, '
                      f"red high, blue low, full colour at the {survey['tolerance_mm']:g} mm tolerance; failures ringed red "
                      f"and named, uncertain nodes ringed orange, unmeasured nodes hollow."
                      "</figcaption></figure>")
     uncertain, k = s.get("uncertain", 0), s.get("k_sigma", 0)
-    verdict = "every measured node within tolerance" if not s["failed"] else f"{s['failed']} node(s) out of tolerance"
+    verdict = (f"{s['failed']} node(s) out of tolerance" if s["failed"] else
+               f"none out of tolerance, {uncertain} too close to tell" if uncertain else
+               "every measured node within tolerance")
     parts.append(f"<p>{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
-                 f"{e(verdict)} ({s['passed']} pass, {s['failed']} fail, {uncertain} uncertain against "
-                 f"{survey['tolerance_mm']:g} mm with {k:g} sigma of margin); {s['not_seen']} not seen. "
+                 f"{e(verdict)} ({e(verdict_text(s))}, against {survey['tolerance_mm']:g} mm with {k:g} sigma of "
+                 f"margin). "
                  f"From {e(survey['file'])}.</p>")
     rows = [("nodes measured", f"{s['measured']} of {s['nodes']}"), ("pass (deviation + k sigma within tolerance)", s["passed"]),
             ("fail (deviation - k sigma beyond tolerance)", s["failed"]), ("uncertain", uncertain), ("k (sigma)", f"{k:g}"),

@@ -6,16 +6,20 @@ Kept apart from `report.py` (which lays out the page) so each section is one fun
 
 from __future__ import annotations
 
+import base64
 import html
+import os
 from pathlib import Path
+from urllib.parse import quote
 from typing import Any
 
-from fabline.progress import estimate, simulated_speedup
 from fabline.units import duration
+from fabline.verdicts import verdict_text
 
 ZOOM_STYLE = """
 .zoom{overflow:auto;max-height:85vh}.zoom>label{cursor:zoom-in;display:block}.zoom input{display:none}
-.zoom input:checked+label{cursor:zoom-out}.zoom input:checked+label>svg{width:400%;max-width:none}
+.zoom input:checked+label{cursor:zoom-out}.zoom input:checked+label>svg,.zoom input:checked+label>img{width:400%;max-width:none}
+figure.zoom img{width:100%;height:auto}
 .summary td:first-child{font-weight:600}.summary{margin:8px 0 4px;font-size:14px}.summary td{text-align:left}
 """
 def zoomable(svg: str, key: str) -> str:
@@ -47,6 +51,8 @@ def summary_block(data: dict[str, Any]) -> str:
     e = html.escape
     model, nesting, bom = data["model"], data["nesting"], data.get("bill_of_materials")
     rows = [("what", f"{model['name']}: {model['lamellas']} lamellas, {model['nodes']} nodes")]
+    if model.get("extent"):
+        rows.append(("size in plan", model["extent"]["text"]))
     if data["parts"]:
         kinds = ", ".join(f"{n} {k}" for k, n in data["parts"]["by_kind"].items())
         rows.append(("parts", f"{data['parts']['count']} ({kinds})"))
@@ -63,23 +69,24 @@ def summary_block(data: dict[str, Any]) -> str:
                              f"({100 * totals['scrap_share']:.1f} % scrap){cost}"))
     structure = data["structure"]
     if structure["lamellas"]:
-        rows.append(("structure", "every lamella passes" if structure["passes"] else
-                     f"{len(structure['failing'])} lamella(s) exceed yield"))
-        rows[-1] = (rows[-1][0], rows[-1][1] + f" (largest utilisation {100 * structure['max_utilisation']:.0f} %)")
+        from fabline.unroll.structure import verdict_lines  # numpy: the runner imports this module and starts fast
+
+        rows.append(("structure", verdict_lines(structure["verdict"])[0].removeprefix("structure: ")))
     else:
         rows.append(("structure", "not checked (no unroll stage)"))
     survey = data["survey"]
     if survey:
         s = survey["summary"]
-        rows.append(("survey", (f"{s['failed']} of {s['measured']} measured nodes out of tolerance" if s["failed"]
-                                else f"all {s['measured']} measured nodes within tolerance")
-                     + f" ({survey['tolerance_mm']:g} mm; {s['measured']} of {s['nodes']} nodes measured)"))
+        rows.append(("survey", f"{verdict_text(s)} (at {survey['tolerance_mm']:g} mm)"
+                     + (": out of tolerance" if s["failed"] else "")))
     else:
         rows.append(("survey", "no survey yet"))
     stream = data["stream"]
     if stream["sheets"]:
         done = sum(s["outcome"] == "finished" for s in stream["sheets"])
-        rows.append(("cut", f"{done} of {len(nesting['sheets']) if nesting else len(stream['sheets'])} sheets finished"))
+        earlier = sum(bool(s.get("earlier")) for s in stream["sheets"])
+        rows.append(("cut", f"{done} of {len(nesting['sheets']) if nesting else len(stream['sheets'])} sheets finished"
+                     + (f" ({earlier} in an earlier run)" if earlier else "")))
     verdict = [r for r in rows if r[0] in ("structure", "survey")]
     css = {k: "fail" if ("exceed" in v or "out of tolerance" in v) else "ok" for k, v in verdict}
     body = "".join(f"<tr class={css.get(k, '')}><td>{e(k)}</td><td>{e(v)}</td></tr>" for k, v in rows)
@@ -110,16 +117,27 @@ def bom_section(bom: dict | None) -> str:
             f"<p></p><table id=hardware><tr><th>hardware</th><th>count</th><th>per</th></tr>{hardware}</table>")
 
 
-def preview_figure(entry: dict[str, Any]) -> str:
-    """A sheet's cut-order preview (read from its G-code at export), zoomable, folded away until opened."""
+def picture_source(path: Path, folder: Path, media_type: str) -> str:
+    """An image's address from a page in `folder`: relative (URL-quoted) when the file lies inside the folder, so the
+    page loads it only when shown and still finds it when the folder is moved; otherwise inlined as a data URL."""
+    relative = os.path.relpath(os.path.abspath(path), os.path.abspath(folder))
+    if not relative.startswith(os.pardir):
+        return html.escape(quote(Path(relative).as_posix()), quote=True)
+    return f"data:{media_type};base64,{base64.b64encode(path.read_bytes()).decode('ascii')}"
+
+
+def preview_figure(entry: dict[str, Any], folder: Path) -> str:
+    """A sheet's cut-order preview (the SVG export drew from its G-code), an image beside the report (`folder`) that
+    loads when its fold is opened, zoomable."""
     path = entry.get("preview")
     if not path or not Path(path).is_file():
         return ""
-    svg = Path(path).read_text(encoding="utf-8")
+    source = picture_source(Path(path), folder, "image/svg+xml")
+    image = f'<img src="{source}" loading=lazy alt="cut order of sheet {html.escape(entry["id"], quote=True)}">'
     return (f"<details class=preview data-sheet=\"{html.escape(entry['id'])}\"><summary>Sheet {html.escape(entry['id'])}: "
             "cut order (from the G-code: engraving green, then cuts from blue to red, numbered; dashed grey travel; "
             "click to zoom)"
-            f"</summary><figure class=zoom>{zoomable(svg, 'order-' + entry['id'])}</figure></details>")
+            f"</summary><figure class=zoom>{zoomable(image, 'order-' + entry['id'])}</figure></details>")
 
 
 def short_port(port: str) -> str:
@@ -127,40 +145,73 @@ def short_port(port: str) -> str:
     return port.split("?", 1)[0]
 
 
-def machine_seconds(entry: dict[str, Any]) -> float:
-    """The time a sheet took at the machine's own speed: a simulator's wall seconds times its time scale."""
-    return entry["seconds"] * simulated_speedup(entry["port"])
+def machine_seconds(entry: dict[str, Any]) -> float | None:
+    """The machine time a sheet took in this run by the controller's own clock (`machine_s`: a simulator's machine
+    clock, a real machine's wall time less the time held); None when it is not known (cut in an earlier run, a
+    link process that died before reporting)."""
+    return None if entry.get("earlier") else entry.get("machine_s")
+
+
+def _left(entry: dict[str, Any], planned: float | None) -> float | None:
+    """The planner's machine time for the lines of a sheet not yet cut; None for a finished sheet or an unknown plan."""
+    if entry["outcome"] == "finished" or planned is None:
+        return None
+    return max(planned - entry.get("planned_done_s", 0.0), 0.0)
+
+
+def _wall(seconds: float | None) -> str:
+    return f"{seconds:.1f}" if seconds is not None else ""
 
 
 def stream_table(stream: dict[str, Any], estimates: dict[str, float]) -> str:
-    """Per streamed sheet and for the job: lines, outcome, the time at machine speed, the planner's time for the
-    program (the streamer's, else the export's estimate) and the time remaining by `fabline.progress.estimate`
-    (the planned rest at the pace the machine kept), the wall seconds and the port."""
+    """Per streamed sheet: its machine, lines, outcome, the machine time this run took by the controller's clock,
+    the planner's time for the program (the streamer's, else the export's estimate), the planned time of what is
+    left of an unfinished sheet, and the wall seconds. Then a row per machine, and the job: machine time summed over
+    the machines (machine-hours), but one wall time, the stream stage's, as the machines cut in parallel."""
     e = html.escape
     if not stream["sheets"]:
         return "<h2>Streaming</h2><p>Not streamed in this run.</p>"
-    head = ("<tr><th>sheet</th><th>lines</th><th>executed</th><th>outcome</th><th>machine time</th>"
-            "<th>planned</th><th>remaining</th><th>wall s</th><th>port</th></tr>")
-    rows, sums = [], [0.0, 0.0, 0.0]
+
+    def cell(seconds: float | None) -> str:
+        return f"<td>{duration(seconds)}</td>" if seconds is not None else "<td></td>"
+
+    head = ("<tr><th>sheet</th><th>machine</th><th>lines</th><th>executed</th><th>outcome</th><th>machine time</th>"
+            "<th>planned</th><th>left (planned)</th><th>wall s</th></tr>")
+    rows, machines, lefts = [], {}, []
     for s in stream["sheets"]:
         planned = s.get("planned_s", estimates.get(s["sheet"]))
-        eta = None
-        if planned is not None:
-            done = s.get("planned_done_s", planned if s["outcome"] == "finished" else 0.0)
-            eta = estimate(planned, done, machine_seconds(s))
-            sums = [sums[0] + machine_seconds(s), sums[1] + planned, sums[2] + eta.remaining]
+        left, taken = _left(s, planned), machine_seconds(s)
+        lefts.append(left or 0.0)
+        outcome = "finished in an earlier run" if s.get("earlier") else s["outcome"]
+        if not s.get("earlier"):
+            machine = machines.setdefault(short_port(s["port"]), [0, 0.0, 0.0, True])
+            machine[0] += 1
+            machine[1] += taken or 0.0
+            machine[2] += s["seconds"] or 0.0
+            machine[3] = machine[3] and taken is not None
         rows.append(f"<tr class={'ok' if s['outcome'] == 'finished' else 'fail'}><td>{e(s['sheet'])}</td>"
-                    f"<td>{s['lines']}</td><td>{s['executed']}</td><td>{e(s['outcome'])}</td>"
-                    f"<td>{duration(machine_seconds(s))}</td><td>{duration(planned) if planned is not None else ''}</td>"
-                    f"<td>{duration(eta.remaining) if eta else ''}</td>"
-                    f"<td>{s['seconds']:.1f}</td><td>{e(short_port(s['port']))}</td></tr>")
-    rows.append(f"<tr class=total><th>job</th><td>{stream['lines']}</td><td>{stream['executed']}</td><td></td>"
-                f"<td>{duration(sums[0])}</td><td>{duration(sums[1])}</td><td>{duration(sums[2])}</td>"
-                f"<td>{sum(s['seconds'] for s in stream['sheets']):.1f}</td><td></td></tr>")
-    scaled = any("time_scale=" in s["port"] for s in stream["sheets"])
-    note = (" Simulated machines run faster than real ones: machine time is the wall time times the simulator's "
-            "time scale." if scaled else "")
+                    f"<td>{e(short_port(s['port']))}</td><td>{s['lines']}</td><td>{s['executed']}</td><td>{e(outcome)}</td>"
+                    f"{cell(taken)}{cell(planned)}{cell(left)}"
+                    f"<td>{_wall(s.get('seconds'))}</td></tr>")
+    for port, (count, taken, wall, known) in machines.items():
+        rows.append(f"<tr class=machine><th>{e(port)}</th><td></td><td></td><td></td><td>{count} sheet(s)</td>"
+                    f"{cell(taken if known else None)}<td></td><td></td><td>{wall:.1f}</td></tr>")
+    listed = {s["sheet"] for s in stream["sheets"]}
+    left_total = sum(lefts) + sum(t for sheet, t in estimates.items() if sheet not in listed)
+    known = all(known for *_, known in machines.values())
+    taken_total = sum(taken for _, taken, _, _ in machines.values()) if machines and known else None
+    planned_total = sum(s.get("planned_s", estimates.get(s["sheet"])) or 0.0 for s in stream["sheets"])
+    wall = stream.get("wall_s")
+    counted = f"{len(machines)} machine(s)" if machines else ""
+    rows.append(f"<tr class=total><th>job</th><td>{counted}</td><td>{stream['lines']}</td>"
+                f"<td>{stream['executed']}</td><td></td>{cell(taken_total)}{cell(planned_total)}"
+                f"{cell(left_total if left_total else None)}<td>{_wall(wall)}</td></tr>")
+    earlier = sum(bool(s.get("earlier")) for s in stream["sheets"])
+    note = (f" {earlier} sheet(s) were finished in an earlier run: no machine time of this run." if earlier else "")
     return (f"<h2>Streaming</h2><p>{stream['executed']} of {stream['lines']} lines executed"
-            f"{' - every sheet finished' if stream['finished'] else ''}.{note} Planned: the planner's machine time "
-            f"for the program; remaining: the planned rest at the pace the machine kept.</p>"
+            f"{' - every sheet finished' if stream['finished'] else ''}.{note} Machine time: the controller's own "
+            f"clock (a simulator's machine clock, whatever wall time its process took; a real machine's wall time "
+            f"less the time it stood held), summed over the machines in the job row. Planned: the planner's machine "
+            f"time for the program; left: the planned time of what is not cut yet. Wall s: per sheet and machine; the "
+            f"job row gives the stream stage's wall time, as the machines cut in parallel.</p>"
             f"<table id=stream>{head}{''.join(rows)}</table>")

@@ -18,8 +18,10 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from fabline.errors import FablineError
+from fabline.jobs import prepared as prepared_output
 from fabline.jobs.queue import JobQueue, JobRow, SheetRow
 from fabline.jobs.streaming import SheetStream, checkpoint, frame_sheet
+from fabline.link import Streamer, check_port
 from fabline.locks import exclusive_lock, lock_path
 
 
@@ -29,6 +31,47 @@ class MachineConfig:
 
     name: str
     port: str
+
+
+DEFAULT_PROFILE = "grbl-laser"
+"""The machine profile a job file names when it names none (`machine.profile`'s default): the runner's default
+simulated machine is set up as that machine, so the example job cuts on it with no setting typed."""
+
+
+DEFAULT_TIME_SCALE = 2000
+"""The default simulator runs as many times faster than the real machine as the example job's simulators do, so the
+example job cuts to its end in minutes (the runner reports machine time from the simulator's own clock)."""
+
+
+def default_machines() -> list[MachineConfig]:
+    """`runner serve` without `--machine`: one simulator set up as the default profile's machine."""
+    return [MachineConfig("sim1", f"sim://sim1?machine={DEFAULT_PROFILE}&time_scale={DEFAULT_TIME_SCALE}")]
+
+
+def describe_machine(machine: MachineConfig) -> str:
+    """'NAME=PORT (PROFILE: ...)' for the start-up lines: which machine a simulator plays (its profile's laser mode
+    and travel), or that a controller on a port keeps its own `$` settings (checked against each program's profile)."""
+    import urllib.parse
+
+    from fabline.export import load_machine
+
+    parts = urllib.parse.urlsplit(machine.port)
+    if parts.scheme != "sim":
+        return (f"{machine.name}={machine.port} (the controller on that port: its own $ settings, checked against each "
+                "program's profile)")
+    options = urllib.parse.parse_qs(parts.query)
+    name = options.get("machine", [None])[-1]
+    extra = " with its settings= values" if "settings" in options else ""
+    if name is None:
+        return (f"{machine.name}={machine.port} (no machine profile: a stock Grbl 1.1h{extra}; the stock one is "
+                "laser mode off $32=0, 200 x 200 mm travel)")
+    try:
+        profile = load_machine(name)
+    except FablineError as exc:
+        raise FablineError(f"--machine {machine.name}={machine.port}: {exc}") from None
+    laser = "laser mode $32=1" if profile.laser_mode else "laser mode off $32=0"
+    return (f"{machine.name}={machine.port} (profile {profile.name}: {laser}, "
+            f"{profile.bed_width:g} x {profile.bed_height:g} mm travel{extra})")
 
 
 def parse_machine(text: str) -> MachineConfig:
@@ -46,6 +89,11 @@ class Runner:
                  poll: float = 0.2, prepare: bool = True, runs: str | Path | None = None):
         if len({m.name for m in machines}) != len(machines):
             raise FablineError("runner: two machines with the same name")
+        for machine in machines:  # the operator's ports, checked as `fabline stream` checks its --port
+            try:
+                check_port(machine.port)
+            except FablineError as exc:
+                raise FablineError(f"runner: machine {machine.name}: {exc}") from None
         self.db_path = Path(db_path)
         self.runs = Path(runs) if runs else self.db_path.parent / "runs"
         self.machines = machines
@@ -61,6 +109,8 @@ class Runner:
             where = checkpoint(sheet.program, sheet.journal, "the runner stopped while the sheet was being cut")
             position = next((m["position"] for m in queue.machines() if m["name"] == job.machine), None)
             queue.need_attention(job.id, {**where, "position": position})
+        self.removed = queue.keep_machines([m.name for m in machines])
+        """The machines of an earlier start that this one does not drive: forgotten."""
         for machine in machines:
             queue.register_machine(machine.name, machine.port)
         queue.close()
@@ -92,18 +142,33 @@ class Runner:
                     continue
                 try:
                     spec = load_job_file(path)
-                    queue.submit(spec.name, job_file=str(spec.path))
+                    queue.submit_once(spec.name, job_file=str(spec.path))
                 except FablineError as exc:
-                    queue.submit(path.stem, job_file=str(path.resolve()), error=str(exc))
+                    queue.submit_once(path.stem, job_file=str(path.resolve()), error=str(exc))
             if self._stop.wait(every):
                 break
         queue.close()
 
-    def stop(self, timeout: float = 10.0) -> None:
-        """Ask every thread to stop after its current step and wait for them."""
+    def stop(self, timeout: float = 10.0) -> list[int]:
+        """Ask every thread to stop after its current step and wait for them (a sheet being cut stops with a feed
+        hold and a reset, its journal kept); a preparation still running is given back to the queue whole, to be
+        prepared afresh at the next start, and its result, should it still come, is not recorded. Returns the
+        ids of the jobs given back."""
         self._stop.set()
         for thread in self._threads:
-            thread.join(timeout)
+            if thread.name != "preparer":
+                thread.join(timeout)
+        queue = JobQueue(self.db_path)
+        try:
+            given_back = queue.give_back_preparation()
+            for machine in self.machines:
+                queue.set_machine(machine.name, state="stopped: the runner is not running")
+        finally:
+            queue.close()
+        for thread in self._threads:
+            if thread.name == "preparer":
+                thread.join(0.5)  # it ends now unless a stage holds it; a process exit ends it then
+        return given_back
 
     def run_until_idle(self, timeout: float) -> None:
         """Block until no job is left unfinished (every one done, failed or cancelled) or `timeout` passes."""
@@ -132,13 +197,29 @@ class Runner:
                 continue
             try:
                 spec = replace(load_job_file(job.job_file), output_folder=self.runs / f"job-{job.id}")
+                for port in spec.machine["ports"]:  # never opened here, but a queued job file writes nothing of its own
+                    try:
+                        check_port(port, files=False)
+                    except FablineError as exc:
+                        raise FablineError(f"{Path(job.job_file).name}: machine.ports: {exc}") from None
+                key = prepared_output.job_key(spec)
                 with exclusive_lock(lock_path(spec.output_folder), f"job folder {spec.output_folder}"):
-                    prepared = prepare_job(spec)
-                queue.prepared(job.id, prepared.sheet_programs(), str(prepared.report_path), str(spec.output_folder))
-            except FablineError as exc:
-                queue.fail(job.id, str(exc))
+                    earlier = prepared_output.find(self.runs, key, prefer=spec.output_folder)
+                    if earlier is not None:  # the same job file and inputs: its sheets as they were prepared
+                        programs, report, lines = prepared_output.reuse(earlier, spec.output_folder)
+                        queue.log(job.id, None, f"job {job.id}: job file and inputs unchanged since {earlier.name}: "
+                                  "its prepared sheets reused")
+                    else:
+                        result = prepare_job(spec)
+                        programs = result.sheet_programs()
+                        report = str(result.report_path) if result.report_path else None
+                        lines = prepared_output.record(spec.output_folder, key, programs, report)
+                queue.prepared(job.id, programs, report, str(spec.output_folder), lines)
             except Exception as exc:  # a bug in a stage must not take the runner down; the job records it
-                queue.fail(job.id, f"internal error while preparing: {type(exc).__name__}: {exc}")
+                if self._stop.is_set():  # the stop ended the stage's workers: the job goes back whole (stop())
+                    break
+                queue.fail(job.id, str(exc) if isinstance(exc, FablineError) else
+                           f"internal error while preparing: {type(exc).__name__}: {exc}")
         queue.close()
 
     # --- machines ---------------------------------------------------------------------------------------
@@ -146,6 +227,7 @@ class Runner:
     def _machine_loop(self, machine: MachineConfig) -> None:
         queue = JobQueue(self.db_path)
         while not self._stop.is_set():
+            self._console(queue, machine)
             job = queue.claim_for_machine(machine.name)
             if job is None:
                 queue.set_machine(machine.name, state="idle")
@@ -233,10 +315,32 @@ class Runner:
             queue.set_machine(machine.name, state="idle" if after.state == "done" else
                               f"waiting: load sheet {after.sheet + 1} of {after.sheets}")
         elif stream.cancelled:
-            queue.set_cutting_state(job.id, "cancelled")
+            queue.set_cutting_state(job.id, "cancelled", checkpoint(sheet.program, sheet.journal, "cancelled by the operator"))
             queue.set_machine(machine.name, state="idle")
         else:
             queue.set_machine(machine.name, state="stopped (the operator decides how to go on)")
+
+    def _console(self, queue: JobQueue, machine: MachineConfig, stream: SheetStream | None = None) -> None:
+        """Carry out the operator's console commands for this machine (fabline.jobs.console): through the link
+        stage on a machine that streams nothing; while a sheet streams (`stream`), only real-time overrides,
+        anything else refused. Each command's answer goes into the queue's log."""
+        for command in queue.pending_commands(machine.name):
+            line, override = command["line"], command["override"]
+            if stream is not None and line is not None:
+                queue.finish_command(command["id"], "refused", [
+                    f"{machine.name} is cutting: only feed, rapid and power overrides until the sheet stops"])
+                continue
+            try:
+                if stream is not None:
+                    stream.override(override)
+                    answer = ["sent"]
+                else:
+                    replies = Streamer(machine.port).console([line] if line else [], [override] if override else [])
+                    answer = replies[0][1] if replies else ["sent"]
+            except FablineError as exc:
+                queue.finish_command(command["id"], "failed", [str(exc)])
+            else:
+                queue.finish_command(command["id"], "done", answer)
 
     def _watch_requests(self, job_id: int, stream: SheetStream, machine: MachineConfig) -> None:
         """While a sheet streams: carry out pause, resume and cancel requests; a stopping runner stops the stream
@@ -246,6 +350,7 @@ class Runner:
             if self._stop.is_set():
                 stream.stop()
                 break
+            self._console(queue, machine, stream)
             request = queue.take_request(job_id)
             if request == "pause":
                 stream.pause()

@@ -46,6 +46,9 @@ class SheetStream:
         self.executed = 0
         self.total = 0
         self.resumed_from: int | None = None
+        self.earlier = False
+        """The journal says an earlier run finished the sheet: nothing was sent in this run."""
+        self.result = None
         self.eta: Eta | None = None
         """The last progress report's time: elapsed, remaining, the planned seconds (see `fabline.progress`)."""
 
@@ -58,7 +61,7 @@ class SheetStream:
         self.total = len(program.lines)
         previous = read_journal(self.journal_path) if self.resume_journal and self.journal_path.is_file() else None
         if previous is not None and previous.sha256 == program.sha256 and previous.finished:
-            self.executed = self.total
+            self.executed, self.earlier = self.total, True
             self.on_progress(self.total, None, None)
             return "finished"
         resume = previous is not None
@@ -73,7 +76,7 @@ class SheetStream:
 
         result = self.streamer.run(program, on_progress=progress, journal=self.journal_path, resume=resume,
                                    start_line=self.from_line, restart=not resume, identity=self.identity)
-        self.executed = result.executed
+        self.executed, self.result = result.executed, result
         self.on_progress(result.executed, None, None)
         return "finished" if result.completed else "aborted"
 
@@ -90,19 +93,31 @@ class SheetStream:
         self.cancelled = True
         self.streamer.abort()
 
+    def override(self, name: str) -> None:
+        """A real-time override while the sheet streams ('feed +10%', 'power -10%': `fabline.link.protocol.OVERRIDES`)."""
+        self.streamer.override(name)
+
     def stop(self) -> None:
         """Stop now because the runner stops; the sheet resumes from its journal on the next start."""
         self.streamer.abort()
 
     def summary(self) -> dict:
-        """The streaming log's figures for the report."""
+        """The streaming log's figures for the report: lines, and in machine seconds the planner's time for the program
+        (`planned_s`), for the lines done (`planned_done_s`) and for those done before this run (`planned_before_s`),
+        and `machine_s`, the machine time this run took by the controller's clock (see `StreamResult.machine`).
+        `earlier`: an earlier run had finished the sheet, so this one sent nothing and took no time."""
         summary = {"port": self.port, "lines": self.total, "executed": self.executed, "journal": str(self.journal_path),
-                   "resumed_from": self.resumed_from}
+                   "resumed_from": self.resumed_from, "earlier": self.earlier}
+        if self.result is not None and self.result.machine is not None:
+            summary.update(machine_s=round(self.result.machine, 1), held_s=round(self.result.held, 1))
         timeline = self.streamer.timeline() if getattr(self.streamer, "blocks", None) is not None else None
         if timeline is not None and len(timeline):  # machine seconds (a simulator's time scale undone)
             speedup = simulated_speedup(self.port)
-            done = float(timeline[self.executed - 1]) if self.executed else 0.0
-            summary.update(planned_s=round(float(timeline[-1]) * speedup, 1), planned_done_s=round(done * speedup, 1))
+
+            def at(count: int) -> float:
+                return round(float(timeline[count - 1]) * speedup, 1) if count else 0.0
+            summary.update(planned_s=at(len(timeline)), planned_done_s=at(self.executed),
+                           planned_before_s=at(self.resumed_from or 0))
         return summary
 
 
@@ -110,8 +125,10 @@ PROGRESS_INTERVAL = 0.2
 """Seconds between the progress messages a sheet's process sends to `fabline run`."""
 
 
-def stream_in_process(port: str, program: str, resume: bool, identity: dict[str, str], connection) -> None:
-    """Process target: stream one sheet (continuing its journal with `resume`), stop it safely on any of
+def stream_in_process(port: str, program: str, resume: bool, identity: dict[str, str], connection,
+                      from_line: int | None = None) -> None:
+    """Process target: stream one sheet (continuing its journal with `resume`, from file line `from_line` if
+    given), stop it safely on any of
     STOP_SIGNALS (feed hold, reset, journal kept). Sends ("progress", lines done, lines, Eta or None) through
     `connection` at most every PROGRESS_INTERVAL s, then ("result", outcome in words, summary).
     A program pause (M0) is said on standard error; SIGUSR1 continues it (cycle start)."""
@@ -127,7 +144,7 @@ def stream_in_process(port: str, program: str, resume: bool, identity: dict[str,
             sent[0] = now
             connection.send(("progress", done, stream.total, stream.eta))
 
-    stream = SheetStream(port, program, progress, resume=resume, identity=identity)
+    stream = SheetStream(port, program, progress, resume=resume, from_line=from_line, identity=identity)
     for number in STOP_SIGNALS:
         signal.signal(number, lambda signum, frame: stream.stop())
     signal.signal(signal.SIGUSR1, lambda signum, frame: stream.resume())
@@ -137,6 +154,18 @@ def stream_in_process(port: str, program: str, resume: bool, identity: dict[str,
     except FablineError as exc:
         outcome = f"stopped: {exc}"
     connection.send(("result", outcome, stream.summary()))
+
+
+def finished_earlier(program: str | os.PathLike) -> bool:
+    """Whether the journal beside `program` says an earlier run of this very program finished it."""
+    journal = default_journal_path(Path(program))
+    if not journal.is_file():
+        return False
+    try:
+        state = read_journal(journal)
+        return state.finished and state.sha256 == load_program(program).sha256
+    except FablineError:
+        return False
 
 
 def journal_summary(port: str, program: str | os.PathLike) -> dict:
@@ -173,15 +202,18 @@ def frame_sheet(port: str, program: str | os.PathLike, folder: str | os.PathLike
 
 
 def checkpoint(program: str | os.PathLike, journal: str | os.PathLike | None, reason: str) -> dict:
-    """Where a stopped sheet stands, for the operator: `reason`, lines known executed (`done`) of `lines`, and
-    the `file_line` of the last one, from the run's journal (none written yet: nothing was sent)."""
-    entry: dict = {"reason": reason, "done": 0, "lines": 0, "file_line": None}
+    """Where a stopped sheet stands, for the operator: `reason`, lines known executed (`done`) of `lines` and
+    the `file_line` of the last one, lines acknowledged (`acked`, `acked_file_line`), from the run's journal
+    (none written yet: nothing was sent)."""
+    entry: dict = {"reason": reason, "done": 0, "lines": 0, "file_line": None, "acked": 0, "acked_file_line": None}
     try:
         lines = load_program(program).lines
         entry["lines"] = len(lines)
         if journal and Path(journal).is_file():
-            entry["done"] = read_journal(journal).done
+            state = read_journal(journal)
+            entry["done"], entry["acked"] = state.done, state.acked
             entry["file_line"] = lines[entry["done"] - 1].file_line if entry["done"] else None
+            entry["acked_file_line"] = lines[entry["acked"] - 1].file_line if entry["acked"] else None
     except FablineError as exc:
         entry["reason"] = f"{reason}; {exc}"
     return entry

@@ -14,6 +14,7 @@ import asyncio
 import hmac
 import json
 import os
+import re
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -29,10 +30,11 @@ from starlette.responses import FileResponse, HTMLResponse, JSONResponse, Respon
 from starlette.routing import Route
 
 from fabline.errors import FablineError
+from fabline.jobs.console import check_line, check_override
 from fabline.jobs.jobfile import load_job_file
 from fabline.jobs.pictures import progress_svg
 from fabline.jobs.queue import JobQueue
-from fabline.progress import Eta, estimate, simulated_speedup
+from fabline.progress import Eta, estimate, finish_time, simulated_speedup
 
 TOKEN_HEADER = "X-Fabline-Token"
 ACTIONS = ("confirm", "pause", "resume", "cancel", "restart", "skip", "requeue", "frame")
@@ -40,10 +42,13 @@ LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
 _LARGEST_ID = 2 ** 62  # ids beyond SQLite's integers are no job
 
 
-def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple[str, ...] = ()) -> Starlette:
+def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple[str, ...] = (),
+               jobs: str | Path | None = None, console_timeout: float = 150.0) -> Starlette:
     """The web application over the queue at `db_path`; `token` guards everything but the page shell;
-    requests must name one of the loopback `LOOPBACK_HOSTS` or of `hosts` in their Host header."""
+    requests must name one of the loopback `LOOPBACK_HOSTS` or of `hosts` in their Host header. Uploaded job
+    files go into `jobs` (default: the queue's folder); a console command waits `console_timeout` s for its machine."""
     queue = JobQueue(db_path)
+    jobs_folder = Path(jobs) if jobs is not None else Path(db_path).parent
     page = resources.files("fabline.jobs").joinpath("static/index.html").read_text(encoding="utf-8")
 
     def authorised(request: Request) -> bool:
@@ -137,8 +142,58 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
             return JSONResponse({"error": str(exc)}, status_code=400)
         return JSONResponse({"id": job_id})
 
+    async def console(request: Request) -> Response:
+        name = request.path_params["name"]
+        if name not in {machine["name"] for machine in queue.machines()}:
+            return JSONResponse({"error": f"no machine named {name!r}"}, status_code=404)
+        try:
+            body = await request.json()
+            if not isinstance(body, dict) or ("line" in body) == ("override" in body):
+                raise ValueError
+            if "line" in body:
+                line, kind = check_line(body["line"])
+                if kind == "setting" and body.get("confirm") is not True:
+                    raise FablineError(f"console: {line} changes the controller's setting for every later program: "
+                                       "confirm it (send it again with \"confirm\": true)")
+                command = queue.add_command(name, line=line)
+            else:
+                command = queue.add_command(name, override=check_override(body["override"]))
+        except (ValueError, TypeError):
+            return JSONResponse({"error": "expected JSON {\"line\": \"$X\"} (with \"confirm\": true for a $N=V "
+                                          "setting) or {\"override\": \"feed +10%\"}"}, status_code=400)
+        except FablineError as exc:
+            return JSONResponse({"error": str(exc)}, status_code=409)
+        deadline = time.monotonic() + console_timeout
+        while (done := queue.command(command))["state"] == "pending":
+            if time.monotonic() > deadline:
+                return JSONResponse({"error": f"machine {name}: its worker did not take the command within "
+                                              f"{console_timeout:g} s (is the runner running?)", "id": command},
+                                    status_code=504)
+            await asyncio.sleep(0.05)
+        status = 200 if done["state"] == "done" else 409
+        return JSONResponse({"id": command, "state": done["state"], "answer": done["answer"],
+                             **({"error": "; ".join(done["answer"])} if status != 200 else {})}, status_code=status)
+
+    async def upload(request: Request) -> Response:
+        try:
+            body = await request.json()
+            name, text = body["name"], body["text"]
+            if not isinstance(name, str) or not isinstance(text, str):
+                raise TypeError
+        except (KeyError, TypeError, ValueError):
+            return JSONResponse({"error": "expected JSON {\"name\": \"JOB.toml\", \"text\": \"...\"}"},
+                                status_code=400)
+        try:
+            path, spec = await asyncio.to_thread(save_upload, jobs_folder, name, text)
+            job_id, new = queue.submit_once(spec.name, job_file=str(path))
+        except FablineError as exc:
+            return JSONResponse({"error": str(exc)}, status_code=400)
+        return JSONResponse({"id": job_id, "file": str(path), "new": new})
+
     routes = [
         Route("/", index),
+        Route("/api/machines/{name}/console", guarded(console), methods=["POST"]),
+        Route("/api/jobs/upload", guarded(upload), methods=["POST"]),
         Route("/api/state", guarded(state)),
         Route("/api/events", guarded(events)),
         Route("/api/jobs/{job:int}/sheets/{k:int}.svg", guarded(sheet_picture)),
@@ -148,6 +203,38 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
     ]
     allowed = [*LOOPBACK_HOSTS, *hosts]
     return Starlette(routes=routes, middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=allowed)])
+
+
+_UPLOAD_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,80}\.toml")
+
+
+def save_upload(folder: Path, name: str, text: str) -> tuple[Path, Any]:
+    """An uploaded job file checked (as if it lay in `folder`: its relative paths resolve there) and written into
+    `folder` as `name`, or as `STEM-SHA8.toml` when a different file has that name (a queued job's file is never
+    changed under it); returns the file and its job."""
+    import hashlib
+    import tomllib
+
+    from fabline.fileio import atomic_output
+    from fabline.jobs.jobfile import JOB_FILE_LIMIT, job_from_dict
+
+    if not _UPLOAD_NAME.fullmatch(name):
+        raise FablineError(f"upload {name!r}: a job file's name is letters, digits, '.', '_' or '-' ending in .toml")
+    data = text.encode("utf-8")
+    if len(data) > JOB_FILE_LIMIT:
+        raise FablineError(f"upload {name}: {len(data)} bytes; a job file has at most {JOB_FILE_LIMIT}")
+    path = folder.resolve() / name
+    if path.exists() and (not path.is_file() or path.read_bytes() != data):
+        path = path.with_name(f"{path.stem}-{hashlib.sha256(data).hexdigest()[:8]}.toml")
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise FablineError(f"{name}: malformed TOML: {exc}") from None
+    spec = job_from_dict(raw, path)
+    if not path.exists():
+        with atomic_output(path, "wb") as handle:
+            handle.write(data)
+    return path, spec
 
 
 class Timelines:
@@ -188,7 +275,9 @@ def job_eta(queue: JobQueue, job: dict, machines: list[dict], timelines: Timelin
     """Elapsed and remaining time of a job's current sheet and of the whole job, from the planned time of the lines
     done and to do corrected by the pace so far (`fabline.progress.estimate`), in seconds on the job's machine
     (a simulator's time scale applied), with `finish_at` the estimated end (Unix time); None until every sheet's
-    plan is known or when the job is not under way."""
+    plan is known or when the job is not under way. Time a sheet stood waiting for the operator (paused, needs
+    attention) is not counted as work, so waiting does not make the remaining time grow; `fraction` is the share of
+    the planned machine time done, what the page's bar shows."""
     if job["state"] in ("queued", "preparing", "failed", "cancelled") or not job["sheet_list"]:
         return None
     rows = queue.sheets(job["id"])
@@ -203,7 +292,7 @@ def job_eta(queue: JobQueue, job: dict, machines: list[dict], timelines: Timelin
     for row, plan in zip(rows, plans):
         total = float(plan[-1]) / speedup
         done = float(plan[min(row.done_lines, len(plan)) - 1]) / speedup if row.done_lines else 0.0
-        elapsed = ((row.finished or now) - row.started) if row.started else 0.0
+        elapsed = max((row.finished or now) - row.started - row.waiting(now), 0.0) if row.started else 0.0
         if row.skipped:
             continue
         planned_total, planned_done, worked = planned_total + total, planned_done + done, worked + elapsed
@@ -216,9 +305,12 @@ def job_eta(queue: JobQueue, job: dict, machines: list[dict], timelines: Timelin
 
 
 def _eta_dict(eta: Eta, now: float) -> dict:
-    """Whole seconds, so the live page's snapshot changes once a second, not on every poll."""
+    """Whole seconds, so the live page's snapshot changes once a second, not on every poll; `finish` is the end as
+    a clock reads it (with its date when that is not today)."""
     return {"elapsed_s": round(eta.elapsed), "remaining_s": round(eta.remaining), "planned_s": round(eta.planned),
-            "pace": round(eta.pace, 2), "finish_at": round(now + eta.remaining)}
+            "pace": round(eta.pace, 2), "finish_at": round(now + eta.remaining),
+            "finish": finish_time(round(now + eta.remaining), now),
+            "fraction": round(eta.fraction, 4) if eta.fraction is not None else None}
 
 
 _PORTS_TTL = 5.0

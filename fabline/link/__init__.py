@@ -2,24 +2,25 @@
 
 Public surface: `Streamer` (with `Progress`, `StreamResult`, `StreamInterrupted`), `check_port`, `load_program`,
 `read_journal`/`default_journal_path`, the controller simulator (`GrblSimulator`, `Faults`,
-`SimulatorServer`, `executed_file_lines`) and the code tables. Importing this package registers the
-`sim://` URL scheme with pyserial, so `serial.serial_for_url("sim://grbl?time_scale=100")` works.
+`SimulatorServer`, `executed_file_lines`) and the code tables; the names load their modules on first use
+(`fabline.lazy`), so reading a build's option letters does not import the streamer and the simulator. Importing
+this package registers the `sim://` URL scheme with pyserial, so `serial.serial_for_url("sim://grbl?time_scale=100")`
+works.
 """
 
 import serial
 
-from fabline.link.codes import ALARM_CODES, ERROR_CODES, explain_alarm, explain_error
-from fabline.link.journal import default_journal_path, read_journal
-from fabline.link.program import Program, load_program, parse_program
-from fabline.link.server import SimulatorServer, executed_file_lines
-from fabline.link.simulator import Faults, GrblSimulator
-from fabline.link.streamer import STOP_SIGNALS, Progress, Streamer, StreamInterrupted, StreamResult, check_port
+from fabline.lazy import lazy_surface
 
 if "fabline.link" not in serial.protocol_handler_packages:
     serial.protocol_handler_packages.append("fabline.link")
 
-__all__ = [
-    "ALARM_CODES", "ERROR_CODES", "explain_alarm", "explain_error", "default_journal_path", "read_journal",
-    "Program", "load_program", "parse_program", "Faults", "GrblSimulator", "SimulatorServer", "executed_file_lines", "Progress", "Streamer",
-    "StreamInterrupted", "StreamResult", "check_port", "STOP_SIGNALS",
-]
+__getattr__, __all__ = lazy_surface(__name__, {
+    "codes": ("ALARM_CODES", "ERROR_CODES", "explain_alarm", "explain_error"),
+    "journal": ("default_journal_path", "read_journal"),
+    "program": ("Program", "load_program", "parse_program"),
+    "server": ("SimulatorServer", "executed_file_lines"),
+    "simulator": ("Faults", "GrblSimulator"),
+    "streamer": ("STOP_SIGNALS", "Progress", "Streamer", "StreamInterrupted", "StreamResult"),
+    "ports": ("check_port",),
+})

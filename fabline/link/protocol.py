@@ -18,6 +18,13 @@ FEED_HOLD = b"!"
 CYCLE_START = b"~"
 SOFT_RESET = b"\x18"
 JOG_CANCEL = b"\x85"
+OVERRIDES: dict[str, bytes] = {
+    "feed 100%": b"\x90", "feed +10%": b"\x91", "feed -10%": b"\x92", "feed +1%": b"\x93", "feed -1%": b"\x94",
+    "rapid 100%": b"\x95", "rapid 50%": b"\x96", "rapid 25%": b"\x97",
+    "power 100%": b"\x99", "power +10%": b"\x9a", "power -10%": b"\x9b", "power +1%": b"\x9c", "power -1%": b"\x9d",
+}
+"""Grbl 1.1's real-time override commands (one byte each, acted on at once, even mid-program): feed rate, rapid
+rate, and spindle speed, which is the laser's power in laser mode."""
 
 _BANNER = re.compile(r"^Grbl (\S+) \['\$' for help\]$")
 

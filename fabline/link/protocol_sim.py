@@ -20,6 +20,10 @@ from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Tim
 from fabline.link.build import STOCK_BUILD, BuildInfo
 from fabline.link.simulator import ConnectionDropped, Faults, GrblSimulator
 
+SIM_OPTIONS = ("time_scale", "line_time", "log", "machine", "settings", "drop_at", "corrupt_at", "error_line",
+               "error_code", "alarm_line", "alarm_code", "stall_at", "stall_seconds", "build_options", "planner_blocks",
+               "rx_buffer")
+"""The options a sim:// URL takes (the module's docstring says what each does)."""
 _SIMULATORS: dict[str, GrblSimulator] = {}
 _REGISTRY_LOCK = threading.Lock()
 
@@ -116,6 +120,12 @@ class Serial(SerialBase):
             raise PortNotOpenError()
         if self._simulator.connection != self._connection or not self._simulator._connected:
             raise SerialException("device disconnected (connection to the simulator was dropped)")
+
+    @property
+    def machine_time(self) -> float:
+        """The controller's own clock: seconds of machine time its planner has run (moving or dwelling) since it was
+        made, whatever wall time the process took. A side channel of the simulated port, not part of the protocol."""
+        return self._simulator.machine_time
 
     def _reconfigure_port(self, *args, **kwargs) -> None:
         """Nothing to configure on a simulated line."""

@@ -23,7 +23,7 @@ its machine profile (`fabline.link.compat`); the port and the journal are locked
 
 from __future__ import annotations
 
-import importlib.util
+import contextlib
 import math
 import os
 import re
@@ -37,14 +37,15 @@ from typing import Callable
 import serial
 
 from fabline.errors import FablineError
-from fabline.fileio import check_outputs, open_append
+from fabline.fileio import open_append
 from fabline.link.build import ANY_BUILD, STOCK_BUILD, BuildInfo
 from fabline.link.codes import explain_alarm, explain_error, listing
 from fabline.link.compat import controller_problems, program_machine
 from fabline.link.gcode import ModalState, Vector
+from fabline.link.ports import check_port, port_endpoints
 from fabline.link.journal import Journal, JournalError, JournalState, default_journal_path, read_journal
 from fabline.link.program import TAG_CYCLE, Program, line_tag, load_program
-from fabline.link.protocol import (CYCLE_START, FEED_HOLD, SOFT_RESET, STATUS_QUERY, CharacterCounter,
+from fabline.link.protocol import (CYCLE_START, FEED_HOLD, OVERRIDES, SOFT_RESET, STATUS_QUERY, CharacterCounter,
                                    LineSplitter, Response, StatusReport, classify)
 from fabline.locks import exclusive_lock, lock_path
 from fabline.progress import Eta, estimate, simulated_speedup
@@ -66,7 +67,8 @@ _MOTION_WORD = re.compile(r"G0*[0-3](?![0-9.])")
 
 @dataclass(frozen=True)
 class Progress:
-    """What a progress callback receives: lines acknowledged of total, machine state and work position, times in s."""
+    """What a progress callback receives: lines acknowledged of total, `percent` of the program's planned machine time
+    done (not of its lines: one long cut can be most of a sheet), machine state and work position, times in s."""
 
     acked: int
     total: int
@@ -79,7 +81,8 @@ class Progress:
     message: str | None = None
     """Set while the program waits for the operator: `program paused (M0) at file line N: resume to continue`."""
     eta: Eta | None = None
-    """Elapsed and remaining time from the planner's machine time per line, corrected by the pace made so far."""
+    """Elapsed and remaining time from the planner's machine time per line, corrected by the pace made so far; the
+    elapsed time leaves out the time held waiting for the operator, so waiting is not counted as work to come."""
 
 
 @dataclass(frozen=True)
@@ -92,6 +95,11 @@ class StreamResult:
     reason: str | None
     elapsed: float
     bytes_sent: int
+    machine: float | None = None
+    """Machine time of this run: the controller's own clock where the port has one (a simulator's `machine_time`),
+    else the wall time less the time held (a pause, an M0 waiting for the operator)."""
+    held: float = 0.0
+    """Wall seconds the machine stood held, waiting for the operator."""
 
 
 class StreamInterrupted(FablineError):
@@ -116,18 +124,6 @@ class _Undecided(Exception):
     """The stopped position does not tell which line was executing: the operator must say (--from-line)."""
 
 
-def check_port(url: str) -> None:
-    """Refuse a port URL whose scheme no pyserial handler (nor fabline's sim://) serves, before any work is done;
-    a device path or a URL with a known scheme passes (whether it opens is found out when it is opened)."""
-    scheme = url.split("://", 1)[0] if "://" in url else None
-    if scheme is None:
-        return
-    if not re.fullmatch(r"[a-z0-9_]+", scheme) or not any(
-            importlib.util.find_spec(f"{package}.protocol_{scheme}") for package in serial.protocol_handler_packages):
-        raise FablineError(f"port {url}: unknown scheme {scheme}:// (use a device such as /dev/ttyUSB0, or "
-                           "socket://, rfc2217://, loop:// or sim://)")
-
-
 def _checked_identity(identity: dict[str, str] | None) -> dict[str, str] | None:
     """A run identity as the journal keeps it: names and values are text; an empty one is none."""
     if identity is None or identity == {}:
@@ -139,6 +135,12 @@ def _checked_identity(identity: dict[str, str] | None) -> dict[str, str] | None:
 
 def _describe(identity: dict[str, str] | None) -> str:
     return "no named run" if identity is None else "run " + ", ".join(f"{k}={v}" for k, v in sorted(identity.items()))
+
+
+JOG_WAIT = 60.0
+"""Seconds a console line waits for an earlier jog to end (Grbl refuses G-code while it jogs: error:9)."""
+HOMING_WAIT = 120.0
+"""Seconds a console `$H` waits for its ok: Grbl answers when the homing cycle is over."""
 
 
 class Streamer:
@@ -183,6 +185,9 @@ class Streamer:
         self._pauses: list[int] = []  # acknowledged M0 lines whose pause has not been reported yet
         self.message: str | None = None
         self._timeline, self._timeline_for = None, None
+        self.started = time.monotonic()
+        self.held, self._held_since = 0.0, None  # wall seconds held waiting for the operator in this run
+        self._machine_start = 0.0
 
     # ----- control from any thread -----------------------------------------------------------------
     def pause(self) -> None:
@@ -190,6 +195,8 @@ class Streamer:
         with self._control:
             self._realtime.append(FEED_HOLD)
             self._paused = True
+            if self._held_since is None:
+                self._held_since = time.monotonic()
 
     def resume(self) -> None:
         """Cycle start after a pause."""
@@ -197,10 +204,63 @@ class Streamer:
             self._realtime.append(CYCLE_START)
             self._paused = False
             self.message = None
+            if self._held_since is not None:
+                self.held += time.monotonic() - self._held_since
+                self._held_since = None
 
     def abort(self) -> None:
         """Stop the job safely (feed hold, then reset); the journal allows a later resume."""
         self._abort.set()
+
+    def override(self, name: str) -> None:
+        """A real-time override while a program streams (`OVERRIDES`: 'feed +10%', 'power -1%', ...): the byte
+        goes out with the next real-time commands."""
+        if name not in OVERRIDES:
+            raise FablineError(f"unknown override {name!r} (use one of: {', '.join(OVERRIDES)})")
+        with self._control:
+            self._realtime.append(OVERRIDES[name])
+
+    def console(self, lines: list[str], realtime: list[str] = ()) -> list[tuple[str, list[str]]]:
+        """An operator's commands to a controller that is not running a program: `realtime` overrides by name,
+        then each line (a `$` setting, `$X`, `$H`, a `$J=` jog, `G10 L20 P1 X0 Y0` ...) sent alone and answered
+        before the next. Returns (line, the controller's answer lines, ending in `ok` or `error:N (meaning)`)
+        per line; an `error` answer does not stop the rest. Refused while the controller runs, jogs or holds."""
+        unknown = [name for name in realtime if name not in OVERRIDES]
+        if unknown:
+            raise FablineError(f"unknown override {unknown[0]!r} (use one of: {', '.join(OVERRIDES)})")
+        device = self.url.split("?", 1)[0]
+        if device.startswith("sim://"):
+            device += f"#{os.getpid()}"
+        with exclusive_lock(lock_path(device), f"port {self.url}"):
+            self._open()
+            try:
+                for name in realtime:
+                    self._write(OVERRIDES[name])
+                state = self._query_status().state if lines else "Idle"
+                deadline = time.monotonic() + JOG_WAIT
+                while state == "Jog" and time.monotonic() < deadline:  # an earlier jog still moving: let it end
+                    time.sleep(0.05)
+                    state = self._query_status().state
+                if state not in ("Idle", "Alarm"):
+                    raise FablineError(f"{self.url}: the controller is {state}; wait until it is idle")
+                return [(line, self._answer(line)) for line in lines]
+            finally:
+                self._close()
+
+    def _answer(self, line: str) -> list[str]:
+        """Send one console line; its feedback lines and the final `ok` or `error:N (meaning)`."""
+        self._write(line.encode("ascii") + b"\n")
+        wait = HOMING_WAIT if line.startswith("$H") else max(self.connect_timeout, 2.0)  # ok comes when homed
+        answer, deadline = [], time.monotonic() + wait
+        while time.monotonic() < deadline:
+            for response in self._read(0.02):
+                if response.kind == "ok":
+                    return answer + ["ok"]
+                if response.kind == "error":
+                    return answer + [explain_error(response.code)]
+                if response.kind != "status":
+                    answer.append(response.text if response.kind != "alarm" else explain_alarm(response.code))
+        raise FablineError(f"{self.url}: no answer to {line!r} within {wait:g} s")
 
     @property
     def paused(self) -> bool:
@@ -220,6 +280,9 @@ class Streamer:
         same program and identity unless `restart` says so. `identity` (e.g. job and run ids) is written to the
         journal; a resume must give the same. `machine` (a profile name or path) overrides the profile the
         program's header names; `force` streams despite controller conflicts (logged in journal and log)."""
+        if resume and restart:
+            raise FablineError("--resume and --restart contradict each other: give --resume to continue the "
+                               "interrupted run, or --restart to start it over")
         if not isinstance(program, Program):
             path = Path(program)
             program = load_program(path, build=ANY_BUILD)  # the controller's own build is checked once it answers
@@ -229,15 +292,14 @@ class Streamer:
         if start_line is not None and not resume:
             raise FablineError("--from-line needs --resume")
         identity = _checked_identity(identity)
-        check_outputs(files=(Path(journal),))
+        outputs = (Path(journal), *([self.exchange_log_path] if self.exchange_log_path is not None else []))
+        check_port(self.url, inputs=(program.name,), outputs=outputs)  # before pyserial parses (spy's file=)
         self.program, self.journal_path, self.force = program, Path(journal), force
         self.profile = program_machine(program, machine)
-        device = self.url.split("?", 1)[0]  # one lock per device, whatever options the URL has
-        if device.startswith("sim://"):
-            device += f"#{os.getpid()}"  # sim:// controllers live in their process: another process has its own
-        port_lock = lock_path(device)
-        with exclusive_lock(port_lock, f"port {self.url}"), \
-                exclusive_lock(lock_path(str(self.journal_path)), f"journal {self.journal_path}"):
+        with contextlib.ExitStack() as locks:
+            for endpoint in port_endpoints(self.url):  # one lock per device or address, whatever names it
+                locks.enter_context(exclusive_lock(lock_path(endpoint), f"port {self.url}"))
+            locks.enter_context(exclusive_lock(lock_path(str(self.journal_path)), f"journal {self.journal_path}"))
             previous = self._previous_job(resume, restart, identity)
             self.on_progress = on_progress
             self._open()
@@ -340,6 +402,9 @@ class Streamer:
         preamble = self._preamble(executed) if previous is not None else []
         self.acked = self.done = self.sent = self.first_index = executed
         self.started = time.monotonic()  # elapsed counts streaming, not the handshake
+        with self._control:
+            self.held, self._held_since = 0.0, (self.started if self._paused else None)
+        self._machine_start = self._machine_clock()
         while True:
             try:
                 return self._stream(preamble)
@@ -423,7 +488,8 @@ class Streamer:
                 self.journal.record("finished")
                 self.journal.commit()
                 self._report()
-                return StreamResult(True, self.done, len(lines), None, time.monotonic() - self.started, self.bytes_sent)
+                return StreamResult(True, self.done, len(lines), None, time.monotonic() - self.started, self.bytes_sent,
+                                    self._machine_elapsed(), self._held_now())
             if time.monotonic() >= next_report:
                 self._report()
                 next_report = time.monotonic() + 0.1
@@ -482,6 +548,8 @@ class Streamer:
         with self._control:
             self._paused = True
             self.message = f"program paused (M0) at file line {line}: resume to continue"
+            if self._held_since is None:
+                self._held_since = time.monotonic()
         self.journal.record("paused", line=line)
         self._exchange("#", self.message)
         self._report()
@@ -513,7 +581,7 @@ class Streamer:
         self.journal.commit()
         self._report()
         return StreamResult(False, executed, len(self.program.lines), "aborted", time.monotonic() - self.started,
-                            self.bytes_sent)
+                            self.bytes_sent, self._machine_elapsed(), self._held_now())
 
     def _stop_unrecorded(self, failure: JournalError) -> None:
         """The journal cannot be written: stop the machine so that no line runs unrecorded, and name the line to
@@ -1025,19 +1093,40 @@ class Streamer:
             self._exchange("#", f"unlocked after {explain_alarm(alarm) if alarm else 'alarm'}")
 
     # ----- reporting ----------------------------------------------------------------------------------
+    def _held_now(self) -> float:
+        """Wall seconds held waiting for the operator so far in this run, a hold in progress included."""
+        with self._control:
+            since = self._held_since
+            return self.held + (time.monotonic() - since if since is not None else 0.0)
+
+    def _machine_clock(self) -> float | None:
+        """The controller's own clock (seconds), where the port has one (`sim://`); None for a real machine."""
+        clock = getattr(self._port, "machine_time", None)
+        return float(clock) if isinstance(clock, (int, float)) else None
+
+    def _machine_elapsed(self) -> float:
+        """Machine time of this run so far: the controller's clock since the stream began, or for a real machine
+        (no clock of its own) the wall time less the time held."""
+        clock = self._machine_clock()
+        if clock is not None and self._machine_start is not None:
+            return max(clock - self._machine_start, 0.0)
+        return max(time.monotonic() - self.started - self._held_now(), 0.0)
+
     def _report(self) -> None:
         """Tell `on_progress` where the job stands (the stream loop decides how often)."""
         if self.on_progress is None:
             return
         total = len(self.program.lines)
-        elapsed = time.monotonic() - self.started
+        elapsed = time.monotonic() - self.started - self._held_now()  # waiting for the operator is not work
         timeline = self.timeline()
         planned = timeline[-1] - self._planned_at(self.first_index)
         eta = estimate(planned, self._planned_at(self.acked) - self._planned_at(self.first_index), elapsed)
         remaining = eta.remaining
         status = self.status
+        whole = float(timeline[-1]) if len(timeline) else 0.0
+        percent = 100.0 * (self._planned_at(self.acked) / whole if whole > 0 else self.acked / total)
         self.on_progress(Progress(
-            acked=self.acked, total=total, percent=100.0 * self.acked / total, state=status.state if status else "?",
+            acked=self.acked, total=total, percent=percent, state=status.state if status else "?",
             position=status.work_position(self._wco) if status else None, elapsed=elapsed,
             remaining=remaining, file_line=self._file_line(self.acked - 1) if self.acked else None,
             message=self.message, eta=eta))

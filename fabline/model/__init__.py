@@ -1,10 +1,13 @@
-"""The network model stage: the data type, its JSON format, importers from CAD, and built-in designs."""
+"""The network model stage: the data type, its JSON format, importers from CAD, and built-in designs.
 
-from fabline.model.jsonio import SCHEMA, load_network, network_from_dict, network_to_dict, save_network
-from fabline.model.network import FAMILIES, NODE_KINDS, UNIT_TO_MM, Lamella, Network, Node, validate
-from fabline.model.importers import ImportReport, import_model
+The names below load their modules on first use (`fabline.lazy`), so the command line's help and a command
+that needs only the units or the JSON format do not import the importers and their CAD libraries.
+"""
 
-__all__ = [
-    "FAMILIES", "NODE_KINDS", "SCHEMA", "UNIT_TO_MM", "ImportReport", "Lamella", "Network", "Node", "import_model",
-    "load_network", "network_from_dict", "network_to_dict", "save_network", "validate",
-]
+from fabline.lazy import lazy_surface
+
+__getattr__, __all__ = lazy_surface(__name__, {
+    "jsonio": ("SCHEMA", "load_network", "network_from_dict", "network_to_dict", "save_network"),
+    "network": ("FAMILIES", "NODE_KINDS", "UNIT_TO_MM", "Lamella", "Network", "Node", "validate"),
+    "importers": ("ImportReport", "import_model"),
+})

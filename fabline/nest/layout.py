@@ -8,7 +8,6 @@ part's own origin, then translated by (x, y), in sheet millimetres with the orig
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ import numpy as np
 
 from fabline.errors import FablineError
 from fabline.fileio import MAX_MM, finite_number, read_json, write_json
+from fabline.naming import file_stem
 
 SCHEMA = "fabline.nesting/1"
 
@@ -76,12 +76,6 @@ def place(points: np.ndarray, placement: Placement) -> np.ndarray:
     return out
 
 
-def sheet_file_stem(sheet_id: str) -> str:
-    """A sheet id as a file-name part (export's programs and drawings, nest's pictures): runs of characters other
-    than letters, digits, '.', '_' and '-' become one '_'. Two sheets whose stems differ only in case collide."""
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", sheet_id) or "sheet"
-
-
 def nesting_to_dict(nesting: Nesting) -> dict[str, Any]:
     """The JSON-ready form of a nesting."""
     return {
@@ -136,7 +130,7 @@ def nesting_from_dict(data: Any, source: str = "nesting") -> Nesting:
             sheet.common_cuts.append(CommonCut(tuple(map(str, parts)), _point(c, "start", at), _point(c, "end", at)))
         if sheet.width <= 0 or sheet.height <= 0:
             raise FablineError(f"{where}: width and height must be positive")
-        stem = sheet_file_stem(sheet.id).casefold()
+        stem = file_stem(sheet.id).casefold()
         if stem in stems:
             same = "the same id" if stems[stem] == sheet.id else f"sheet {stems[stem]}: both are file name {stem!r}"
             raise FablineError(f"{where}: collides with {same}; sheet ids must be unique as file names")

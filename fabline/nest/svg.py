@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from fabline.fileio import atomic_output
-from fabline.nest.layout import Nesting, Sheet, place, sheet_file_stem
+from fabline.naming import file_stem
+from fabline.nest.layout import Nesting, Sheet, place
 from fabline.unroll.parts import Part, PartSet, flatten_contour
 
 STROKE = "0.5"       # mm: thin enough for LightBurn to read the paths as lines, thick enough to see
@@ -81,7 +82,7 @@ def write_sheet_svgs(nesting: Nesting, partset: PartSet, folder: str | os.PathLi
         remnants = [r for r in nesting.remnants if r.get("sheet") == sheet.id]
         tree = ET.ElementTree(sheet_svg(sheet, parts, nesting.margin, remnants))
         ET.indent(tree)
-        path = folder / f"{sheet_file_stem(sheet.id)}.svg"
+        path = folder / f"{file_stem(sheet.id)}.svg"
         with atomic_output(path, "wb") as handle:
             tree.write(handle, encoding="utf-8", xml_declaration=True)
         written.append(path)

@@ -24,6 +24,7 @@ from fabline.survey.camera import Camera
 from fabline.survey.detect import TagDetection, cell_width_px, detect_expected_tags, detect_tags, read_gray, write_image
 from fabline.survey.reconstruct import Observation, Reconstruction, bundle_adjust
 from fabline.survey.register import register
+from fabline.units import mm
 from fabline.survey.selfcal import (UNDETERMINED_FOCAL, CameraGroup, describe, group_photos, initial_camera, refine_cameras,
                                     weak_cameras)
 from fabline.survey.tagmap import TagMap, check_tag_map
@@ -450,10 +451,10 @@ def write_deviation_map(model: Network, record: dict, path: Path, width: int = 1
     for label, y in ((f"+{tolerance:g} mm high", 90), ("0", height // 2 + 5), (f"-{tolerance:g} mm low", height - 75)):
         cv2.putText(canvas, label, (width + 80, y), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
     summary = record["summary"]
-    cv2.putText(canvas, f"{model.name}: {summary['measured']} nodes measured, RMS {summary['rms_deviation_mm']} mm, "
-                        f"max {summary['max_deviation_mm']} mm; {summary['passed']} pass, {summary['failed']} fail (red), "
-                        f"{summary['uncertain']} uncertain (orange) at {tolerance:g} mm, {summary['k_sigma']:g} sigma; "
-                        f"{summary['not_seen']} not seen",
+    cv2.putText(canvas, f"{model.name}: {summary['measured']} nodes measured, RMS {mm(summary['rms_deviation_mm'])} mm, "
+                        f"max {mm(summary['max_deviation_mm'])} mm; {summary['passed']} pass, {summary['failed']} fail "
+                        f"(red), {summary['uncertain']} uncertain (orange), {summary['not_seen']} not seen (hollow) at "
+                        f"{tolerance:g} mm, {summary['k_sigma']:g} sigma",
                 (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
     write_image(path, canvas)
 

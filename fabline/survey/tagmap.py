@@ -18,6 +18,7 @@ import numpy as np
 from fabline.errors import FablineError
 from fabline.fileio import atomic_output, finite_number, read_json, write_json
 from fabline.model import Network
+from fabline.model_units import check_plausible
 
 TAGMAP_SCHEMA = "fabline.tagmap/1"
 TAG_FAMILY = "tag36h11"
@@ -47,12 +48,7 @@ class TagMap:
 def check_tag_size_mm(value: float, source: str = "--tag-size") -> float:
     """`value` as a tag size in mm; a value no tag has in mm (0.065: metres; 6500: a tenth of a mm) raises naming
     `source` and what to give instead."""
-    low, high = TAG_SIZE_RANGE_MM
-    if not (isinstance(value, (int, float)) and np.isfinite(value) and low <= value <= high):
-        hint = (f"; {value:g} looks like metres: give {value * 1000:g}" if isinstance(value, (int, float)) and
-                0 < value * 1000 <= high and value * 1000 >= low else "")
-        raise FablineError(f"{source} {value:g}: a tag's black-square edge in millimetres must be {low:g} to {high:g}{hint}")
-    return float(value)
+    return check_plausible(value, "mm", TAG_SIZE_RANGE_MM, source, "a tag's black-square edge")
 
 
 def make_tag_map(network: Network, tag_size_mm: float = 65.0, mount_offset_mm: float = 20.0,

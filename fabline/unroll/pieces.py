@@ -162,7 +162,9 @@ def _marks(centre: FlatCentreline, x: np.ndarray, y_from: float, y_to: np.ndarra
 
 
 def _engrave(centre: FlatCentreline, items: list) -> list[np.ndarray]:
-    """Strokes of several texts, each (glyphs, anchor, dx, baseline y, height), placed in one vectorised call."""
+    """Strokes of several texts, each (glyphs, anchor, dx, baseline y, height), placed in one vectorised call, each
+    point at station anchor + dx and its y across the centreline there: on a curved strip the text follows the curve
+    (set out along the tangent it would leave the strip's outline)."""
     items = [item for item in items if len(item[0].points)]
     if not items:
         return []
@@ -173,7 +175,7 @@ def _engrave(centre: FlatCentreline, items: list) -> list[np.ndarray]:
         y.append(y0 + glyphs.points[:, 1] * height)
         splits.extend(glyphs.starts + offset)
         offset += len(glyphs.points)
-    points = centre.place(np.concatenate(anchors), np.concatenate(dx), np.concatenate(y))
+    points = centre.place(np.concatenate(anchors) + np.concatenate(dx), 0.0, np.concatenate(y))
     return split_rows(points, splits)
 
 
@@ -214,7 +216,7 @@ def _label(centre: FlatCentreline, label: str, a: float, b: float, blocked: list
     strokes = _engrave(centre, [(glyphs, anchor, start, mid_y - size / 2.0, size)])
     shaft_start = start + (glyphs.width + 1.0) * size
     for line in arrow(ARROW_LENGTH * size, size * 0.8):
-        strokes.append(centre.place(np.full(len(line), anchor), shaft_start + line[:, 0], mid_y + line[:, 1]))
+        strokes.append(centre.place(anchor + shaft_start + line[:, 0], 0.0, mid_y + line[:, 1]))
     return strokes
 
 

@@ -11,7 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
+from fabline.errors import FablineError
 from fabline.fileio import atomic_output
+from fabline.naming import file_stem
 from fabline.unroll.parts import Part, PartSet, flatten_contour
 
 LAYER_STYLE = {
@@ -43,13 +45,21 @@ def part_svg(part: Part) -> str:
 
 def write_previews(partset: PartSet, directory: str | os.PathLike,
                    kinds: tuple[str, ...] = ("strip", "curved-strip", "joint")) -> list[Path]:
-    """Write one `<part id>.svg` per part of the given kinds into `directory`; returns the paths written."""
+    """Write one `<part id>.svg` per part of the given kinds into `directory` (the id as `fabline.naming` makes it
+    a file name, so it stays in `directory`); returns the paths written. Two ids that differ only in case are
+    refused before anything is written: on a case-blind disk one file would replace the other."""
     directory = Path(directory)
+    chosen = [part for part in partset.parts if part.kind in kinds]
+    seen: dict[str, str] = {}
+    for part in chosen:
+        other = seen.setdefault(file_stem(part.id).casefold(), part.id)
+        if other != part.id:
+            raise FablineError(f"parts {other!r} and {part.id!r}: their previews would be one file on a disk that "
+                               "ignores case; give the lamellas ids that differ in more than case")
     written = []
-    for part in partset.parts:
-        if part.kind in kinds:
-            path = directory / f"{part.id}.svg"
-            with atomic_output(path) as handle:
-                handle.write(part_svg(part))
-            written.append(path)
+    for part in chosen:
+        path = directory / f"{file_stem(part.id)}.svg"
+        with atomic_output(path) as handle:
+            handle.write(part_svg(part))
+        written.append(path)
     return written

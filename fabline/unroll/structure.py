@@ -10,12 +10,16 @@ fabline's verdict is the combined check (VERDICT_RULE): per node interval the wo
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from fabline.geometry.darboux import LamellaGeometry
 from fabline.unroll.materials import Material, Profile
+
+if TYPE_CHECKING:  # type hints only: `fabline limits` needs no scipy (darboux imports it)
+    from fabline.geometry.darboux import LamellaGeometry
 
 MM_PER_M = 1000.0
 SEPARATE_CHECKS = ("bending", "shear", "helix")
@@ -94,6 +98,45 @@ def utilisations(material: Material, profile: Profile, k_g: np.ndarray, twist: n
             "combined": np.maximum(edge, centre) / material.f_y}
 
 
+def _helix_coefficients(material: Material, profile: Profile) -> tuple[float, float]:
+    """sigma_H,max = c_edge kappa^2 and |sigma_H,min| = c_centre kappa^2 (6.10), N/mm2 per (1/mm)^2."""
+    i_p_sq = profile.polar_radius_sq
+    return 0.5 * material.E * ((profile.h / 2.0) ** 2 - i_p_sq), 0.5 * material.E * i_p_sq
+
+
+def combined_twist_limit(material: Material, profile: Profile, k_g: float = 0.0) -> float:
+    """The largest twist (rad/mm) with combined utilisation 100 % at weak-axis curvature k_g (1/mm); 0 when the
+    bending alone reaches yield. Closed form of `utilisations`' combined rule solved for the twist: at the edge
+    sigma_b + c_e kappa^2 = f_y, at the face centre (sigma_b + c_c kappa^2)^2 + 3 (G t kappa)^2 = f_y^2."""
+    sigma_b = float(bending_stress(material, profile, k_g))
+    f_y = material.f_y
+    if sigma_b >= f_y:
+        return 0.0
+    c_edge, c_centre = _helix_coefficients(material, profile)
+    shear_sq = (material.G * profile.t) ** 2
+    edge = (f_y - sigma_b) / c_edge
+    b = 2.0 * sigma_b * c_centre + 3.0 * shear_sq  # c_c^2 x^2 + b x - (f_y^2 - sigma_b^2) = 0 in x = kappa^2
+    rest = f_y ** 2 - sigma_b ** 2
+    centre = 2.0 * rest / (b + math.sqrt(b * b + 4.0 * c_centre ** 2 * rest))
+    return math.sqrt(min(edge, centre))
+
+
+def combined_radius_limit(material: Material, profile: Profile, twist: float = 0.0) -> float | None:
+    """The smallest weak-axis bending radius (mm) with combined utilisation 100 % at the given twist (rad/mm);
+    None when the twist alone reaches yield (no radius is allowed, not even straight). Closed form as above,
+    solved for sigma_b."""
+    kappa_sq = float(twist) ** 2
+    c_edge, c_centre = _helix_coefficients(material, profile)
+    f_y = material.f_y
+    shear_sq = 3.0 * (material.G * profile.t) ** 2 * kappa_sq
+    if shear_sq >= f_y ** 2:
+        return None
+    sigma_b = min(f_y - c_edge * kappa_sq, math.sqrt(f_y ** 2 - shear_sq) - c_centre * kappa_sq)
+    if sigma_b <= 0.0:
+        return None
+    return material.E * profile.t / (2.0 * sigma_b)
+
+
 def limits(material: Material, profile: Profile, radius: float | None = None, twist: float | None = None) -> dict:
     """A designer's quick check: minimum radius, maximum twist, and the stresses at a given radius (mm) or twist (rad/m)."""
     kappa_max = max_twist(material, profile)
@@ -102,6 +145,7 @@ def limits(material: Material, profile: Profile, radius: float | None = None, tw
         "E": material.E, "G": material.G, "f_y": material.f_y, "tau_y": material.tau_y,
         "min_bending_radius_mm": min_bending_radius(material, profile),
         "max_twist_rad_per_m": kappa_max * MM_PER_M, "max_twist_deg_per_m": float(np.degrees(kappa_max * MM_PER_M)),
+        "combined_max_twist_rad_per_m": combined_twist_limit(material, profile) * MM_PER_M,
     }
     if radius is not None:
         sigma = float(bending_stress(material, profile, 1.0 / radius))
@@ -162,11 +206,27 @@ class LamellaCheck:
             **{f"utilisation_{k}": rounded_utilisation(v.max()) for k, v in self.use.items()},
             "utilisation": rounded_utilisation(self.utilisation), "governing": governing,
             "passes": self.utilisation <= 1.0,
+            **self.combined_limits(material, profile),
             "helix_centre_contraction_mm": round(self.centre_contraction, 3),
             "helix_top_edge_extension_mm": round(self.top_extension, 3),
             "helix_bottom_edge_extension_mm": round(self.bottom_extension, 3),
             "intervals": self._intervals(),
         }
+
+    @property
+    def worst_interval(self) -> int:
+        """The node interval of the largest combined utilisation (the verdict's)."""
+        return int(np.argmax(self.use["combined"]))
+
+    def combined_limits(self, material: Material, profile: Profile) -> dict:
+        """At the worst interval: its nodes, the allowed twist at its bending radius and the allowed radius at its
+        twist (rad/m, mm; None where the twist alone reaches yield)."""
+        worst = self.worst_interval
+        radius = combined_radius_limit(material, profile, float(self.max_tau_g[worst]))
+        return {"worst_nodes": self.node_ids[worst:worst + 2],
+                "allowed_twist_at_radius_rad_per_m": round(combined_twist_limit(material, profile, float(self.max_k_g[worst]))
+                                                           * MM_PER_M, 4),
+                "allowed_radius_at_twist_mm": None if radius is None else round(radius, 1)}
 
     def _intervals(self) -> list[dict]:
         """Per node interval: the largest k_g and tau_g (1/m) and the utilisations, rounded for the report."""
@@ -282,4 +342,101 @@ def _warnings(check: LamellaCheck, material: Material, profile: Profile) -> list
                       f"stress (von Mises at the face centre, or bending plus helix at the edge) is {share} of f_y "
                       f"for a {profile.h:g} x {profile.t:g} mm strip, though each effect alone is within yield")
         lines.append(f"{where}: {detail}")
+    return lines
+
+
+def structural_verdict(checks: list[LamellaCheck], material: Material, profile: Profile,
+                       k_max: float | None = None) -> dict:
+    """The verdict of a set of lamellas by the combined rule (VERDICT_RULE), as every stage says it: pass or the
+    failing lamellas, the worst one's interval with its combined limits (the twist allowed at its radius, the
+    radius allowed at its twist, and the limits in pure twist and pure bending), and when failing the remedies,
+    each solved from the same check so that alone it brings the worst interval to 100 %: all curvatures scaled
+    (the design's `k_max`, or its largest twist when none is given), a thinner strip, a lower strip, a higher f_y."""
+    worst = max(checks, key=lambda check: check.utilisation)
+    at = worst.worst_interval
+    k_g, twist = float(worst.max_k_g[at]), float(worst.max_tau_g[at])
+    radius_limit = combined_radius_limit(material, profile, twist)
+    failing = [check.lamella for check in checks if check.utilisation > 1.0]
+    verdict = {
+        "passes": not failing, "lamellas": len(checks), "failing": failing,
+        "max_utilisation": rounded_utilisation(worst.utilisation), "lamella": worst.lamella,
+        "nodes": worst.node_ids[at:at + 2], "profile": str(profile), "h_mm": profile.h, "t_mm": profile.t,
+        "material": material.name, "f_y": material.f_y,
+        "radius_mm": 1.0 / k_g if k_g > 0 else None, "twist_rad_per_m": twist * MM_PER_M,
+        "limits": {"twist_at_radius_rad_per_m": combined_twist_limit(material, profile, k_g) * MM_PER_M,
+                   "radius_at_twist_mm": radius_limit,
+                   "twist_straight_rad_per_m": combined_twist_limit(material, profile) * MM_PER_M,
+                   "radius_untwisted_mm": min_bending_radius(material, profile),
+                   "shear_alone_twist_rad_per_m": max_twist(material, profile) * MM_PER_M},
+    }
+    if failing:
+        verdict["remedies"] = _remedies(checks, material, profile, k_max if k_max else max(
+            float(check.max_tau_g.max()) for check in checks) * MM_PER_M, k_max is not None)
+    return verdict
+
+
+def combined_maximum(material: Material, profile: Profile, k_g: np.ndarray, twist: np.ndarray) -> float:
+    """The largest combined utilisation of intervals with these curvatures (1/mm): what the remedies solve."""
+    return float(utilisations(material, profile, k_g, twist)["combined"].max())
+
+
+def _remedies(checks: list[LamellaCheck], material: Material, profile: Profile, k_max: float, of_design: bool) -> dict:
+    """Each remedy's figure by root-finding `combined_maximum` = 1 over every interval (monotone in each)."""
+    from scipy.optimize import brentq  # only a failing design pays for scipy.optimize's import
+
+    k_g = np.concatenate([check.max_k_g for check in checks])
+    twist = np.concatenate([check.max_tau_g for check in checks])
+
+    def over(scale: float = 1.0, **dimension: float) -> float:
+        return combined_maximum(material, replace(profile, **dimension), scale * k_g, scale * twist) - 1.0
+
+    scale = brentq(lambda s: over(scale=s), 0.0, 1.0, xtol=1e-12)
+    remedies = {"scale": scale, "k_max_per_m": scale * k_max, "k_max_of": "design" if of_design else "largest twist"}
+    floor_t, floor_h = 1e-6 * profile.t, 1e-6 * profile.h
+    remedies["t_mm"] = (brentq(lambda t: over(t=t), floor_t, profile.t, xtol=1e-12)
+                        if over(t=floor_t) < 0.0 else None)  # the helix stress does not depend on t
+    remedies["h_mm"] = (brentq(lambda h: over(h=h), floor_h, profile.h, xtol=1e-12)
+                        if over(h=floor_h) < 0.0 else None)  # bending and shear do not depend on h
+    stress = combined_maximum(material, profile, k_g, twist) * material.f_y  # utilisation is stress / f_y
+    remedies["f_y"] = stress
+    return remedies
+
+
+def verdict_lines(verdict: dict) -> list[str]:
+    """The verdict in the words every stage prints: a headline, and when failing the combined limit and the
+    remedies; a remedy's printed figure is rounded to the safe side (k_max, t and h down, f_y up)."""
+    worst, lim = verdict["lamella"], verdict["limits"]
+    at = f"lamella {worst}, nodes {verdict['nodes'][0]}..{verdict['nodes'][1]}"
+    radius = f"radius {verdict['radius_mm']:.0f} mm" if verdict["radius_mm"] else "straight"
+    what = f"{verdict['profile']} mm {verdict['material']} (f_y {verdict['f_y']:g} N/mm2)"
+    at_twist = (f"radius {lim['radius_at_twist_mm']:.0f} mm at its twist" if lim["radius_at_twist_mm"] is not None
+                else "no radius passes at its twist (the twist alone exceeds yield)")
+    limit = (f"combined limit for {what}: twist {lim['twist_at_radius_rad_per_m']:.3f} rad/m at {worst}'s bending "
+             f"({radius}), {at_twist}; in pure twist {lim['twist_straight_rad_per_m']:.3f} rad/m (shear alone would allow "
+             f"{lim['shear_alone_twist_rad_per_m']:.3f}), in pure bending radius {lim['radius_untwisted_mm']:.0f} mm")
+    if verdict["passes"]:
+        return [f"structure: all {verdict['lamellas']} lamellas pass the combined check (largest {percent(verdict['max_utilisation'])}, "
+                f"{at}: twist {verdict['twist_rad_per_m']:.3f} rad/m, {radius}); {limit}"]
+    failing = verdict["failing"]
+    names = ", ".join(failing[:12]) + (f" and {len(failing) - 12} more" if len(failing) > 12 else "")
+    lines = [f"structure: {len(failing)} of {verdict['lamellas']} lamellas exceed yield by the combined check: {names} "
+             f"(largest {percent(verdict['max_utilisation'])}, {at}: twist {verdict['twist_rad_per_m']:.3f} rad/m, {radius})",
+             f"  {limit}"]
+    r = verdict["remedies"]
+    k_max = math.floor(r["k_max_per_m"] * 1000.0) / 1000.0
+    of = "k_max" if r["k_max_of"] == "design" else "largest twist"
+    options = [f"curvatures x {math.floor(r['scale'] * 1000.0) / 1000.0:.3f} ({of} {k_max:.3f} 1/m, a flatter or larger design)"]
+    h, t = verdict["h_mm"], verdict["t_mm"]
+    if r["t_mm"] is not None:
+        options.append(f"thickness {math.floor(r['t_mm'] * 100.0) / 100.0:.2f} mm ({h:g} x {math.floor(r['t_mm'] * 100.0) / 100.0:.2f})")
+    else:
+        options.append("no thinner strip (the helix stress alone exceeds yield)")
+    if r["h_mm"] is None:
+        options.append("no lower strip (bending and shear alone exceed yield)")
+    elif r["h_mm"] <= t:
+        options.append(f"no lower strip (it would be {r['h_mm']:.2g} mm high, not above its thickness)")
+    else:
+        options.append(f"height {math.floor(r['h_mm'] * 10.0) / 10.0:.1f} mm ({math.floor(r['h_mm'] * 10.0) / 10.0:.1f} x {t:g})")
+    options.append(f"a material certified to f_y {math.ceil(r['f_y']):.0f} N/mm2")
+    lines.append("  remedies, each alone bringing the largest utilisation to 100 %: " + "; ".join(options))
     return lines

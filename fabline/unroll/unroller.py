@@ -24,7 +24,7 @@ from fabline.unroll.parts import Part, PartSet
 from fabline.unroll.pieces import is_seam, segment_part
 from fabline.unroll.seams import Segment, split_strip
 from fabline.unroll.stations import Strip, singular_nodes, strip_stations
-from fabline.unroll.structure import check_lamellas, limits
+from fabline.unroll.structure import check_lamellas, limits, structural_verdict
 
 
 def unroll_network(network: Network, options: UnrollOptions | None = None,
@@ -72,6 +72,8 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
     report = {
         "summary": _summary(parts, lamella_rows, strip_rows, warnings),
         "limits": limits(options.material, options.profile),
+        "verdict": (structural_verdict(checks, options.material, options.profile, _design_k_max(network))
+                    if checks else None),
         "options": _options_row(options),
         "lamellas": lamella_rows,
         "strips": strip_rows,
@@ -185,6 +187,12 @@ def _summary(parts: list[Part], lamellas: list[dict], strips: list[dict], warnin
         "governing_check": worst["governing"] if worst else None,
         "warnings": len(warnings),
     }
+
+
+def _design_k_max(network) -> float | None:
+    """The design's largest principal curvature (1/m) when its generator recorded one (`fabline design enneper`)."""
+    k_max = network.meta.get("k_max")
+    return float(k_max) if isinstance(k_max, (int, float)) and not isinstance(k_max, bool) and k_max > 0 else None
 
 
 def _options_row(options: UnrollOptions) -> dict:

@@ -2,11 +2,14 @@
 
 `design_asymptotic(path, spacing, ...)` reads a mesh (OBJ, STL, PLY, .3dm), fits cubic jets per vertex,
 traces the two asymptotic families with the rail layout and returns a validated `Network` with its
-quality report; `quality_report` measures any network the same way.
+quality report; `quality_report` measures any network the same way. The names load their modules on first use
+(`fabline.lazy`): `fabline inspect` prints a traced network's quality without importing the tracer.
 """
 
-from fabline.model.surfaces.design import AsymptoticDesign, design_asymptotic, read_surface
-from fabline.model.surfaces.mesh import SmoothMesh
-from fabline.model.surfaces.quality import quality_report, summary_lines
+from fabline.lazy import lazy_surface
 
-__all__ = ["AsymptoticDesign", "SmoothMesh", "design_asymptotic", "quality_report", "read_surface", "summary_lines"]
+__getattr__, __all__ = lazy_surface(__name__, {
+    "design": ("AsymptoticDesign", "design_asymptotic", "read_surface"),
+    "mesh": ("SmoothMesh",),
+    "quality": ("quality_report", "summary_lines"),
+})

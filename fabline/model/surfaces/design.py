@@ -18,9 +18,13 @@ from fabline.model.surfaces.layout import (CROSSING_TOLERANCE_MM, SupportRule, b
 from fabline.model.surfaces.mesh import SmoothMesh, xyz_text
 from fabline.model.surfaces.nurbs import NurbsPatch, read_nurbs
 from fabline.model.surfaces.quality import quality_report
+from fabline.model_units import Length, model_length
 from fabline.unroll.materials import get_material, parse_profile
 
 DEGENERATE_AREA = 1e-10  # a face smaller than this fraction of the mean edge length squared has no area
+NODE_SPACING_MM = (10.0, 10_000.0)
+"""Node spacings a gridshell (or its scale model) can have: outside, a number is taken for another unit."""
+TRACING_STEP_MM = (0.1, 10_000.0)
 
 
 @dataclass
@@ -88,21 +92,26 @@ def check_mesh(vertices: np.ndarray, faces: np.ndarray, source: str) -> trimesh.
     return mesh
 
 
-def design_asymptotic(path: str | Path, spacing: float, seed: np.ndarray | None = None, supports: str | None = None,
-                      units: str | None = None, step: float | None = None, material: str = "steel-s235",
+def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarray | None = None, supports: str | None = None,
+                      units: str | None = None, step: float | Length | None = None, material: str = "steel-s235",
                       profile: str = "100x1.5", seed_curves: list[np.ndarray] | None = None) -> AsymptoticDesign:
-    """Trace an asymptotic network at `spacing` (model units) on the surface in `path`; seed defaults to the centre.
+    """Trace an asymptotic network at `spacing` (model units, or a `Length` with a unit) on the surface in `path`;
+    seed defaults to the centre. A spacing or step implausible in the surface's units is refused.
 
     `seed_curves` (one or two polylines on the surface, model units) replace the rail and the middle curve;
     the seed then defaults to the middle of the first.
     The quality report (quality_report) and the regions without asymptotic lines go into the network's meta.
     """
     source = str(path)
-    if not (0 < spacing < np.inf):
-        raise FablineError(f"--spacing must be a positive number, got {spacing:g}")
+    for name, length in (("--spacing", spacing), ("--step", step)):
+        number = length.value if isinstance(length, Length) else length
+        if length is not None and not (0 < number < np.inf):
+            raise FablineError(f"{name} must be a positive number, got {number:g}")
     rule = SupportRule.parse(supports) if supports else None
     get_material(material), parse_profile(profile)  # a mistake there is refused before the work, not after
     surface, units, notes = load_surface(path, units)
+    spacing = model_length(spacing, units, "--spacing", NODE_SPACING_MM, "a node spacing")
+    step = None if step is None else model_length(step, units, "--step", TRACING_STEP_MM, "a tracing step")
     k1, k2, _, _ = surface.vertex_curvatures()
     if not np.any((k1 > 0) & (k2 < 0)):
         worst = int(np.argmin(k1 * k2))

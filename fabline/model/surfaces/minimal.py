@@ -37,6 +37,9 @@ STEPS_PER_ROUND = 8
 SETTLED_FRACTION = 0.01  # a remeshing round that changes fewer edges than this fraction of the faces ends the rounds
 CONVERGED_FRACTION = 1e-6  # of the mesh size: the largest normal move that counts as converged
 CLOSED_FRACTION = 1e-6  # ends of a curve closer than this fraction of its length: closed
+MESH_SIZE_MM = (1.0, 10_000.0)
+"""Triangle sizes a gridshell's surface (or its scale model's) can be meshed at: outside, a number is taken for
+another unit (`--mesh-size 0.1` on curves in mm is a size in metres)."""
 
 
 def read_boundaries(path: str | Path, units: str | None = None) -> tuple[list[np.ndarray], list[str], str]:

@@ -2,7 +2,7 @@
 
 Curvatures come from the geometry stage (splines through the written curves and normals), so the
 report measures the network file as the later stages will see it. Twist (tau_g) and weak-axis bending
-(k_g) are checked against the profile's limits from the unroll stage's structural formulas.
+(k_g) are checked by the unroll stage's combined check (`structural_verdict`), so the design says what unroll says.
 """
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ import numpy as np
 from fabline.geometry import analyse
 from fabline.model.network import Network
 from fabline.unroll.materials import get_material, parse_profile
-from fabline.unroll.structure import limits
+from fabline.unroll.structure import (check_lamellas, combined_radius_limit, combined_twist_limit, percent,
+                                     structural_verdict, verdict_lines)
 
 MM_PER_M = 1000.0
 
@@ -37,7 +38,7 @@ def quality_report(network: Network, surface=None, spacing: float | None = None,
                      for (na, a), (nb, b) in zip(zip(geo.node_ids, geo.node_s), zip(geo.node_ids[1:], geo.node_s[1:]))
                      if na in crossing and nb in crossing]) / unit_mm
     material_data, profile_data = get_material(material), parse_profile(profile)
-    limit = limits(material_data, profile_data)
+    checks = {check.lamella: check for check in check_lamellas(list(geometry.lamellas.values()), material_data, profile_data)}
     worst_twist = max(curves, key=lambda k: curves[k]["max_tau_g"])
     worst_bend = max(curves, key=lambda k: curves[k]["max_k_g"])
     twist = curves[worst_twist]["max_tau_g"]
@@ -48,11 +49,10 @@ def quality_report(network: Network, surface=None, spacing: float | None = None,
                 "mean_of_max": float(np.mean([c["max_k_n"] for c in curves.values()])), "worst": max(curves, key=lambda k: curves[k]["max_k_n"])},
         "crossing_angles": _stats(angles),
         "spacing": {"requested": spacing, **_stats(gaps)},
-        "twist": {"max_tau_g": twist, "lamella": worst_twist, "limit": limit["max_twist_rad_per_m"],
-                  "utilisation": twist / limit["max_twist_rad_per_m"]},
+        "twist": {"max_tau_g": twist, "lamella": worst_twist, **_at_most(checks[worst_twist], "twist", material_data, profile_data)},
         "bending": {"max_k_g": bend, "lamella": worst_bend, "min_radius_mm": (MM_PER_M / bend) if bend else None,
-                    "limit_radius_mm": limit["min_bending_radius_mm"],
-                    "utilisation": bend * limit["min_bending_radius_mm"] / MM_PER_M},
+                    **_at_most(checks[worst_bend], "bending", material_data, profile_data)},
+        "structure": structural_verdict(list(checks.values()), material_data, profile_data, network.meta.get("k_max")),
         "material": material, "profile": profile, "curves": curves,
     }
     if surface is not None:
@@ -60,6 +60,17 @@ def quality_report(network: Network, surface=None, spacing: float | None = None,
         distance = np.linalg.norm(surface.project(points).xyz - points, axis=1) * unit_mm
         report["distance_to_surface_mm"] = {"mean": float(distance.mean()), "max": float(distance.max())}
     return report
+
+
+def _at_most(check, what: str, material, profile) -> dict:
+    """At the lamella's interval of largest twist (or bending): the combined limit of that effect given the other
+    effect there (twist rad/m at its radius, radius mm at its twist; None if its twist alone exceeds yield) and
+    the combined utilisation."""
+    at = int(np.argmax(check.max_tau_g if what == "twist" else check.max_k_g))
+    k_g, tau_g = float(check.max_k_g[at]), float(check.max_tau_g[at])
+    limit = (combined_twist_limit(material, profile, k_g) * MM_PER_M if what == "twist"
+             else combined_radius_limit(material, profile, tau_g))
+    return {"limit" if what == "twist" else "limit_radius_mm": limit, "utilisation": float(check.use["combined"][at])}
 
 
 def _stats(values: np.ndarray) -> dict:
@@ -83,10 +94,16 @@ def summary_lines(report: dict, units: str) -> list[str]:
     if "distance_to_surface_mm" in report:
         d = report["distance_to_surface_mm"]
         lines.append(f"curves off the surface: {d['mean']:.3f} mm mean, {d['max']:.3f} mm max")
+    if "structure" not in report:  # a network file from before the combined check: its figures meant otherwise
+        lines.append("structural check: not in this file (an older fabline wrote it); `fabline unroll` gives the verdict")
+        return lines
     t, b = report["twist"], report["bending"]
-    lines.append(f"largest twist {t['max_tau_g']:.3f} rad/m on {t['lamella']} ({100 * t['utilisation']:.0f} % of "
-                 f"{t['limit']:.3f} rad/m for {report['profile']} {report['material']})")
+    limit = f"{t['limit']:.3f} rad/m" if t["limit"] else "none"
+    lines.append(f"largest twist {t['max_tau_g']:.3f} rad/m on {t['lamella']} ({percent(t['utilisation'])} combined; "
+                 f"combined limit there {limit} for {report['profile']} {report['material']})")
     radius = f"radius {b['min_radius_mm']:.0f} mm" if b["min_radius_mm"] else "no bending"
+    limit = f"{b['limit_radius_mm']:.0f} mm" if b["limit_radius_mm"] else "none (its twist alone exceeds yield)"
     lines.append(f"largest weak-axis bending k_g {b['max_k_g']:.3f} 1/m on {b['lamella']} ({radius}, "
-                 f"{100 * b['utilisation']:.0f} % of the {b['limit_radius_mm']:.0f} mm limit)")
+                 f"{percent(b['utilisation'])} combined; smallest radius allowed at its twist {limit})")
+    lines.extend(verdict_lines(report["structure"]))
     return lines
