@@ -222,7 +222,7 @@ def sweep_orphans(folder: str | os.PathLike) -> int:
         return 0
     for entry in entries:
         match = TEMP_PATTERN.match(entry.name)
-        if match is None or int(match["pid"]) == os.getpid() or _alive(int(match["pid"])):
+        if match is None or int(match["pid"]) == os.getpid() or process_alive(int(match["pid"])):
             continue
         try:
             if entry.is_file(follow_symlinks=False) and entry.stat(follow_symlinks=False).st_mtime < _STARTED:
@@ -233,7 +233,8 @@ def sweep_orphans(folder: str | os.PathLike) -> int:
     return removed
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether process `pid` exists (one of another user's, or a pid too large to be one, counts as alive)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from fabline.errors import FablineError
+from fabline.fileio import process_alive
 from fabline.naming import file_stem
 
 
@@ -42,7 +43,7 @@ def exclusive_lock(lock_path: str | os.PathLike, what: str,
             holder = _holder(fd)
             raise FablineError(f"{what} is in use by {holder} (lock {path}); wait for it to finish or stop it") from None
         left = _pid(fd)
-        if left is not None and left != os.getpid() and taken_over is not None and not _running(left):
+        if left is not None and left != os.getpid() and taken_over is not None and not process_alive(left):
             taken_over(left)
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
@@ -85,16 +86,6 @@ def _pid(fd: int) -> int | None:
     return int(text) if text.isdigit() else None
 
 
-def _running(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError):
-        return True
-    return True
-
-
 def _sharers(fd: int) -> list[int]:
     """The processes that have the lock file open (on Linux, from /proc), this one aside."""
     mine = os.fstat(fd)
@@ -119,7 +110,7 @@ def _holder(fd: int) -> str:
     pid = _pid(fd)
     if pid is None:
         return "another process"
-    if _running(pid):
+    if process_alive(pid):
         return f"process {pid}"
     left = _sharers(fd)
     if not left:

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from fabline.errors import FablineError
-from fabline.fileio import _alive, atomic_output, write_json  # _alive: the temp-file sweep's process check
+from fabline.fileio import atomic_output, process_alive, write_json
 from fabline.locks import lock_holder
 
 SCHEMA = "fabline.runner/1"
@@ -169,7 +169,7 @@ def _users_process(pid: int) -> bool:
     try:
         return os.stat(f"/proc/{pid}").st_uid == os.getuid()
     except FileNotFoundError:
-        return not os.path.isdir("/proc") and _alive(pid)
+        return not os.path.isdir("/proc") and process_alive(pid)
     except OSError:
         return False
 
@@ -197,7 +197,7 @@ def trusted_record(path: Path) -> tuple[dict[str, Any], str] | None:
         raise Untrusted(f"its database {db} is not beside it")
     serving = lock_holder(queue_lock(db))
     if serving is None:
-        if _alive(record["pid"]):
+        if process_alive(record["pid"]):
             raise Untrusted(f"it names process {record['pid']}, which does not serve the queue {db}")
         return None  # its server is gone (killed): the queue it left is found below
     if serving != record["pid"] or not _users_process(serving):
