@@ -67,7 +67,7 @@ def test_required_keys(tmp_path):
     ("[machine]\nports = [\"sim://a\", \"sim://a\"]", "job.toml: machine.ports: a port is listed twice"),
     ("[machine]\nport = \"sim://a\"\nports = [\"sim://b\"]", "job.toml: machine: give machine.port or machine.ports"),
     ("[machine]\ntime_scale = \"fast\"", "job.toml: machine.time_scale: expected a number, got string 'fast'"),
-    ("[machine]\ntime_scale = -1.0", "job.toml: machine.time_scale: must be positive"),
+    ("[machine]\ntime_scale = -1.0", "job.toml: machine.time_scale: time_scale must be above 0"),
     ("[machine]\nprofile = \"laser9000\"", "job.toml: machine.profile: unknown machine 'laser9000'"),
     ("[machine]\nprofile = \"missing.toml\"", "job.toml: machine.profile: file not found"),
     ("[stock]\nsheet = \"4000by2000\"", "job.toml: stock.sheet:"),

@@ -87,7 +87,7 @@ def test_a_job_files_port_writes_only_inside_its_output_folder(tmp_path, cli, sc
     job = tmp_path / "ports.toml"
     job.write_text(JOB.format(port=f"{scheme}={victim}"), encoding="utf-8")
     code, out, err = cli("run", job)
-    assert code == 2 and err.count("\n") == 1 and "ports.toml: machine.ports:" in err and "outside the job's output " \
+    assert code == 2 and err.count("\n") == 1 and "ports.toml: machine.port:" in err and "outside the job's output " \
         "folder" in err, err
     assert victim.read_text() == "keep me\n" and not (tmp_path / "out").exists()
     job.write_text(JOB.format(port=f"{scheme}={tmp_path / 'ports.toml'}"), encoding="utf-8")

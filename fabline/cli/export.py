@@ -50,6 +50,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_export(args: argparse.Namespace) -> int:
     """Export and print a per-sheet summary table."""
     from fabline.export import ToolpathOptions, export_nesting, load_machine
+    from fabline.export.job import export_outputs
+    from fabline.nest.layout import load_nesting, parts_path
 
     profile = load_machine(args.machine)
     kerf = profile.kerf if args.kerf is None else args.kerf
@@ -64,7 +66,10 @@ def run_export(args: argparse.Namespace) -> int:
         dxf_dir = gcode_dir = args.output or default_export_folder(args.nesting)
     elif args.output:
         dxf_dir, gcode_dir = dxf_dir or args.output, gcode_dir or args.output
-    check_outputs(folders=(dxf_dir, gcode_dir), inputs=(args.nesting, profile.source))
+    nesting = load_nesting(args.nesting)
+    written = export_outputs(nesting, profile, dxf_dir, gcode_dir, Path(args.nesting).stem, not args.no_preview)
+    check_outputs(files=written, folders=(dxf_dir, gcode_dir),
+                  inputs=(args.nesting, parts_path(args.nesting, nesting), profile.source))
     result = export_nesting(args.nesting, profile, options, dxf_dir, gcode_dir, previews=not args.no_preview)
     for path in result.files:
         print(f"wrote {path}")

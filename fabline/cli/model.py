@@ -88,6 +88,7 @@ def run_asymptotic(args: argparse.Namespace) -> int:
     from fabline.model.surfaces import design_asymptotic, summary_lines
     from fabline.model.surfaces.curves import read_curves
 
+    check_outputs(files=(args.output,), inputs=(args.surface, args.seed_curves))
     curves = None
     if args.seed_curves:
         found, _ = read_curves(args.seed_curves, args.units)
@@ -121,6 +122,7 @@ def run_minimal(args: argparse.Namespace) -> int:
     from fabline.model.surfaces.minimal import MESH_SIZE_MM, minimal_surface, read_boundaries, write_mesh
     from fabline.model_units import model_length
 
+    check_outputs(files=(args.output,), inputs=(args.boundary,))
     curves, names, units = read_boundaries(args.boundary, args.units)
     mesh_size = model_length(args.mesh_size, units, "--mesh-size", MESH_SIZE_MM, "a triangle size")
     mesh = minimal_surface(curves, mesh_size, args.boundary, names)

@@ -79,6 +79,28 @@ def load_job(nesting_path: str | os.PathLike) -> tuple[Nesting, dict[str, Part]]
     return nesting, parts
 
 
+def export_outputs(nesting: Nesting, profile: MachineProfile, dxf_dir: str | os.PathLike | None,
+                   gcode_dir: str | os.PathLike | None, name: str, previews: bool = False,
+                   cutlist: str | os.PathLike | None = None) -> list[Path]:
+    """The files `export_job` writes for these arguments, known before anything is made (so that a command can
+    check them against its inputs, e.g. the parts file its nesting names, up front)."""
+    files: list[Path] = []
+    for sheet in nesting.sheets:
+        stem = f"{name}_{file_stem(sheet.id)}"
+        if gcode_dir is not None:
+            files.append(Path(gcode_dir) / f"{stem}.gcode")
+            if previews and profile.grbl:
+                files.append(Path(gcode_dir) / f"{stem}{PREVIEW_SUFFIX}")
+        if dxf_dir is not None:
+            files.append(Path(dxf_dir) / f"{stem}.dxf")
+    if dxf_dir is not None:
+        files.append(Path(dxf_dir) / f"{name}_all-sheets.dxf")
+    folder = gcode_dir if gcode_dir is not None else dxf_dir
+    if cutlist is not None or folder is not None:
+        files.append(Path(cutlist if cutlist is not None else Path(folder) / CUTLIST_NAME))
+    return files
+
+
 def export_job(nesting: Nesting, parts: dict[str, Part], profile: MachineProfile, options: ToolpathOptions,
                dxf_dir: str | os.PathLike | None = None, gcode_dir: str | os.PathLike | None = None,
                name: str = "job", source: str = "nesting", cutlist: str | os.PathLike | None = None,

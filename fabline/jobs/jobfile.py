@@ -36,6 +36,9 @@ DEFAULT_STAGES = ("unroll", "nest", "export", "stream", "report")
 """The stages of a job that does not list its own; `survey` joins them when the job sets `survey.simulate`."""
 DEFAULT_PORT = "sim://grbl"
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+NAME_MAX = 100
+"""Characters a job's name may have: it starts output file names (`NAME_SHEET-ID_all-sheets.dxf`, temp files with
+their prefix), which must stay under the file systems' 255 bytes."""
 """Bytes a job file may have (a job file is a page of TOML; anything larger is a mistake or an attack)."""
 _TYPE_NAMES = {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
                dict: "a table"}
@@ -157,6 +160,8 @@ def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
     if not _NAME.fullmatch(data["name"]):
         raise FablineError(f"{where}: name: {data['name']!r} must be letters, digits, '.', '_' or '-' "
                            "(it names output files)")
+    if len(data["name"]) > NAME_MAX:
+        raise FablineError(f"{where}: name: {len(data['name'])} characters, at most {NAME_MAX} (it names output files)")
     model = _check_model(data["model"], base, where)
     for section, key in (("lamella", "materials_file"), ("stock", "file"), ("survey", "result")):
         if data[section][key] is not None:
@@ -193,11 +198,12 @@ def _check_port_files(spec: JobSpec, where: str) -> None:
 
     inputs = (spec.path, spec.model.get("file"), spec.lamella["materials_file"], spec.stock["file"],
               spec.survey.get("result"))
+    key = "machine.port" if spec.machine.get("port") is not None else "machine.ports"
     for port in spec.machine["ports"]:
         try:
             check_port(port, inputs=tuple(i for i in inputs if i), within=spec.output_folder)
         except FablineError as exc:
-            raise FablineError(f"{where}: machine.ports: {exc}") from None
+            raise FablineError(f"{where}: {key}: {exc}") from None
 
 
 def _check_table(raw: Any, schema: dict[str, Any], where: str, prefix: str) -> dict[str, Any]:
@@ -343,10 +349,10 @@ def _check_model(model: dict[str, Any], base: Path, where: str) -> dict[str, Any
                                f"(allowed: {', '.join(parameters)})")
         default = parameters[key].default
         if isinstance(default, tuple):
-            value = tuple(_typed(v, type(d), where, f"{key_path}[{k}]") for k, (v, d) in
-                          enumerate(zip(_typed(value, list, where, key_path), default)))
+            value = _typed(value, list, where, key_path)
             if len(value) != len(default):
-                raise FablineError(f"{where}: {key_path}: expected {len(default)} values")
+                raise FablineError(f"{where}: {key_path}: expected {len(default)} values, got {len(value)}")
+            value = tuple(_typed(v, type(d), where, f"{key_path}[{k}]") for k, (v, d) in enumerate(zip(value, default)))
         else:
             value = _typed(value, type(default), where, key_path)
         options[key] = value
@@ -384,23 +390,25 @@ def unroll_options(lamella: dict[str, Any], unroll: dict[str, Any], stock: dict[
                    nest: dict[str, Any]) -> "UnrollOptions":
     """The unroll stage's options from a job's tables, checked (a FablineError names the key): profile and material
     from [lamella], the strip length limit from the sheet's longer side and nest.sheet_margin unless [unroll] sets them."""
-    from fabline.nest.stock import parse_sheet_size
     from fabline.unroll.materials import get_material, parse_profile
     from fabline.unroll.options import UnrollOptions
 
     given = {key: value for key, value in unroll.items() if value is not None and key != "previews"}
-    if "sheet_length" not in given:
-        if stock["file"]:
-            from fabline.nest.stock import load_stock
-
-            sheets = [item for item in load_stock(stock["file"]) if not item.remnant]
-            given["sheet_length"] = max(sheets[0].width, sheets[0].height) if sheets else 0.0
-        else:
-            given["sheet_length"] = max(parse_sheet_size(stock["sheet"]))
+    given.setdefault("sheet_length", _sheet_length(stock))
     given.setdefault("sheet_margin", nest["sheet_margin"])
     options = UnrollOptions(profile=parse_profile(lamella["profile"]),
                             material=get_material(lamella["material"], lamella["materials_file"]), **given)
     return options.check(name=lambda key: f"unroll.{key}")
+
+
+def _sheet_length(stock: dict[str, Any]) -> float:
+    """The longer side of the job's sheet, mm: the stock file's first full sheet (0 if it has none) or stock.sheet."""
+    from fabline.nest.stock import load_stock, parse_sheet_size
+
+    if stock["file"]:
+        sheets = [item for item in load_stock(stock["file"]) if not item.remnant]
+        return max(sheets[0].width, sheets[0].height) if sheets else 0.0
+    return max(parse_sheet_size(stock["sheet"]))
 
 
 def toolpath_options(export: dict[str, Any], machine_kerf: float) -> "ToolpathOptions":
@@ -434,9 +442,15 @@ def _check_values(data: dict[str, Any], where: str) -> None:
     if machine not in available_machines() and not machine.endswith(".toml"):
         raise FablineError(f"{where}: machine.profile: unknown machine {machine!r} "
                            f"(use one of {', '.join(available_machines())} or a .toml file)")
-    for key_path, value in (("stock.count", data["stock"]["count"]), ("machine.time_scale", data["machine"]["time_scale"])):
-        if value is not None and not value > 0:
-            raise FablineError(f"{where}: {key_path}: must be positive, got {value}")
+    count = data["stock"]["count"]
+    if count is not None and not count > 0:
+        raise FablineError(f"{where}: stock.count: must be positive, got {count}")
+    from fabline.link.simulator import check_time_scale
+
+    try:
+        check_time_scale(data["machine"]["time_scale"])
+    except ValueError as exc:
+        raise FablineError(f"{where}: machine.time_scale: {exc}") from None
     try:
         nest_options(data["nest"]).check(name=lambda key: f"nest.{key}")
         unroll_options(data["lamella"], data["unroll"], data["stock"], data["nest"])
@@ -446,3 +460,8 @@ def _check_values(data: dict[str, Any], where: str) -> None:
         value = data["export"][key]
         if value is not None and not low <= value < math.inf:
             raise FablineError(f"{where}: export.{key}: must be a finite number, at least {low:g}, got {value}")
+    sheet = _sheet_length(data["stock"])
+    for key in ("kerf", "lead_in", "tab_width"):  # a cut feature longer than the sheet cannot be on it
+        value = data["export"][key]
+        if value is not None and sheet and value > sheet:
+            raise FablineError(f"{where}: export.{key}: {value:g} mm is longer than the sheet ({sheet:g} mm)")

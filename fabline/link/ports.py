@@ -70,6 +70,8 @@ def check_port(url: str, *, inputs: tuple = (), outputs: tuple = (), within: str
             raise FablineError(f"port {url}: unknown option {name!r} for {scheme}:// (it takes: {takes})")
         if name == "logging" and value not in LOG_LEVELS:
             raise FablineError(f"port {url}: logging={value!r}: use one of {', '.join(LOG_LEVELS)}")
+        if scheme == "sim":
+            _check_sim_option(url, name, value)
     written = port_files(url)
     if not written:
         return []
@@ -89,6 +91,24 @@ def check_port(url: str, *, inputs: tuple = (), outputs: tuple = (), within: str
     except FablineError as exc:
         raise FablineError(f"port {url}: {option}=: {exc}") from None
     return written
+
+
+def _check_sim_option(url: str, name: str, value: str) -> None:
+    """A sim:// option the simulator would refuse when it starts, refused now: `machine=` a known profile's name
+    (a path is not taken: a URL must not make fabline read any file it names), `time_scale=` in its range."""
+    if name == "machine":
+        from fabline.export.machine import available_machines
+
+        if value not in available_machines():
+            raise FablineError(f"port {url}: machine={value!r}: not a machine profile's name (use one of "
+                               f"{', '.join(available_machines())})")
+    elif name == "time_scale":
+        from fabline.link.simulator import check_time_scale
+
+        try:
+            check_time_scale(float(value))
+        except ValueError as exc:
+            raise FablineError(f"port {url}: time_scale={value!r}: {exc if 'time_scale' in str(exc) else 'not a number'}") from None
 
 
 def port_endpoints(url: str) -> list[str]:

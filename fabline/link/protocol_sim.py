@@ -18,7 +18,7 @@ import urllib.parse
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout
 
 from fabline.link.build import STOCK_BUILD, BuildInfo
-from fabline.link.simulator import ConnectionDropped, Faults, GrblSimulator
+from fabline.link.simulator import ConnectionDropped, Faults, GrblSimulator, check_time_scale
 
 SIM_OPTIONS = ("time_scale", "line_time", "log", "machine", "settings", "drop_at", "corrupt_at", "error_line",
                "error_code", "alarm_line", "alarm_code", "stall_at", "stall_seconds", "build_options", "planner_blocks",
@@ -56,7 +56,7 @@ def simulator_from_options(query: str) -> GrblSimulator:
                     error_line=number("error_line", int), error_code=number("error_code", int, 20),
                     alarm_line=number("alarm_line", int), alarm_code=number("alarm_code", int, 1),
                     stall_at=number("stall_at", int), stall_seconds=number("stall_seconds", float, 0.0))
-    time_scale = number("time_scale", float, 1.0)
+    time_scale = check_time_scale(number("time_scale", float, 1.0))
     line_time = number("line_time", float, 0.0)
     if line_time < 0:
         raise ValueError(f"line_time must be 0 or more seconds, not {line_time}")

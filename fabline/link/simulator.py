@@ -108,6 +108,18 @@ class _Planned:
     entry2: float = 0.0
 
 
+TIME_SCALE_MAX = 1e6
+"""The fastest a simulator runs (machine seconds per real second): at 1e6 one 1 ms tick is 17 min of machine time,
+faster than any job needs; beyond it the tick arithmetic loses the planner's millisecond steps (1e308 overflows)."""
+
+
+def check_time_scale(value: float) -> float:
+    """`value` if it is a usable time scale (finite, above 0, at most TIME_SCALE_MAX), else ValueError saying so."""
+    if not 0 < value <= TIME_SCALE_MAX:  # also refuses NaN
+        raise ValueError(f"time_scale must be above 0 and at most {TIME_SCALE_MAX:g}, not {value:g}")
+    return value
+
+
 class GrblSimulator:
     """A GRBL 1.1h controller in a background thread; `time_scale` > 1 makes motion run faster.
 
@@ -120,7 +132,7 @@ class GrblSimulator:
                  faults: Faults | None = None, tick: float = 0.001, settings: dict[int, float] | None = None,
                  line_time: float = 0.0, build: BuildInfo = STOCK_BUILD, threaded: bool = True):
         self.build = build
-        self.time_scale = time_scale
+        self.time_scale = check_time_scale(time_scale)
         self.line_time = line_time
         self.faults = faults or Faults()
         unknown = sorted(set(settings or {}) - set(DEFAULT_SETTINGS))

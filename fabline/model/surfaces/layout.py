@@ -282,12 +282,14 @@ def build_network(surface: TracingSurface, layout: Layout, spacing: float, units
         if not per_curve[c]:
             continue
         lamellas.append(_lamella(surface, ids[c], layout.families[c], points, sorted(per_curve[c]), nodes, spacing))
-    if supports is not None:
-        for node in nodes.values():
-            if supports.holds(node.xyz):
-                node.kind = "support"
     used = {nid for lam in lamellas for nid in lam.nodes}
     nodes = {nid: node for nid, node in sorted(nodes.items()) if nid in used}
+    if supports is not None:
+        chosen = [node for node in nodes.values() if supports.holds(node.xyz)]
+        if not chosen:  # as `import --supports` refuses a rule that picks no node
+            raise FablineError(f"--supports {str(supports)!r}: no node of {source} lies where {supports} holds")
+        for node in chosen:
+            node.kind = "support"
     return validate(Network(units, nodes, sorted(lamellas, key=lambda lam: (lam.family, lam.id.split("-", 1)[1])), name, meta), source)
 
 
