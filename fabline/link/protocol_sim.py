@@ -2,8 +2,8 @@
 
 Simulators live in a per-process registry by NAME, so a reconnect after a dropped connection reaches
 the same controller, as a real one outlives its USB cable. Options (used when NAME is first opened):
-time_scale, line_time (firmware seconds per line), log (executed-line log path), machine (a machine profile's name
-or file: the controller is set up as that machine, its `$N` settings as the profile assumes them, e.g. `$32=1` for
+time_scale, line_time (firmware seconds per line), log (executed-line log path), machine (a machine profile's name:
+a URL names no file to read, `check_port` refuses a path): the controller is set up as that machine, its `$N` settings as the profile assumes them, e.g. `$32=1` for
 a laser), settings (`$N` values as `110:12000,120:800`, over the machine's), drop_at, corrupt_at (comma-separated byte offsets),
 error_line, error_code, alarm_line, alarm_code, stall_at, stall_seconds; and the build, a stock Grbl 1.1h unless
 build_options (the `$I` option letters, e.g. `VN` for `Ln:` in status reports), planner_blocks or rx_buffer say otherwise.
