@@ -5,6 +5,7 @@ real `runner serve`), deep or mistyped JSON answered with one-line 400s, and no 
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import re
 import select
@@ -148,7 +149,8 @@ def vm_rss_kib(pid: int) -> int:
 
 def post_streaming(port: int, token: str, total: int, chunked: bool) -> tuple[int, dict, int]:
     """POST `total` bytes to /api/jobs over a raw socket, 64 KiB at a time, made as they go (never held whole),
-    stopping as soon as the server answers; (status, JSON answer, body bytes sent)."""
+    stopping as soon as the server answers (or closes: Linux keeps what it received readable after a reset);
+    (status, JSON answer, body bytes sent)."""
     head = (f"POST /api/jobs HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n{TOKEN_HEADER}: {token}\r\n"
             "Content-Type: application/json\r\n"
             + ("Transfer-Encoding: chunked\r\n\r\n" if chunked else f"Content-Length: {total}\r\n\r\n"))
@@ -158,7 +160,10 @@ def post_streaming(port: int, token: str, total: int, chunked: bool) -> tuple[in
     with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
         sock.sendall(head.encode())
         while sent < total and not select.select([sock], [], [], 0)[0]:
-            sock.sendall(frame)
+            try:
+                sock.sendall(frame)
+            except (BrokenPipeError, ConnectionResetError):  # it answered and closed: its answer is still to be read
+                break
             sent += len(piece)
         answer = b""
         while b"\r\n\r\n" not in answer or len(answer.split(b"\r\n\r\n", 1)[1]) < int(
@@ -167,7 +172,6 @@ def post_streaming(port: int, token: str, total: int, chunked: bool) -> tuple[in
             assert more, answer
             answer += more
     head_text, body = answer.split(b"\r\n\r\n", 1)
-    import json
     return int(head_text.split()[1]), json.loads(body), sent
 
 
