@@ -50,7 +50,8 @@ def headers_hold(answer: httpx.Response) -> None:
 
 def test_every_answer_carries_the_security_headers_errors_and_404s_too(app):
     async def requests(client):
-        return [await client.get("/"), await client.get("/api/state"), await client.get("/api/state", headers={TOKEN_HEADER: "no"}),
+        return [await client.get("/"), await client.get("/api/state"),
+                await client.get("/api/state", headers={TOKEN_HEADER: "no"}),
                 await client.get("/nowhere"), await client.get("/api/jobs"),  # 405: POST only
                 await client.get("/", headers={"Host": "evil.example"}),
                 await client.post("/api/jobs", content=b"{", headers={"Content-Type": "application/json"}),
@@ -78,12 +79,14 @@ def test_deep_or_mistyped_json_gets_a_one_line_400_naming_the_field_and_no_trace
     JobQueue(tmp_path / "runner.sqlite").register_machine("m1", "sim://m1")
     path, key = NESTED[route]
     deep = f'{{"{key}": ' + "[" * 100_000 + "]" * 100_000 + "}"  # past the parser's recursion: a 500 before
-    just_too_deep = f'{{"{key}": ' + "[" * JSON_DEPTH + "]" * JSON_DEPTH + "}"
+    just_too_deep = f'{{"{key}": ' + "[" * JSON_DEPTH + "]" * JSON_DEPTH + "}"  # the object and 32 arrays: 33
+    deep_enough = f'{{"{key}": ' + "[" * (JSON_DEPTH - 1) + "]" * (JSON_DEPTH - 1) + "}"  # 32 levels: parsed
     bodies = [(deep, f"body: JSON nested deeper than {JSON_DEPTH} levels"),
-              (just_too_deep, f"body: JSON nested deeper than {JSON_DEPTH} levels"),
+              (just_too_deep, f"body: JSON nested deeper than {JSON_DEPTH} levels"), (deep_enough, f"{key}: expected "),
               (f'{{"{key}": {{"a": 1}}}}', f"{key}: expected "), (f'{{"{key}": true}}', f"{key}: expected "),
               ("[1, 2]", "body: expected a JSON object"), ('"text"', "body: expected a JSON object"),
-              (b"\xff\xfe{", "body: not JSON"), ("{" + '"a": 1, ' * 3, "body: not JSON"), ("1" * 5000, "body: not JSON")]
+              (b"\xff\xfe{", "body: not JSON"), ("{" + '"a": 1, ' * 3, "body: not JSON"), 
+              ("1" * 5000, "body: not JSON")]
 
     async def requests(client):
         return [(await client.post(path, content=body, headers={"Content-Type": "application/json"}), said)
@@ -136,10 +139,12 @@ def test_an_internal_error_is_logged_once_and_answered_with_a_one_line_500(app, 
         return await client.get("/api/state")
     with caplog.at_level(logging.ERROR):
         answer = run(app, requests)
-    assert answer.status_code == 500 and answer.json() == {"error": "internal error in the runner (its log has the details)"}
+    assert answer.status_code == 500
+    assert answer.json() == {"error": "internal error in the runner (its log has the details)"}
     headers_hold(answer)
     logged = [r for r in caplog.records if r.exc_info]
-    assert len(logged) == 1 and logged[0].exc_info[0] is ZeroDivisionError and "GET /api/state" in logged[0].getMessage()
+    assert len(logged) == 1 and logged[0].exc_info[0] is ZeroDivisionError
+    assert "GET /api/state" in logged[0].getMessage()
 
 
 def vm_rss_kib(pid: int) -> int:
@@ -185,7 +190,8 @@ def test_a_real_runner_serve_refuses_300_mb_without_reading_it(tmp_path):
         deadline = time.monotonic() + 30
         while True:
             try:
-                assert httpx.get(f"http://127.0.0.1:{port}/api/state", headers={TOKEN_HEADER: token}, timeout=5).is_success
+                state = httpx.get(f"http://127.0.0.1:{port}/api/state", headers={TOKEN_HEADER: token}, timeout=5)
+                assert state.is_success
                 break
             except httpx.ConnectError:
                 assert time.monotonic() < deadline and server.poll() is None

@@ -206,7 +206,8 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
         Route("/api/jobs", guarded(submit), methods=["POST"]),
     ]
     allowed = [*LOOPBACK_HOSTS, *hosts]
-    return Starlette(routes=routes, middleware=[Middleware(Guard), Middleware(TrustedHostMiddleware, allowed_hosts=allowed)],
+    middleware = [Middleware(Guard), Middleware(TrustedHostMiddleware, allowed_hosts=allowed)]
+    return Starlette(routes=routes, middleware=middleware,
                      exception_handlers={BadRequest: _bad_request, HTTPException: _http_error})
 
 
@@ -226,7 +227,8 @@ def page_policy(page: str) -> str:
     found: dict[str, list[str]] = {"script": [], "style": []}
     for kind, text in _INLINE.findall(page):
         found[kind].append("'sha256-" + base64.b64encode(hashlib.sha256(text.encode()).digest()).decode() + "'")
-    return PAGE_POLICY.format(scripts=" ".join(found["script"]) or "'none'", styles=" ".join(found["style"]) or "'none'")
+    return PAGE_POLICY.format(scripts=" ".join(found["script"]) or "'none'",
+                              styles=" ".join(found["style"]) or "'none'")
 
 
 class BadRequest(Exception):
@@ -295,7 +297,8 @@ def _json_type(value: Any) -> str:
 
 
 _SECURITY_HEADERS = [(b"x-frame-options", b"DENY"), (b"x-content-type-options", b"nosniff"),
-                     (b"referrer-policy", b"no-referrer")]
+                     (b"referrer-policy", b"no-referrer")]  # the page's URLs carry the token: never sent on
+_OURS = {k for k, _ in _SECURITY_HEADERS} | {b"content-security-policy"}
 
 
 class Guard:
@@ -354,9 +357,6 @@ class Guard:
     @property
     def _over(self) -> str:
         return f"more than the {self.limit} bytes ({self.limit / (1 << 20):g} MiB) the runner takes"
-
-
-_OURS = {k for k, _ in _SECURITY_HEADERS} | {b"content-security-policy"}
 
 
 async def _answer(send, status: int, error: str) -> None:
