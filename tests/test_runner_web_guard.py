@@ -85,7 +85,7 @@ def test_deep_or_mistyped_json_gets_a_one_line_400_naming_the_field_and_no_trace
               (just_too_deep, f"body: JSON nested deeper than {JSON_DEPTH} levels"), (deep_enough, f"{key}: expected "),
               (f'{{"{key}": {{"a": 1}}}}', f"{key}: expected "), (f'{{"{key}": true}}', f"{key}: expected "),
               ("[1, 2]", "body: expected a JSON object"), ('"text"', "body: expected a JSON object"),
-              (b"\xff\xfe{", "body: not JSON"), ("{" + '"a": 1, ' * 3, "body: not JSON"), 
+              (b"\xff\xfe{", "body: not JSON"), ("{" + '"a": 1, ' * 3, "body: not JSON"),
               ("1" * 5000, "body: not JSON")]
 
     async def requests(client):
