@@ -277,3 +277,23 @@ def test_a_hostile_job_renders_as_text_and_no_script_runs(tmp_path):
         assert any("Content Security Policy" in text for text in violations), violations
     listener.sock.close()
     assert listener.hits == []
+
+
+def test_a_report_keeps_its_style_and_pictures_but_runs_no_script(tmp_path):
+    pixel = "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mP8z8BQDwAEhQGAhKmMIQAAAABJRU5ErkJggg=="
+    report = tmp_path / "report.html"
+    report.write_text("<html><head><style>h1 { color: rgb(255, 0, 0) }</style></head><body>"
+                      f'<h1 style="font-size:40px">job</h1><img id=map src="data:image/png;base64,{pixel}">'
+                      "<script>window.ran = 1</script></body></html>", encoding="utf-8")
+    db = tmp_path / "runner.sqlite"
+    queue = JobQueue(db)
+    job = queue.submit("reported", job_file=str(tmp_path / "job.toml"))
+    queue.claim_preparation()
+    queue.prepared(job, [("s", str(square_program(tmp_path / "s.gcode", 1, 1)), "")], str(report))
+    with page_server(db) as url, headless_chromium() as (sync_api, browser):
+        page = browser.new_page()
+        answer = page.goto(f"{url}/api/jobs/{job}/report?token={TOKEN}")
+        assert answer.status == 200 and "frame-ancestors 'none'" in answer.headers["content-security-policy"]
+        seen = page.evaluate("() => { const h = getComputedStyle(document.querySelector('h1'));"
+                             " return [h.color, h.fontSize, document.getElementById('map').naturalWidth, window.ran]; }")
+    assert seen == ["rgb(255, 0, 0)", "40px", 1, None]  # style and picture kept; the script never ran
