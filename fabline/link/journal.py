@@ -16,7 +16,9 @@ Format (`fabline.link-journal/1`): one JSON object per line, each with an `event
   stopped  {reason}                          the stream stopped early (error, alarm, abort, lost
                                              connection, a log that could not be written)
   finished {}                                every line executed; the job is complete
-Records are fsynced at least every 50 ms, and at once when the stream stops. A journal that cannot be written
+Records are fsynced at least every 50 ms, and at once when the stream stops; the `sent` records of a batch are
+flushed to the operating system before the batch is written to the port, so a killed host never leaves a line
+on the controller that its journal does not show as sent (only a lost disk write can, and a resume then refuses). A journal that cannot be written
 (disk full, device gone) raises JournalError at the next record, so the stream stops rather than cut unrecorded.
 A half-written last record (the host died while writing it) is ignored when reading and cut off before
 anything is appended; any other malformed record is a one-line error naming the journal line.
@@ -105,6 +107,16 @@ class Journal:
         with self._lock:
             self._raise_failure()
             self._guarded(self._handle.write, text)
+
+    def flush(self) -> None:
+        """Hand everything recorded so far to the operating system (no fsync): it survives the host process being
+        killed, so a `sent` record flushed before its line is written to the port bounds what the controller can
+        have received."""
+        if self._abandoned:
+            return
+        with self._lock:
+            self._raise_failure()
+            self._guarded(self._handle.flush)
 
     def commit(self) -> None:
         """Flush and fsync: every record so far survives a crash."""
