@@ -230,8 +230,9 @@ def test_fault_campaign_on_a_stock_build_every_line_exactly_once_or_an_ambiguity
 # ----- journals that lost records -----------------------------------------------------------------------------
 LOSS_KILLS = 6
 """Killed streams whose journal then loses records: even cases keep only a first part (cut at every k-th record
-boundary in turn), odd cases lose a block from the middle. The first case is the probe's: a cut hundreds of lines
-(more than one 255-line tag cycle) before the kill, which a tag looked up past the last `ok` resumed 510 lines early."""
+boundary in turn, first just after the send of the line one 255-line tag cycle before the last one parsed: the
+tag fits it, only the position tells), odd cases lose a block from the middle. The first case's second cut is the
+probe's half journal, which a tag looked up in the 255 lines past the last `ok` resumed a tag cycle early."""
 
 
 def long_program(start: tuple[float, float], count: int = 700) -> list[str]:
@@ -256,9 +257,9 @@ def wait_idle(url: str) -> None:
         port.close()
 
 
-def resume_lost(url: str, program: Path, executed) -> str:
+def resume_lost(url: str, program: Path, executed, refusal: str = "") -> str:
     """One --resume over a journal that lost records: 'refused' (one line naming a line to continue from by hand,
-    and nothing run) or 'completed' (every line exactly once)."""
+    and nothing run; with `refusal`, for that reason) or 'completed' (every line exactly once)."""
     before = executed()
     try:
         result = Streamer(url, status_interval=0.02, connect_timeout=3).run(program, resume=True)
@@ -267,7 +268,9 @@ def resume_lost(url: str, program: Path, executed) -> str:
         assert "\n" not in message and "--resume --from-line N" in message and re.search(r"file line \d+|no line",
                                                                                         message), message
         assert executed() == before, f"refused, but ran lines: {message}"
+        assert refusal in message, message
         return "refused"
+    assert not refusal, f"resumed where it must refuse ({refusal!r})"
     assert result.completed and executed() == [line.file_line for line in load_program(program).lines], \
         "a resume over a journal that lost records ran lines twice or skipped some"
     return "completed"
@@ -300,18 +303,24 @@ def test_a_journal_that_lost_its_end_or_a_middle_refuses_naming_a_line_or_resume
             whole = journal.read_text().splitlines(keepends=True)
             records = [row for row in whole if row.endswith("\n")]  # a torn last one is not a boundary
             if case % 2 == 0:
-                step = len(records) // rng.randrange(8, 13)
+                step = len(records) // rng.randrange(5, 8)
                 keeps = [records[:cut] for cut in range(step if case else len(records) // 2, len(records), step)]
                 keeps.append(records[:-1])
+                # a cut just after the line one tag cycle before the last one parsed was sent: the tag fits that
+                # line, but the controller does not stand where the program is after it
+                early = f'{{"event":"sent","n":{len(executed()) - 1 - 255},'
+                collision = next(number for number, row in enumerate(records) if row.startswith(early))
+                keeps.insert(0, records[:collision + 1])
                 kind = "lost end"
             else:
                 first = rng.randrange(2, len(records) - 60)
-                keeps = [records[:first] + records[first + rng.randrange(1, 300):]]
+                keeps = [records[:first] + records[first + rng.randrange(1, len(records) - first - 20):]]
                 kind = "lost middle"
             verdict = None
-            for kept in keeps:
+            for number, kept in enumerate(keeps):
                 journal.write_text("".join(kept), encoding="ascii")
-                verdict = resume_lost(server.url, program, executed)
+                verdict = resume_lost(server.url, program, executed,
+                                      "where the program is after" if kind == "lost end" and number == 0 else "")
                 outcomes[f"{kind}: {verdict}"] += 1
                 if verdict == "completed":
                     break
