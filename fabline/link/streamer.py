@@ -763,8 +763,9 @@ class Streamer:
         count = next((index + 1 for index in range(low, high) if line_tag(index) == tag), None)
         if count is None:
             sent = f"file line {self._file_line(previous.sent - 1)}" if previous.sent else "no line"
-            self._refuse_unproven(previous, f"its parser tag T{tag} names no line the journal shows sent (the last "
-                                            f"one sent: {sent}; records lost from the journal's end?)")
+            self._refuse_unproven(previous, "its parser tag is T0 (it was reset, or a line without a tag was sent to it)" if tag == 0 else
+                                  f"its parser tag T{tag} names no line the journal shows sent (the last one sent: "
+                                  f"{sent}; records lost from the journal's end?)")
         here = status.work_position(self._wco)
         if here is not None and not any(block.stored_reference for block in self.blocks[:count]):
             there = self._position_after(count)
