@@ -304,6 +304,24 @@ def test_a_controller_moved_after_its_host_died_is_not_resumed_by_its_tag_alone(
     assert exactly_once(program, url)
 
 
+def test_a_journal_that_lost_the_start_of_a_later_run_is_refused_not_read_as_the_stopped_one(tmp_path):
+    """An aborted run, then a resumed one killed mid-sheet whose start and resume records were lost: read as one run,
+    the old stop's verdict (done = 3) would settle what ran, and the later run's lines would run again."""
+    journal = tmp_path / "sheet.gcode.journal"
+    rows = ['{"event":"start","sha256":"x","lines":9}', '{"event":"sent","n":3,"line":4}', '{"event":"ok","n":3,"line":4}',
+            '{"event":"done","count":3}', '{"event":"stopped","reason":"aborted"}',
+            '{"event":"sent","n":4,"line":5}', '{"event":"ok","n":4,"line":5}', '{"event":"sent","n":5,"line":6}']
+    journal.write_text("\n".join(rows) + "\n")
+    with pytest.raises(FablineError) as refused:
+        read_journal(journal)
+    assert str(refused.value).startswith(f"{journal}:6: journal record 'sent' follows the stop recorded at line 5 ")
+    assert "it knew 3 lines executed" in str(refused.value) and "--resume --from-line N" in str(refused.value)
+    rows[5:5] = ['{"event":"start","sha256":"x","lines":9}', '{"event":"resume","count":3}']
+    journal.write_text("\n".join(rows) + "\n")
+    state = read_journal(journal)  # whole: the later run, resumed after 3 lines, sent line 6
+    assert (state.stopped, state.resumed_at, state.sent) == (None, 3, 6)
+
+
 def test_a_torn_last_record_is_cut_off_before_a_resume_appends(tmp_path, sim):
     program = write(tmp_path / "sheet.gcode", sawtooth(80))
     url = sim(time_scale=5)
