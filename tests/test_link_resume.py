@@ -268,6 +268,60 @@ def test_a_resume_is_refused_for_another_run_identity_and_a_new_run_of_another_j
     assert executed_file_lines(log_of(url))[before:] == expected(program)  # a new run: every line, from the first
 
 
+def test_a_controller_moved_after_its_host_died_is_not_resumed_by_its_tag_alone(tmp_path, sim):
+    """The host died with its journal whole, then the machine was moved: `$G` still names the last line parsed, but
+    the controller does not stand where the program is after that line, so nothing proves what ran: one line naming
+    both positions and --from-line, nothing run; the operator's --from-line then completes the sheet exactly once."""
+    program = write(tmp_path / "moved.gcode", sawtooth(60))
+    url = sim(time_scale=100)
+    streamer = Streamer(url, status_interval=0.02)
+
+    def die(progress):
+        if progress.acked > 30:
+            raise KeyboardInterrupt  # the host goes away; the controller runs out what it holds
+
+    with pytest.raises(KeyboardInterrupt):
+        streamer.run(program, on_progress=die)
+    controller, deadline = simulator_of(url), time.monotonic() + 10
+    while controller.state != "Idle" or controller.planner:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    ran = executed_file_lines(log_of(url))
+    controller.receive(b"$J=G90X200Y50F20000\n")  # the operator jogs away: a jog leaves the parser's tag alone
+    while controller.state != "Idle" or controller.position[:2] != (200.0, 50.0):
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    with pytest.raises(FablineError) as refused:
+        Streamer(url, status_interval=0.02).run(program, resume=True)
+    message = str(refused.value)
+    x = len(ran) - len(HEAD)  # the sawtooth's cut at file line 6 + i ends at (i, i % 2 * 3)
+    assert (f"fits file line {ran[-1]}, but it stands at (200.000, 50.000, 0.000), not at ({x}.000, {x % 2 * 3}.000, "
+            "0.000) where the program is after that line") in message
+    assert "--resume --from-line N" in message and "\n" not in message
+    assert executed_file_lines(log_of(url)) == ran
+    first_not_cut = expected(program)[len(ran)]
+    assert Streamer(url, status_interval=0.02).run(program, resume=True, start_line=first_not_cut).completed
+    assert exactly_once(program, url)
+
+
+def test_a_journal_that_lost_the_start_of_a_later_run_is_refused_not_read_as_the_stopped_one(tmp_path):
+    """An aborted run, then a resumed one killed mid-sheet whose start and resume records were lost: read as one run,
+    the old stop's verdict (done = 3) would settle what ran, and the later run's lines would run again."""
+    journal = tmp_path / "sheet.gcode.journal"
+    rows = ['{"event":"start","sha256":"x","lines":9}', '{"event":"sent","n":3,"line":4}', '{"event":"ok","n":3,"line":4}',
+            '{"event":"done","count":3}', '{"event":"stopped","reason":"aborted"}',
+            '{"event":"sent","n":4,"line":5}', '{"event":"ok","n":4,"line":5}', '{"event":"sent","n":5,"line":6}']
+    journal.write_text("\n".join(rows) + "\n")
+    with pytest.raises(FablineError) as refused:
+        read_journal(journal)
+    assert str(refused.value).startswith(f"{journal}:6: journal record 'sent' follows the stop recorded at line 5 ")
+    assert "it knew 3 lines executed" in str(refused.value) and "--resume --from-line N" in str(refused.value)
+    rows[5:5] = ['{"event":"start","sha256":"x","lines":9}', '{"event":"resume","count":3}']
+    journal.write_text("\n".join(rows) + "\n")
+    state = read_journal(journal)  # whole: the later run, resumed after 3 lines, sent line 6
+    assert (state.stopped, state.resumed_at, state.sent) == (None, 3, 6)
+
+
 def test_a_torn_last_record_is_cut_off_before_a_resume_appends(tmp_path, sim):
     program = write(tmp_path / "sheet.gcode", sawtooth(80))
     url = sim(time_scale=5)

@@ -6,13 +6,19 @@ parameter (what the page's event stream and pictures use), or it gets 403 and no
 file paths and errors are for the operator only. Requests must name an allowed host in their Host header
 (loopback names by default, `--allow-host` adds more), so a web page elsewhere cannot reach the runner
 through DNS rebinding. Live updates go out as server-sent events: the whole snapshot whenever it changes.
+Every answer carries a Content-Security-Policy (the page runs only its own script), X-Frame-Options: DENY and
+nosniff; a body over BODY_LIMIT is refused (413) before it is read, a malformed, too deep or mistyped JSON body gets a
+one-line 400 naming the field, and no client's input ever makes a traceback (`Guard`).
 """
 
 from __future__ import annotations
 
 import asyncio
+import base64
+import hashlib
 import hmac
 import json
+import logging
 import os
 import re
 import threading
@@ -23,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from starlette.applications import Starlette
+from starlette.exceptions import HTTPException
 from starlette.middleware import Middleware
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.requests import Request
@@ -40,6 +47,9 @@ TOKEN_HEADER = "X-Fabline-Token"
 ACTIONS = ("confirm", "pause", "resume", "cancel", "restart", "skip", "requeue", "frame")
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
 _LARGEST_ID = 2 ** 62  # ids beyond SQLite's integers are no job
+BODY_LIMIT = 4 << 20  # bytes of a request body: an uploaded job file (at most 1 MiB of TOML) as JSON, with room
+JSON_DEPTH = 32  # levels of nesting in a request's JSON; the API's bodies have one
+_log = logging.getLogger(__name__)
 
 
 def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple[str, ...] = (),
@@ -64,7 +74,7 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
         return route
 
     async def index(request: Request) -> Response:
-        return HTMLResponse(page)
+        return HTMLResponse(page, headers={"Content-Security-Policy": page_policy(page)})
 
     timelines = Timelines()
 
@@ -113,8 +123,8 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
         job_id, action = int(request.path_params["job"]), request.path_params["action"]
         if action not in ACTIONS:
             return JSONResponse({"error": f"unknown action {action!r}"}, status_code=404)
+        from_line = await _from_line(request)
         try:
-            from_line = await _from_line(request)
             if job_id >= _LARGEST_ID:
                 raise FablineError(f"job {job_id}: no such job")
             return JSONResponse(queue.act(job_id, action, from_line))
@@ -129,15 +139,14 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
             path = None
         if not path or not Path(path).is_file():
             return JSONResponse({"error": f"job {job_id}: no report (yet)"}, status_code=404)
-        return FileResponse(path, media_type="text/html")
+        return FileResponse(path, media_type="text/html", headers={"Content-Security-Policy": REPORT_POLICY})
 
     async def submit(request: Request) -> Response:
+        body = await json_object(request, '{"job_file": PATH}')
+        job_file = field(body, "job_file", str, "a job file's path")
         try:
-            body = await request.json()
-            spec = await asyncio.to_thread(load_job_file, body["job_file"])  # a slow disk never stalls the page
+            spec = await asyncio.to_thread(load_job_file, job_file)  # a slow disk never stalls the page
             job_id = queue.submit(spec.name, job_file=str(spec.path))
-        except (KeyError, TypeError, ValueError):
-            return JSONResponse({"error": "expected JSON {\"job_file\": PATH}"}, status_code=400)
         except FablineError as exc:
             return JSONResponse({"error": str(exc)}, status_code=400)
         return JSONResponse({"id": job_id})
@@ -146,21 +155,21 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
         name = request.path_params["name"]
         if name not in {machine["name"] for machine in queue.machines()}:
             return JSONResponse({"error": f"no machine named {name!r}"}, status_code=404)
+        shape = '{"line": "$X"} (with "confirm": true for a $N=V setting) or {"override": "feed +10%"}'
+        body = await json_object(request, shape)
+        if ("line" in body) == ("override" in body):
+            raise BadRequest(f"body: expected one of \"line\" and \"override\": {shape}")
+        confirmed = field(body, "confirm", bool, "true or false", required=False)
         try:
-            body = await request.json()
-            if not isinstance(body, dict) or ("line" in body) == ("override" in body):
-                raise ValueError
             if "line" in body:
-                line, kind = check_line(body["line"])
-                if kind == "setting" and body.get("confirm") is not True:
+                line, kind = check_line(field(body, "line", str, "a G-code or $ line"))
+                if kind == "setting" and confirmed is not True:
                     raise FablineError(f"console: {line} changes the controller's setting for every later program: "
                                        "confirm it (send it again with \"confirm\": true)")
                 command = queue.add_command(name, line=line)
             else:
-                command = queue.add_command(name, override=check_override(body["override"]))
-        except (ValueError, TypeError):
-            return JSONResponse({"error": "expected JSON {\"line\": \"$X\"} (with \"confirm\": true for a $N=V "
-                                          "setting) or {\"override\": \"feed +10%\"}"}, status_code=400)
+                command = queue.add_command(name, override=check_override(field(body, "override", str,
+                                                                                "an override such as \"feed +10%\"")))
         except FablineError as exc:
             return JSONResponse({"error": str(exc)}, status_code=409)
         deadline = time.monotonic() + console_timeout
@@ -175,14 +184,9 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
                              **({"error": "; ".join(done["answer"])} if status != 200 else {})}, status_code=status)
 
     async def upload(request: Request) -> Response:
-        try:
-            body = await request.json()
-            name, text = body["name"], body["text"]
-            if not isinstance(name, str) or not isinstance(text, str):
-                raise TypeError
-        except (KeyError, TypeError, ValueError):
-            return JSONResponse({"error": "expected JSON {\"name\": \"JOB.toml\", \"text\": \"...\"}"},
-                                status_code=400)
+        body = await json_object(request, '{"name": "JOB.toml", "text": "..."}')
+        name = field(body, "name", str, "a job file's name")
+        text = field(body, "text", str, "the job file's text")
         try:
             path, spec = await asyncio.to_thread(save_upload, jobs_folder, name, text)
             job_id, new = queue.submit_once(spec.name, job_file=str(path))
@@ -202,7 +206,166 @@ def create_app(db_path: str | Path, token: str, poll: float = 0.25, hosts: tuple
         Route("/api/jobs", guarded(submit), methods=["POST"]),
     ]
     allowed = [*LOOPBACK_HOSTS, *hosts]
-    return Starlette(routes=routes, middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=allowed)])
+    middleware = [Middleware(Guard), Middleware(TrustedHostMiddleware, allowed_hosts=allowed)]
+    return Starlette(routes=routes, middleware=middleware,
+                     exception_handlers={BadRequest: _bad_request, HTTPException: _http_error})
+
+
+PAGE_POLICY = ("default-src 'self'; script-src {scripts}; style-src {styles}; img-src 'self' data:; "
+               "connect-src 'self'; object-src 'none'; base-uri 'none'; form-action 'self'; frame-ancestors 'none'")
+"""The page's Content-Security-Policy: its own inline script and style (by their SHA-256) and nothing else runs."""
+REPORT_POLICY = ("default-src 'none'; img-src 'self' data:; style-src 'unsafe-inline'; frame-ancestors 'none'; "
+                 "sandbox allow-popups")
+"""A job's report: a document with inline style and pictures and no script (none may run in it)."""
+API_POLICY = "default-src 'none'; frame-ancestors 'none'; sandbox"
+"""Every other answer (JSON, pictures, errors): nothing in it may load or run anything."""
+_INLINE = re.compile(r"<(script|style)>(.*?)</\1>", re.DOTALL)
+
+
+def page_policy(page: str) -> str:
+    """PAGE_POLICY for `page`: the hashes of its inline <script> and <style> blocks (no 'unsafe-inline')."""
+    found: dict[str, list[str]] = {"script": [], "style": []}
+    for kind, text in _INLINE.findall(page):
+        found[kind].append("'sha256-" + base64.b64encode(hashlib.sha256(text.encode()).digest()).decode() + "'")
+    return PAGE_POLICY.format(scripts=" ".join(found["script"]) or "'none'",
+                              styles=" ".join(found["style"]) or "'none'")
+
+
+class BadRequest(Exception):
+    """A client's request that cannot be taken (malformed, too deep, a field of the wrong type): a one-line 400."""
+
+
+class BodyTooLarge(Exception):
+    """A request body that passed BODY_LIMIT while it was read."""
+
+
+async def _bad_request(request: Request, exc: BadRequest) -> Response:
+    return JSONResponse({"error": str(exc)}, status_code=400)
+
+
+async def _http_error(request: Request, exc: HTTPException) -> Response:
+    return JSONResponse({"error": exc.detail}, status_code=exc.status_code, headers=exc.headers)
+
+
+async def json_object(request: Request, shape: str) -> dict:
+    """The request's body as a JSON object, or BadRequest naming what is wrong and the `shape` expected: not JSON,
+    nested deeper than JSON_DEPTH (a deep body would otherwise exhaust the parser's recursion), not an object."""
+    body = await request.body()
+    try:
+        value = json.loads(body)
+    except RecursionError:
+        value = None
+        depth = JSON_DEPTH + 1
+    except ValueError as exc:
+        raise BadRequest(f"body: not JSON ({str(exc).splitlines()[0][:120]}); expected {shape}") from None
+    else:
+        depth = _depth(value)
+    if depth > JSON_DEPTH:
+        raise BadRequest(f"body: JSON nested deeper than {JSON_DEPTH} levels; expected {shape}")
+    if not isinstance(value, dict):
+        raise BadRequest(f"body: expected a JSON object {shape}, got {_json_type(value)}")
+    return value
+
+
+def _depth(value: Any) -> int:
+    """Levels of nesting of a parsed JSON value (a scalar is 0), counted without recursion, stopping past JSON_DEPTH."""
+    deepest, stack = 0, [(value, 0)]
+    while stack and deepest <= JSON_DEPTH:
+        item, level = stack.pop()
+        if isinstance(item, (dict, list)):
+            deepest = max(deepest, level + 1)
+            stack.extend((child, level + 1) for child in (item.values() if isinstance(item, dict) else item))
+    return deepest
+
+
+def field(body: dict, name: str, kind: type, what: str, required: bool = True) -> Any:
+    """`body[name]` if it is a `kind` (a bool is no int), else BadRequest naming the field; None when it is absent
+    (or null) and not `required`."""
+    value = body.get(name)
+    if value is None and not required:
+        return None
+    if value is None and name not in body:
+        raise BadRequest(f"{name}: missing; expected {what}")
+    if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+        raise BadRequest(f"{name}: expected {what}, got {_json_type(value)}")
+    return value
+
+
+def _json_type(value: Any) -> str:
+    names = {dict: "an object", list: "an array", str: "a string", int: "a number", float: "a number"}
+    return json.dumps(value) if value is None or isinstance(value, bool) else names[type(value)]
+
+
+_SECURITY_HEADERS = [(b"x-frame-options", b"DENY"), (b"x-content-type-options", b"nosniff"),
+                     (b"referrer-policy", b"no-referrer")]  # the page's URLs carry the token: never sent on
+_OURS = {k for k, _ in _SECURITY_HEADERS} | {b"content-security-policy"}
+
+
+class Guard:
+    """ASGI middleware around the whole app: every answer gets the security headers (a CSP of API_POLICY unless the
+    route set its own); a body whose Content-Length passes BODY_LIMIT is refused (413) before a byte of it is read,
+    one sent without a length is counted as it arrives and refused when it passes the limit; an error no route
+    answered is logged once and answered with a one-line 500 (never a traceback for the client)."""
+
+    def __init__(self, app, limit: int = BODY_LIMIT):
+        self.app, self.limit = app, limit
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        started = False
+
+        async def guarded_send(message):
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+                headers = [(k, v) for k, v in message.get("headers", []) if k.lower() not in _OURS]
+                policy = next((v for k, v in message.get("headers", []) if k.lower() == b"content-security-policy"),
+                              API_POLICY.encode())
+                message = {**message, "headers": [*headers, *_SECURITY_HEADERS, (b"content-security-policy", policy)]}
+            await send(message)
+
+        length = dict(scope.get("headers", [])).get(b"content-length")
+        if length is not None:
+            if not length.isdigit():
+                return await _answer(guarded_send, 400, "Content-Length: not a number of bytes")
+            if int(length) > self.limit:
+                return await _answer(guarded_send, 413, f"request body: {int(length)} bytes, {self._over}: not read")
+        received = 0
+
+        async def counted_receive():
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > self.limit:
+                    raise BodyTooLarge
+            return message
+
+        try:
+            await self.app(scope, counted_receive, guarded_send)
+        except BodyTooLarge:
+            if not started:
+                await _answer(guarded_send, 413, f"request body (sent without a length): {self._over}: "
+                                                 "not read further")
+        except Exception:
+            if started:
+                raise
+            _log.exception("runner web: %s %s failed", scope.get("method"), scope.get("path"))
+            await _answer(guarded_send, 500, "internal error in the runner (its log has the details)")
+
+    @property
+    def _over(self) -> str:
+        return f"more than the {self.limit} bytes ({self.limit / (1 << 20):g} MiB) the runner takes"
+
+
+async def _answer(send, status: int, error: str) -> None:
+    """A one-line JSON error answered straight from the middleware (the connection closes after it)."""
+    body = json.dumps({"error": error}).encode()
+    await send({"type": "http.response.start", "status": status,
+                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
+                            (b"connection", b"close")]})
+    await send({"type": "http.response.body", "body": body})
 
 
 _UPLOAD_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,80}\.toml")
@@ -215,8 +378,10 @@ def save_upload(folder: Path, name: str, text: str) -> tuple[Path, Any]:
     import hashlib
     import tomllib
 
-    from fabline.fileio import atomic_output
-    from fabline.jobs.jobfile import JOB_FILE_LIMIT, job_from_dict
+    from fabline.fileio import INPUT_LIMITS, atomic_output
+    from fabline.jobs.jobfile import job_from_dict
+
+    JOB_FILE_LIMIT = INPUT_LIMITS["config"]
 
     if not _UPLOAD_NAME.fullmatch(name):
         raise FablineError(f"upload {name!r}: a job file's name is letters, digits, '.', '_' or '-' ending in .toml")
@@ -330,16 +495,11 @@ def serial_ports() -> list[dict[str, str]]:
 
 
 async def _from_line(request: Request) -> int | None:
-    """The optional `from_line` (a file line to resume from) of an action's JSON body."""
-    body = await request.body()
-    if not body.strip():
+    """The optional `from_line` (a file line to resume from) of an action's JSON body (none, or an object)."""
+    if not (await request.body()).strip():
         return None
-    try:
-        value = json.loads(body).get("from_line")
-    except (ValueError, AttributeError):
-        raise FablineError("expected a JSON object such as {\"from_line\": 158}") from None
-    if value is None:
-        return None
-    if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value < _LARGEST_ID:
-        raise FablineError(f"from_line: expected a file line number from 1, got {value!r}")
+    value = field(await json_object(request, '{"from_line": 158}'), "from_line", int, "a file line number from 1",
+                  required=False)
+    if value is not None and not 1 <= value < _LARGEST_ID:
+        raise BadRequest(f"from_line: expected a file line number from 1, got {value}")
     return value

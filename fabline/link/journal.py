@@ -16,10 +16,13 @@ Format (`fabline.link-journal/1`): one JSON object per line, each with an `event
   stopped  {reason}                          the stream stopped early (error, alarm, abort, lost
                                              connection, a log that could not be written)
   finished {}                                every line executed; the job is complete
-Records are fsynced at least every 50 ms, and at once when the stream stops. A journal that cannot be written
+Records are fsynced at least every 50 ms, and at once when the stream stops; the `sent` records of a batch are
+flushed to the operating system before the batch is written to the port, so a killed host never leaves a line
+on the controller that its journal does not show as sent (only a lost disk write can, and a resume then refuses). A journal that cannot be written
 (disk full, device gone) raises JournalError at the next record, so the stream stops rather than cut unrecorded.
 A half-written last record (the host died while writing it) is ignored when reading and cut off before
-anything is appended; any other malformed record is a one-line error naming the journal line.
+anything is appended; any other malformed record is a one-line error naming the journal line, and so is a record
+after a `stopped` one other than a new start or a resume (records were lost between them).
 Default location: beside the program, `<program>.journal`.
 """
 
@@ -106,6 +109,16 @@ class Journal:
             self._raise_failure()
             self._guarded(self._handle.write, text)
 
+    def flush(self) -> None:
+        """Hand everything recorded so far to the operating system (no fsync): it survives the host process being
+        killed, so a `sent` record flushed before its line is written to the port bounds what the controller can
+        have received."""
+        if self._abandoned:
+            return
+        with self._lock:
+            self._raise_failure()
+            self._guarded(self._handle.flush)
+
     def commit(self) -> None:
         """Flush and fsync: every record so far survives a crash."""
         if self._abandoned:
@@ -186,6 +199,10 @@ _FIELDS = {
 }
 
 
+_AFTER_STOP = ("start", "resume", "stopped")
+"""What may follow a `stopped` record: a new run, the same run's resume after a reconnect, or a second verdict."""
+
+
 def _checked(record, path: Path, number: int) -> dict:
     """A record with the fields its event needs, of the right types; anything else is a one-line error."""
     if not isinstance(record, dict) or not isinstance(record.get("event"), str):
@@ -230,7 +247,7 @@ def read_journal(path: str | os.PathLike) -> JournalState:
         raise FablineError(f"{path}: no journal to resume from (was the job ever started with this journal?)") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise FablineError(f"{path}: cannot read the journal ({exc}); start the sheet over with --restart") from None
-    state = JournalState()
+    state, stopped_at = JournalState(), None
     rows = text.split("\n")
     for number, row in enumerate(rows, 1):
         if not row:
@@ -243,6 +260,12 @@ def read_journal(path: str | os.PathLike) -> JournalState:
             raise FablineError(f"{path}:{number}: malformed journal record; the journal is damaged: start the sheet "
                                "over with --restart, or resume with --from-line") from None
         event = _checked(record, path, number)["event"]
+        if stopped_at is not None and event not in _AFTER_STOP:
+            raise FablineError(f"{path}:{number}: journal record {event!r} follows the stop recorded at line "
+                               f"{stopped_at} with no new start: the journal lost records, so it cannot tell how far "
+                               f"the controller got (it knew {state.done} lines executed there); check the part and "
+                               "continue by hand with --resume --from-line N, N the first line not yet cut")
+        stopped_at = number if event == "stopped" else None if event in ("start", "resume") else stopped_at
         if event == "start":
             if state.sha256 not in (None, record["sha256"]):
                 raise FablineError(f"{path}:{number}: journal mixes two different programs")

@@ -8,8 +8,10 @@ line known to be executed after re-establishing the modal state. How it knows wh
     Idle with nothing in flight means every acknowledged line is done.
   * after a lost connection or a killed host it waits for the controller to finish, discards any
     half-received line (`#` + newline always fails to parse) and reads `$G`: its T word is the tag of
-    the last line parsed, looked up within the 255 lines after the last journaled `ok`, so lines whose
-    `ok` never arrived (or never reached the disk) are settled by the controller itself.
+    the last line parsed, looked up among the lines the journal shows sent after its last `ok` (a batch's
+    `sent` records are flushed before it goes to the port), so lines whose `ok` never arrived (or never
+    reached the disk) are settled by the controller itself; its position must be where the program is after
+    that line. A tag beyond the journaled sends or a position elsewhere (the journal lost records) is refused.
   * after an alarm or a halt (feed hold + reset) the planner is flushed; the interrupted line is found
     from the stopped position within the window of lines that can still have been in the planner (the
     acknowledged lines back to `planner_blocks` motion lines, or the `Ln:` of builds that report it), and
@@ -131,6 +133,10 @@ def _checked_identity(identity: dict[str, str] | None) -> dict[str, str] | None:
     if not isinstance(identity, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in identity.items()):
         raise FablineError(f"a run identity maps names to text, such as {{'job': 'pavilion', 'run': '3'}}; got {identity!r}")
     return dict(identity)
+
+
+def _where(position) -> str:
+    return "(" + ", ".join(f"{v:.3f}" for v in position) + ")"
 
 
 def _describe(identity: dict[str, str] | None) -> str:
@@ -463,6 +469,7 @@ class Streamer:
                 batch.append(wire)
                 position += 1
             if batch:
+                self.journal.flush()  # a line the controller received is always journaled as sent
                 self._write(b"".join(batch))
             now = time.monotonic()
             if now >= next_poll:
@@ -743,17 +750,38 @@ class Streamer:
 
     def _parsed_count(self, previous: JournalState) -> int:
         """Lines executed by an Idle controller that finished everything it parsed: its `$G` tag names the last
-        line parsed, looked up within the lines after the last journaled `ok`."""
+        line parsed, looked up only among the lines the journal shows sent after its last `ok` (sent records reach
+        the disk before their line reaches the port, so no other line can have been parsed), and the controller
+        must stand where the program is after that line. Anything else means the journal lost records (or the
+        machine was moved): refused, naming what the journal knows, for the operator's --from-line."""
         self._flush_partial_line()
         modes = self._command(b"$G\n")
-        self._settle()  # lines still in its receive buffer when it looked idle were parsed before `#`: let them run
+        status = self._settle()  # lines still in its receive buffer when it looked idle were parsed before `#`
         tag = next((int(match.group(1)) for text in modes if (match := _TAG.search(text))), None)
-        for index in range(previous.acked - 1, min(previous.acked - 1 + TAG_CYCLE, len(self.program.lines))):
-            if line_tag(index) == tag:
-                return index + 1
-        raise FablineError(f"{self.url}: cannot tell how far the controller got after file line "
-                           f"{self._file_line(previous.acked - 1)} (it was reset: parser tag T{tag}); check the part "
-                           "and resume with --from-line")
+        low = previous.acked - 1
+        high = max(min(previous.sent, low + TAG_CYCLE, len(self.program.lines)), previous.acked)
+        count = next((index + 1 for index in range(low, high) if line_tag(index) == tag), None)
+        if count is None:
+            sent = f"file line {self._file_line(previous.sent - 1)}" if previous.sent else "no line"
+            self._refuse_unproven(previous, "its parser tag is T0 (it was reset, or a line without a tag was sent to it)" if tag == 0 else
+                                  f"its parser tag T{tag} names no line the journal shows sent (the last one sent: "
+                                  f"{sent}; records lost from the journal's end?)")
+        here = status.work_position(self._wco)
+        if here is not None and not any(block.stored_reference for block in self.blocks[:count]):
+            there = self._position_after(count)
+            if math.dist(here[:3], there) > POSITION_TOLERANCE:
+                self._refuse_unproven(previous, f"its parser tag T{tag} fits file line {self._file_line(count - 1)}, "
+                                                f"but it stands at {_where(here[:3])}, not at {_where(there)} where the "
+                                                "program is after that line (records lost from the journal, or the "
+                                                "machine was moved)")
+        return count
+
+    def _refuse_unproven(self, previous: JournalState, why: str) -> None:
+        """The journal cannot prove where the controller stopped: one line naming the last line it knows executed."""
+        known = f"file line {self._file_line(previous.done - 1)}" if previous.done else "no line"
+        raise FablineError(f"{self.journal_path}: cannot tell how far the controller got: {why}; the journal knows "
+                           f"{known} executed: check the part and continue by hand with --resume --from-line N, N the "
+                           "first line not yet cut")
 
     def _stop_where_it_is(self, unlock: bool) -> None:
         """For an operator's --from-line: wait for the controller to finish or stand still, then drop whatever it
