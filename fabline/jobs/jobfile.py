@@ -145,10 +145,16 @@ def inside(folder: Path, relative: str | os.PathLike, where: str) -> Path:
 def load_job_file(path: str | os.PathLike) -> JobSpec:
     """Read and check a job file; every problem is a one-line FablineError naming the file and key path."""
     path = Path(path)
+    return job_from_text(read_text(path, kind="config"), path)
+
+
+def job_from_text(text: str, path: Path, where: str | None = None) -> JobSpec:
+    """Parse and check a job file's text as if it lay at `path` (a file read, or an upload before it is written);
+    a TOML error names `where` (default: the path)."""
     try:
-        raw = tomllib.loads(read_text(path, kind="config"))
+        raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise FablineError(f"{path}: malformed TOML: {exc}") from None
+        raise FablineError(f"{where or path}: malformed TOML: {exc}") from None
     return job_from_dict(raw, path)
 
 

@@ -375,27 +375,18 @@ def save_upload(folder: Path, name: str, text: str) -> tuple[Path, Any]:
     """An uploaded job file checked (as if it lay in `folder`: its relative paths resolve there) and written into
     `folder` as `name`, or as `STEM-SHA8.toml` when a different file has that name (a queued job's file is never
     changed under it); returns the file and its job."""
-    import hashlib
-    import tomllib
-
     from fabline.fileio import INPUT_LIMITS, atomic_output
-    from fabline.jobs.jobfile import job_from_dict
-
-    JOB_FILE_LIMIT = INPUT_LIMITS["config"]
+    from fabline.jobs.jobfile import job_from_text
 
     if not _UPLOAD_NAME.fullmatch(name):
         raise FablineError(f"upload {name!r}: a job file's name is letters, digits, '.', '_' or '-' ending in .toml")
     data = text.encode("utf-8")
-    if len(data) > JOB_FILE_LIMIT:
-        raise FablineError(f"upload {name}: {len(data)} bytes; a job file has at most {JOB_FILE_LIMIT}")
+    if len(data) > INPUT_LIMITS["config"]:
+        raise FablineError(f"upload {name}: {len(data)} bytes; a job file has at most {INPUT_LIMITS['config']}")
     path = folder.resolve() / name
     if path.exists() and (not path.is_file() or path.read_bytes() != data):
         path = path.with_name(f"{path.stem}-{hashlib.sha256(data).hexdigest()[:8]}.toml")
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise FablineError(f"{name}: malformed TOML: {exc}") from None
-    spec = job_from_dict(raw, path)
+    spec = job_from_text(text, path, where=name)
     if not path.exists():
         with atomic_output(path, "wb") as handle:
             handle.write(data)
