@@ -135,6 +135,13 @@ def _checked_identity(identity: dict[str, str] | None) -> dict[str, str] | None:
     return dict(identity)
 
 
+def _override_byte(name: str) -> bytes:
+    """The real-time byte of the override `name` (`OVERRIDES`: 'feed +10%', ...); an unknown name is refused."""
+    if name not in OVERRIDES:
+        raise FablineError(f"unknown override {name!r} (use one of: {', '.join(OVERRIDES)})")
+    return OVERRIDES[name]
+
+
 def _where(position) -> str:
     return "(" + ", ".join(f"{v:.3f}" for v in position) + ")"
 
@@ -221,27 +228,22 @@ class Streamer:
     def override(self, name: str) -> None:
         """A real-time override while a program streams (`OVERRIDES`: 'feed +10%', 'power -1%', ...): the byte
         goes out with the next real-time commands."""
-        if name not in OVERRIDES:
-            raise FablineError(f"unknown override {name!r} (use one of: {', '.join(OVERRIDES)})")
+        byte = _override_byte(name)
         with self._control:
-            self._realtime.append(OVERRIDES[name])
+            self._realtime.append(byte)
 
     def console(self, lines: list[str], realtime: list[str] = ()) -> list[tuple[str, list[str]]]:
         """An operator's commands to a controller that is not running a program: `realtime` overrides by name,
         then each line (a `$` setting, `$X`, `$H`, a `$J=` jog, `G10 L20 P1 X0 Y0` ...) sent alone and answered
         before the next. Returns (line, the controller's answer lines, ending in `ok` or `error:N (meaning)`)
         per line; an `error` answer does not stop the rest. Refused while the controller runs, jogs or holds."""
-        unknown = [name for name in realtime if name not in OVERRIDES]
-        if unknown:
-            raise FablineError(f"unknown override {unknown[0]!r} (use one of: {', '.join(OVERRIDES)})")
-        device = self.url.split("?", 1)[0]
-        if device.startswith("sim://"):
-            device += f"#{os.getpid()}"
-        with exclusive_lock(lock_path(device), f"port {self.url}"):
+        overrides = [_override_byte(name) for name in realtime]
+        with contextlib.ExitStack() as locks:
+            self._lock_port(locks)
             self._open()
             try:
-                for name in realtime:
-                    self._write(OVERRIDES[name])
+                for byte in overrides:
+                    self._write(byte)
                 state = self._query_status().state if lines else "Idle"
                 deadline = time.monotonic() + JOG_WAIT
                 while state == "Jog" and time.monotonic() < deadline:  # an earlier jog still moving: let it end
@@ -252,6 +254,12 @@ class Streamer:
                 return [(line, self._answer(line)) for line in lines]
             finally:
                 self._close()
+
+    def _lock_port(self, locks: contextlib.ExitStack) -> None:
+        """Hold this port's locks in `locks`: one per device or address, whatever URL names it (`port_endpoints`),
+        so a console and a stream, or two URLs of one machine, never talk to it at once."""
+        for endpoint in port_endpoints(self.url):
+            locks.enter_context(exclusive_lock(lock_path(endpoint), f"port {self.url}"))
 
     def _answer(self, line: str) -> list[str]:
         """Send one console line; its feedback lines and the final `ok` or `error:N (meaning)`."""
@@ -303,8 +311,7 @@ class Streamer:
         self.program, self.journal_path, self.force = program, Path(journal), force
         self.profile = program_machine(program, machine)
         with contextlib.ExitStack() as locks:
-            for endpoint in port_endpoints(self.url):  # one lock per device or address, whatever names it
-                locks.enter_context(exclusive_lock(lock_path(endpoint), f"port {self.url}"))
+            self._lock_port(locks)
             locks.enter_context(exclusive_lock(lock_path(str(self.journal_path)), f"journal {self.journal_path}"))
             previous = self._previous_job(resume, restart, identity)
             self.on_progress = on_progress
