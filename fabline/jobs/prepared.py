@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from fabline.errors import FablineError
-from fabline.fileio import read_json, write_json
+from fabline.fileio import read_bytes, read_json, write_json
 from fabline.jobs.jobfile import JobSpec
 
 RECORD = "prepared.json"
@@ -46,11 +46,12 @@ def code_digest() -> str:
 def job_key(spec: JobSpec) -> str:
     """The key of a job's prepared output: its file, its inputs and fabline's code, hashed together."""
     digest = hashlib.sha256(f"{FORMAT}\0{code_digest()}\0".encode())
-    for path in (spec.path, *input_files(spec)):
-        try:
-            digest.update(str(path).encode() + b"\0" + path.read_bytes() + b"\0")
-        except OSError as exc:
-            raise FablineError(f"{spec.path.name}: cannot read {path}: {exc.strerror}") from None
+    for path, kind in ((spec.path, "config"), *((path, "model") for path in input_files(spec))):
+        try:  # vetted as every input is (a FIFO named as the model must not hang the runner's preparer)
+            data = read_bytes(path, kind)
+        except FablineError as exc:
+            raise FablineError(f"{spec.path.name}: {exc}") from None
+        digest.update(str(path).encode() + b"\0" + data + b"\0")
     return digest.hexdigest()
 
 
