@@ -332,7 +332,6 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
     from fabline.jobs.streaming import STOP_SIGNALS, journal_summary, stream_in_process
 
     from fabline.jobs.streaming import finished_earlier
-    from fabline.link import load_program
 
     sheets = list(enumerate(result.sheet_files))
     count = len(sheets)
@@ -340,9 +339,9 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
     ports = machine_ports(result.spec)
     if resume:  # a sheet an earlier run finished is not cut again: no link process, no time of this run
         for k, sheet in list(sheets):
-            if finished_earlier(sheet["gcode"]):
+            lines = finished_earlier(sheet["gcode"])
+            if lines is not None:
                 sheets.remove((k, sheet))
-                lines = len(load_program(sheet["gcode"]).lines)
                 entries[k] = {"sheet": sheet["sheet"], "program": sheet["gcode"], "outcome": "finished", "earlier": True,
                               "port": "", "lines": lines, "executed": lines, "seconds": None, "resumed_from": lines}
         if not sheets:

@@ -156,16 +156,20 @@ def stream_in_process(port: str, program: str, resume: bool, identity: dict[str,
     connection.send(("result", outcome, stream.summary()))
 
 
-def finished_earlier(program: str | os.PathLike) -> bool:
-    """Whether the journal beside `program` says an earlier run of this very program finished it."""
+def finished_earlier(program: str | os.PathLike) -> int | None:
+    """The number of command lines of `program` when the journal beside it says an earlier run of this very
+    program finished it; else None."""
     journal = default_journal_path(Path(program))
     if not journal.is_file():
-        return False
+        return None
     try:
         state = read_journal(journal)
-        return state.finished and state.sha256 == load_program(program).sha256
+        if not state.finished:
+            return None
+        loaded = load_program(program)
     except FablineError:
-        return False
+        return None
+    return len(loaded.lines) if state.sha256 == loaded.sha256 else None
 
 
 def journal_summary(port: str, program: str | os.PathLike) -> dict:
