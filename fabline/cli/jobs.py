@@ -187,7 +187,7 @@ def run_serve(args: argparse.Namespace) -> int:
     129 after one line saying so (the queue keeps its state: a restart goes on from it)."""
     import uvicorn
 
-    from fabline.jobs.discovery import page_url, remove_records, write_records
+    from fabline.jobs.discovery import page_url, queue_lock, remove_records, write_records
     from fabline.jobs.lifecycle import STOP_SIGNALS, end_descendants, exit_code, guard_forks
     from fabline.jobs.runner import Runner, default_machines, describe_machine, parse_machine
     from fabline.jobs.web import create_app
@@ -200,7 +200,7 @@ def run_serve(args: argparse.Namespace) -> int:
     described = [describe_machine(m) for m in machines]  # a bad profile name is refused before anything starts
     token = args.token or secrets.token_urlsafe(18)
     hosts = (*args.allow_host, *([args.host] if args.host not in ("0.0.0.0", "::") else []))
-    queue_lock = Path(f"{db}.lock")
+    lock_file = queue_lock(db)  # the lock discovery checks a record's pid against
     received: list[int] = []
     stopping = threading.Event()
 
@@ -210,13 +210,13 @@ def run_serve(args: argparse.Namespace) -> int:
 
     def taken_over(pid: int) -> None:
         print(f"fabline runner: process {pid} ended without stopping its runner of queue {db}; its lock "
-              f"{queue_lock} is taken over", flush=True)
+              f"{lock_file} is taken over", flush=True)
 
     previous = {number: signal.signal(number, on_signal) for number in STOP_SIGNALS}
     try:
-        with exclusive_lock(queue_lock, f"runner queue {db}", taken_over), \
+        with exclusive_lock(lock_file, f"runner queue {db}", taken_over), \
                 _listen(args.host, args.web_port) as listening:  # one runner per queue
-            guard_forks([listening.fileno()], [queue_lock, lock_path(jobs).parent])
+            guard_forks([listening.fileno()], [lock_file, lock_path(jobs).parent])
             runner = Runner(db, machines, auto_confirm=args.auto_confirm)
             for name in runner.removed:
                 print(f"fabline runner: machine {name} removed (not given with --machine)", flush=True)
