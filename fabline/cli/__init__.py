@@ -103,6 +103,12 @@ class OneLineParser(argparse.ArgumentParser):
         super().__init__(*args, formatter_class=formatter_class, **kwargs)
         self._negative_number_matcher = NEGATIVE_NUMBER  # read by argparse's option parsing (3.10 to 3.13)
 
+    def _print_message(self, message: str, file=None) -> None:
+        """Help, usage and errors written as argparse writes them, but a closed pipe is not swallowed (newer
+        argparse releases drop an OSError here, older ones raise it): `main` ends every closed pipe alike."""
+        if message:
+            (file or sys.stderr).write(message)
+
     def error(self, message: str):
         wrong = re.search(r"invalid choice: '([^']*)'", message)
         commands = [a for a in self._actions if isinstance(a, argparse._SubParsersAction)]
