@@ -37,10 +37,11 @@ def test_a_refusal_to_resume_names_an_option_fabline_run_has_and_it_continues_th
     loaded = load_program(program)
     half = len(loaded.lines) // 2
     journal = program.with_name(f"{program.name}.journal")
+    identity = read_journal(journal).identity  # the run's: {job, run}
     journal.unlink()
     with Journal(journal) as record:  # what an older fabline left when killed: no origin, so no position to go by
         record.record("start", program=str(program), sha256=loaded.sha256, lines=len(loaded.lines), mode="counting",
-                      identity={"job": "lines"})
+                      identity=identity)
         record.record("done", count=half)
     code, out, err = cli("run", job, "--resume", "-q")
     assert code == 2 and "--from-line" in err, err

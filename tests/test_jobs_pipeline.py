@@ -394,6 +394,46 @@ def test_ctrl_c_or_a_service_stop_stops_every_machine_safely_and_resume_cuts_eac
     assert sorted(executed) == sorted(line for lines in wires.values() for line in lines)  # none twice, none skipped
 
 
+
+def test_a_second_run_stopped_midway_resumes_every_sheet_it_had_not_cut_though_the_first_run_cut_them(tmp_path):
+    """A job run to its end, then run again (a second set of parts) and stopped in its first sheet: `--resume`
+    cuts the rest of that sheet and every later sheet, each line once more in all; the first run's finished
+    journals of those sheets are not taken as this run's (they were: every later sheet was reported finished and
+    never cut)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    log = tmp_path / "out" / "executed.log"
+    job = tmp_path / "job.toml"
+    one_machine = INTERRUPTED_JOB.replace(f', "sim://ctrl-c-2?log={{log}}2"', "")
+    assert one_machine != INTERRUPTED_JOB
+    job.write_text(one_machine.replace("time_scale = 40.0", "time_scale = 1000.0").format(log=log), encoding="utf-8")
+    command = [sys.executable, "-m", "fabline", "run", str(job)]
+    first = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert first.returncode == 0, first.stderr
+    programs = sorted((tmp_path / "out" / "gcode").glob("*.gcode"))
+    wires = sorted(line.wire.decode().strip() for p in programs for line in load_program(p).lines)
+    assert len(programs) >= 2 and sorted(executed_program_lines(Path(f"{log}1"))) == wires
+    job.write_text(one_machine.format(log=log), encoding="utf-8")  # the second run slower, to stop it midway
+    second = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              preexec_fn=os.setpgrp)
+    deadline = time.monotonic() + 120
+    while second.poll() is None and time.monotonic() < deadline and \
+            len(executed_program_lines(Path(f"{log}1"))) < len(wires) + 20:
+        time.sleep(0.05)
+    os.killpg(second.pid, signal.SIGINT)
+    second.communicate(timeout=60)
+    assert second.returncode == 130
+    cut = len(executed_program_lines(Path(f"{log}1"))) - len(wires)
+    assert 0 < cut < len(load_program(programs[0]).lines), "stopped in the first sheet"
+    resumed = subprocess.run(command + ["--resume"], capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "finished in an earlier run" not in resumed.stdout
+    assert sorted(executed_program_lines(Path(f"{log}1"))) == sorted(wires * 2)  # the second set whole, once
+
 def test_run_summary_and_report_give_planned_machine_time_and_the_time_remaining(run):
     """Each sheet's line and the stream summary of `fabline run` give the machine time the controller's clock took
     against the planner's time (the streamer's, from the G-code, agreeing with the export's estimate), and the job's

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from fabline.errors import FablineError
-from fabline.fileio import OutputSet, atomic_output, check_outputs, write_json
+from fabline.fileio import OutputSet, atomic_output, check_outputs, read_json, write_json
 from fabline.jobs.jobfile import JobSpec, load_job_file, nest_options, toolpath_options, unroll_options
 from fabline.jobs.report_shop import machine_seconds
 from fabline.progress import Eta, StreamBar, above_bars, estimate, simulated_speedup
@@ -130,7 +130,8 @@ def run_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None,
         return result
     try:
         if "stream" in spec.stages:
-            _timed(result.timings, "stream", lambda: _stream_all(result, say, confirm_sheet, resume,
+            identity = _run_identity(spec, resume)  # kept whatever the stage does, as the journals are
+            _timed(result.timings, "stream", lambda: _stream_all(result, say, confirm_sheet, resume, identity,
                                                                     (interrupted, from_line)))
         if "survey" in spec.stages:
             _timed(result.timings, "survey", lambda: _survey(result, say))
@@ -321,29 +322,56 @@ class _JobClock:
                    work.pace, work.planned_done / self.machines)
 
 
+RUN_RECORD = "stream-run.json"
+"""In the job's G-code folder: the number of the job's current run, which every sheet's journal names (a resume
+continues that run; a new run is the next number), so a sheet an earlier run finished is not taken as this run's."""
+
+
+def _run_identity(spec: JobSpec, resume: bool) -> dict[str, str]:
+    """The run identity the sheets' journals carry: {job, run}; a new run takes the next number and records it
+    before any sheet starts, a resume reads it (none recorded: journals of a fabline before runs were numbered,
+    which named the job alone)."""
+    record = spec.output("gcode") / RUN_RECORD
+    try:
+        number = read_json(record).get("run") if record.exists() else None
+    except (FablineError, AttributeError):
+        number = None
+    if resume:
+        return {"job": spec.name, "run": number} if isinstance(number, str) else {"job": spec.name}
+    number = str(int(number) + 1) if isinstance(number, str) and number.isdigit() else "1"
+    write_json(record, {"format": "fabline.stream-run/1", "job": spec.name, "run": number})
+    return {"job": spec.name, "run": number}
+
+
 def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, dict], None] | None,
-                resume: bool, start: tuple[str | None, int | None] = (None, None)) -> None:
+                resume: bool, identity: dict[str, str], start: tuple[str | None, int | None] = (None, None)) -> None:
     """Cut every sheet: each machine takes the next sheet when it is free (one sheet at a time per machine);
     after a failure no new sheet starts, the ones running finish, and the first error is raised. Each sheet
     streams from a process of its own, so that machines stream on all CPU cores; Ctrl-C stops them safely.
-    `start` is (program file name, file line): that sheet continues from that line (--from-line)."""
+    `identity` is the run the journals name (`_run_identity`); with `resume` a sheet this run finished is
+    skipped, one it began continues, any other is cut afresh. `start` is (program file name, file line): that
+    sheet continues from that line (--from-line)."""
     import multiprocessing
 
-    from fabline.jobs.streaming import STOP_SIGNALS, journal_summary, stream_in_process
-
-    from fabline.jobs.streaming import finished_earlier
+    from fabline.jobs.streaming import STOP_SIGNALS, journal_summary, run_progress, stream_in_process
 
     sheets = list(enumerate(result.sheet_files))
     count = len(sheets)
     entries: dict[int, dict] = {}
     ports = machine_ports(result.spec)
-    if resume:  # a sheet an earlier run finished is not cut again: no link process, no time of this run
+    resumed: set[int] = set()  # the sheets this run had begun: continued from their journals
+    if resume:  # a sheet this run finished is not cut again: no link process, no time of this run
         for k, sheet in list(sheets):
-            lines = finished_earlier(sheet["gcode"])
-            if lines is not None:
+            progress = run_progress(sheet["gcode"], identity)
+            if progress is None:  # not begun in this run (an earlier run's journal, or none): cut afresh
+                continue
+            finished, lines = progress
+            if finished:
                 sheets.remove((k, sheet))
                 entries[k] = {"sheet": sheet["sheet"], "program": sheet["gcode"], "outcome": "finished", "earlier": True,
                               "port": "", "lines": lines, "executed": lines, "seconds": None, "resumed_from": lines}
+            else:
+                resumed.add(k)
         if not sheets:
             result.stream = [entries[k] for k in sorted(entries)]
             say(f"stream: nothing left to cut: all {count} sheets finished in an earlier run")
@@ -378,7 +406,7 @@ def _stream_all(result: JobResult, say: Say, confirm_sheet: Callable[[int, int, 
             started = time.perf_counter()
             receiver, sender = context.Pipe(duplex=False)
             link = context.Process(target=stream_in_process, daemon=True,
-                                   args=(port, sheet["gcode"], resume, {"job": result.spec.name}, sender,
+                                   args=(port, sheet["gcode"], k in resumed, identity, sender,
                                          start[1] if Path(sheet["gcode"]).name == start[0] else None))
             with lock:
                 signal.pthread_sigmask(signal.SIG_BLOCK, set(STOP_SIGNALS))  # inherited: a signal waits for the handlers

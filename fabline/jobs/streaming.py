@@ -156,20 +156,21 @@ def stream_in_process(port: str, program: str, resume: bool, identity: dict[str,
     connection.send(("result", outcome, stream.summary()))
 
 
-def finished_earlier(program: str | os.PathLike) -> int | None:
-    """The number of command lines of `program` when the journal beside it says an earlier run of this very
-    program finished it; else None."""
+def run_progress(program: str | os.PathLike, identity: dict[str, str]) -> tuple[bool, int] | None:
+    """What the journal beside `program` says the run `identity` did with this very program: (finished, its
+    command lines); None when the journal holds no run of that identity for it (a sheet this run has not begun,
+    though an earlier run of the job may have cut it)."""
     journal = default_journal_path(Path(program))
     if not journal.is_file():
         return None
     try:
         state = read_journal(journal)
-        if not state.finished:
+        if state.identity != identity:
             return None
         loaded = load_program(program)
     except FablineError:
         return None
-    return len(loaded.lines) if state.sha256 == loaded.sha256 else None
+    return (state.finished, len(loaded.lines)) if state.sha256 == loaded.sha256 else None
 
 
 def journal_summary(port: str, program: str | os.PathLike) -> dict:
