@@ -60,14 +60,17 @@ def cli(capsys):
     return run
 
 
+CAMPAIGNS = ("test_bad_input_campaign.py", "test_hostile_campaign.py")
+
+
 def pytest_terminal_summary(terminalreporter):
-    """The bad-input campaign's count of cases per reader (and per output kind and number option), in every run that
-    ran it, even with -q."""
+    """The campaigns' count of cases per reader (per output kind, number option and hostile kind), in every run that
+    ran them, even with -q."""
     counts: dict[str, list[int]] = {}
     for outcome in ("passed", "failed", "skipped"):
         for report in terminalreporter.stats.get(outcome, []):
             nodeid = getattr(report, "nodeid", "")
-            if "test_bad_input_campaign.py" not in nodeid or "[" not in nodeid or report.when not in ("call", "setup"):
+            if not any(name in nodeid for name in CAMPAIGNS) or "[" not in nodeid or report.when not in ("call", "setup"):
                 continue
             if outcome != "skipped" and report.when == "setup":
                 continue
