@@ -90,10 +90,12 @@ def _check(path: str) -> int:
     """Validate a nesting against its parts file; list every problem on stderr, one line each naming the sheet and
     part, and the verdict on stdout; exit 1 if there are any."""
     from fabline.nest import load_nesting, parts_path, validate_nesting
+    from fabline.nest.validate import check_fit
     from fabline.unroll import load_parts
 
     nesting = load_nesting(path)
     partset = load_parts(parts_path(path, nesting))
+    check_fit(nesting, partset, path)
     problems = validate_nesting(nesting, partset)
     for problem in problems:
         print(f"fabline nest: {path}: {problem}", file=sys.stderr)
