@@ -97,6 +97,16 @@ def _huge_arc(space) -> None:
     space.add_arc((0, 0), 1e300, 0, 90, dxfattribs={"layer": "B"})
 
 
+def _long_curve(space) -> None:
+    """Two 300,000-point polylines (0.03 mm apart along them), one per family."""
+    import numpy as np
+
+    t = np.linspace(0.0, 1.0, 300_000)
+    points = np.c_[9.0 * t, np.sin(20.0 * t), 0.1 * np.cos(7.0 * t)]
+    space.add_polyline3d(points.tolist(), dxfattribs={"layer": "A"})
+    space.add_polyline3d(points[:, [1, 0, 2]].tolist(), dxfattribs={"layer": "B"})
+
+
 def _tiny_part(world: Path, tmp: Path) -> Path:
     """The world's parts and one 50 mm long, 1e-4 mm wide sliver."""
     partset = json.loads((world / "parts.json").read_text())
@@ -124,6 +134,9 @@ GEOMETRY_CASES: list[Case] = [
     Case("curve bounds", "design minimal from a DXF circle of radius 1e300",
          lambda w, t: ["design", "minimal", "--boundary", _dxf(t, "ring.dxf", lambda s: s.add_circle((0, 0), 1e300)),
                        "--mesh-size", "1", "-o", t / "s.obj"], "radius 1e+300"),
+    Case("curve bounds", "import two 300,000-point DXF polylines (4e7 segment pairs, 6 GB)",
+         lambda w, t: ["import", _dxf(t, "long.dxf", _long_curve), "--surface", w / "surface.stl", "-o", t / "n.json"],
+         "300000 points; the limit is 100000"),
     Case("nesting size", "nest --check: one 40 mm washer placed 20,000 times on one sheet",
          lambda w, t: ["nest", "--check", _stacked(w, t, 20.0)], "cannot all fit"),
     Case("nesting size", "export: one 40 mm washer placed 20,000 times on one sheet",

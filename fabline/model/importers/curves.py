@@ -23,6 +23,9 @@ SAGITTA_MM = 0.01
 """Largest distance between a curved CAD entity (spline, arc) and the polyline fabline makes of it."""
 MAX_FLATTENED_POINTS = 1_000_000
 """Points an arc, circle, ellipse or bulged polyline may flatten to (a 12 m lamella at 0.01 mm takes about 300)."""
+MAX_CURVE_POINTS = 100_000
+"""Points one curve may have (a 12 m lamella sampled every 0.12 mm; the crossing search pairs each point with its
+neighbours within the tolerance, so a denser curve asks for memory as points times density)."""
 
 
 @dataclass
@@ -142,6 +145,9 @@ def check_flattening(entity, sagitta: float, path: str, where: str) -> None:
 def clean_points(points: np.ndarray, path: str, where: str) -> np.ndarray:
     """Check a polyline for NaN, infinities and zero length, and drop repeated consecutive points."""
     points = np.asarray(points, dtype=float).reshape(-1, 3)
+    if len(points) > MAX_CURVE_POINTS:
+        raise FablineError(f"{path}: {where}: {len(points)} points; the limit is {MAX_CURVE_POINTS} a curve: "
+                           "resample it coarser")
     bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
     if bad.size:
         raise FablineError(f"{path}: {where}: point {bad[0]} contains NaN or infinite values")
