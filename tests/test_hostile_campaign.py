@@ -6,6 +6,8 @@ files unchanged. The count of cases per kind is printed at the end of the run (c
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import resource
 import subprocess
@@ -45,7 +47,122 @@ SURVEY_CASES: list[Case] = []
 
 # --- design, geometry and nesting (items 10 and 11) ------------------------------------------------------------
 
-GEOMETRY_CASES: list[Case] = []
+SURFACE = Path(__file__).resolve().parent.parent / "examples" / "surface.obj"  # 7.3 m across, anticlastic
+
+
+def _washer(pid: str, radius: float) -> dict:
+    """A round part of `radius` (mm), four quarter arcs (bulge tan(pi/8))."""
+    b = math.tan(math.pi / 8)
+    return {"id": pid, "kind": "washer", "grain": False, "holes": [],
+            "outline": [[-radius, 0, b], [0, -radius, b], [radius, 0, b], [0, radius, b], [-radius, 0, 0]]}
+
+
+def _nesting_of(world: Path, tmp: Path, parts: list[dict], sheets: list[list[tuple[str, float, float]]]) -> Path:
+    """tmp/nesting.json (the world's settings) with these sheets of (part, x, y), and tmp/parts.json with `parts`."""
+    partset, nesting = (json.loads((world / name).read_text()) for name in ("parts.json", "nesting.json"))
+    (tmp / "parts.json").write_text(json.dumps({**partset, "parts": parts}))
+    sheet = nesting["sheets"][0]
+    nesting["sheets"] = [{**sheet, "id": f"S{k + 1:03d}", "common_cuts": [], "placements": [
+        {"part": pid, "x": x, "y": y, "rotation": 0.0} for pid, x, y in placed]} for k, placed in enumerate(sheets)]
+    (tmp / "nesting.json").write_text(json.dumps(nesting))
+    return tmp / "nesting.json"
+
+
+def _stacked(world: Path, tmp: Path, radius: float) -> Path:
+    """One washer placed 20,000 times at one spot of one sheet."""
+    return _nesting_of(world, tmp, [_washer("W", radius)], [[("W", 500.0, 500.0)] * 20_000])
+
+
+def _boundary(tmp: Path, side: float) -> Path:
+    """A saddle-shaped closed boundary `side` m across."""
+    path = tmp / "edges.json"
+    corners = [[0, 0, 0], [side, 0, 0.3 * side], [side, side, 0], [0, side, 0.3 * side], [0, 0, 0]]
+    path.write_text(json.dumps({"units": "m", "curves": [corners]}))
+    return path
+
+
+def _dxf(tmp: Path, name: str, add) -> Path:
+    """tmp/NAME, a DXF in metres with what `add(modelspace)` draws."""
+    import ezdxf
+
+    doc = ezdxf.new()
+    doc.header["$INSUNITS"] = 6
+    add(doc.modelspace())
+    doc.saveas(tmp / name)
+    return tmp / name
+
+
+def _huge_arc(space) -> None:
+    space.add_line((0, 0, 0), (1, 0, 0), dxfattribs={"layer": "A"})
+    space.add_arc((0, 0), 1e300, 0, 90, dxfattribs={"layer": "B"})
+
+
+def _long_curve(space) -> None:
+    """Two 300,000-point polylines (0.03 mm apart along them), one per family."""
+    import numpy as np
+
+    t = np.linspace(0.0, 1.0, 300_000)
+    points = np.c_[9.0 * t, np.sin(20.0 * t), 0.1 * np.cos(7.0 * t)]
+    space.add_polyline3d(points.tolist(), dxfattribs={"layer": "A"})
+    space.add_polyline3d(points[:, [1, 0, 2]].tolist(), dxfattribs={"layer": "B"})
+
+
+def _tiny_part(world: Path, tmp: Path) -> Path:
+    """The world's parts and one 50 mm long, 1e-4 mm wide sliver."""
+    partset = json.loads((world / "parts.json").read_text())
+    sliver = {"id": "SLIVER", "kind": "washer", "grain": False, "holes": [],
+              "outline": [[0, 0, 0], [50, 0, 0], [0, 1e-4, 0], [0, 0, 0]]}
+    (tmp / "parts.json").write_text(json.dumps({**partset, "parts": partset["parts"] + [sliver]}))
+    return tmp / "parts.json"
+
+
+GEOMETRY_CASES: list[Case] = [
+    Case("design bounds", "asymptotic --spacing 0.01 on a 7 m surface (4e6 tracing points)",
+         lambda w, t: ["design", "asymptotic", "--surface", SURFACE, "--spacing", "0.01", "-o", t / "n.json"],
+         "the limit is 1e+06"),
+    Case("design bounds", "asymptotic --step 0.0001 (3e6 tracing points)",
+         lambda w, t: ["design", "asymptotic", "--surface", SURFACE, "--spacing", "0.35", "--step", "0.0001",
+                       "-o", t / "n.json"], "give a larger --step"),
+    Case("design bounds", "minimal surface spanning a boundary 1e12 m across (a 30 TiB lattice)",
+         lambda w, t: ["design", "minimal", "--boundary", _boundary(t, 1e12), "--mesh-size", "1", "-o", t / "s.obj"],
+         "vertices; the limit is 1e+06"),
+    Case("design bounds", "minimal surface spanning a boundary 100 km across at 1 m",
+         lambda w, t: ["design", "minimal", "--boundary", _boundary(t, 1e5), "--mesh-size", "1", "-o", t / "s.obj"],
+         "give a larger --mesh-size"),
+    Case("curve bounds", "import a DXF arc of radius 1e300",
+         lambda w, t: ["import", _dxf(t, "arc.dxf", _huge_arc), "-o", t / "n.json"], "radius 1e+300"),
+    Case("curve bounds", "design minimal from a DXF circle of radius 1e300",
+         lambda w, t: ["design", "minimal", "--boundary", _dxf(t, "ring.dxf", lambda s: s.add_circle((0, 0), 1e300)),
+                       "--mesh-size", "1", "-o", t / "s.obj"], "radius 1e+300"),
+    Case("curve bounds", "import two 300,000-point DXF polylines (4e7 segment pairs, 6 GB)",
+         lambda w, t: ["import", _dxf(t, "long.dxf", _long_curve), "--surface", w / "surface.stl", "-o", t / "n.json"],
+         "300000 points; the limit is 100000"),
+    Case("nesting size", "nest --check: one 40 mm washer placed 20,000 times on one sheet",
+         lambda w, t: ["nest", "--check", _stacked(w, t, 20.0)], "cannot all fit"),
+    Case("nesting size", "export: one 40 mm washer placed 20,000 times on one sheet",
+         lambda w, t: ["export", _stacked(w, t, 20.0), "-o", t / "out"], "cannot all fit"),
+    Case("part outline", "nest a part 1e-4 mm wide",
+         lambda w, t: ["nest", _tiny_part(w, t), "-o", t / "nesting.json"], "part SLIVER"),
+]
+
+
+def test_twenty_thousand_washers_that_fit_on_three_sheets_check_ok(tmp_path):
+    """The bound refuses only what cannot fit: 20,000 distinct washers on a 30 mm grid, three sheets, pass."""
+    world = world_folder()
+    ids = [f"W{k:05d}" for k in range(20_000)]
+    grid = [(20.0 + 30.0 * (k % 132), 20.0 + 30.0 * (k // 132 % 65)) for k in range(len(ids))]
+    sheets = [[(pid, *grid[k]) for k, pid in enumerate(ids) if k // (132 * 65) == s] for s in range(3)]
+    done = run_capped(["nest", "--check", _nesting_of(world, tmp_path, [_washer(pid, 10.0) for pid in ids], sheets)],
+                      cwd=tmp_path)
+    assert done.returncode == 0 and ": ok: 20000 placements on 3 sheets" in done.stdout, done.stderr[-800:]
+
+
+def test_twenty_thousand_stacked_washers_that_fit_by_area_are_checked_in_bounded_memory(tmp_path):
+    """A 20 mm washer 20,000 times at one spot covers less than the sheet: the pair check lists 100 problems and
+    stops, under the memory cap (it asked for 4e8 pairs at once, 6 GB, before)."""
+    done = run_capped(["nest", "--check", _stacked(world_folder(), tmp_path, 10.0)], cwd=tmp_path)
+    assert done.returncode == 1 and "FAILED" in done.stdout, done.stderr[-800:]
+    assert "sheet S001: stopped after 100 problems" in done.stderr
 
 
 CASES = PROFILE_CASES + SURVEY_CASES + GEOMETRY_CASES

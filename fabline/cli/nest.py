@@ -43,6 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_nest(args: argparse.Namespace) -> int:
     """Nest and print the sheet table, or validate with --check."""
     from fabline.unroll import load_parts
+    from fabline.unroll.parts import check_cuttable
 
     if args.check:
         return _check(args.check)
@@ -50,6 +51,7 @@ def run_nest(args: argparse.Namespace) -> int:
         raise FablineError("give a parts file and -o nesting.json (or --check nesting.json)")
     check_outputs(files=(args.output, args.stock_out), folders=(args.svg,), inputs=(args.parts, args.stock))
     partset = load_parts(args.parts)  # a missing or broken parts file is told before the nester is imported
+    check_cuttable(partset, args.parts)
     from fabline.nest import NestOptions, StockItem, load_stock, nest, save_nesting, save_stock, stock_after, write_sheet_svgs
 
     options = NestOptions(kerf=args.kerf, gap=args.gap, margin=args.sheet_margin, rotation_steps=args.rotations,
@@ -90,10 +92,12 @@ def _check(path: str) -> int:
     """Validate a nesting against its parts file; list every problem on stderr, one line each naming the sheet and
     part, and the verdict on stdout; exit 1 if there are any."""
     from fabline.nest import load_nesting, parts_path, validate_nesting
+    from fabline.nest.validate import check_fit
     from fabline.unroll import load_parts
 
     nesting = load_nesting(path)
     partset = load_parts(parts_path(path, nesting))
+    check_fit(nesting, partset, path)
     problems = validate_nesting(nesting, partset)
     for problem in problems:
         print(f"fabline nest: {path}: {problem}", file=sys.stderr)

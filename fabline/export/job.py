@@ -30,7 +30,7 @@ from fabline.export.toolpath import Toolpath, ToolpathOptions, check_placements,
 from fabline.fileio import atomic_output
 from fabline.naming import file_stem
 from fabline.nest.layout import Nesting, Sheet, load_nesting, parts_path
-from fabline.nest.validate import validate_nesting
+from fabline.nest.validate import check_fit, validate_nesting
 from fabline.progress import progress
 from fabline.unroll.parts import Part, load_parts
 
@@ -72,6 +72,7 @@ def load_job(nesting_path: str | os.PathLike) -> tuple[Nesting, dict[str, Part]]
     parts = {p.id: p for p in partset.parts}
     for sheet in nesting.sheets:
         check_placements(sheet, parts, str(nesting_path))
+    check_fit(nesting, partset, str(nesting_path))
     problems = validate_nesting(nesting, partset)
     if problems:
         more = f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""

@@ -20,6 +20,8 @@ from fabline.unroll.collector import collector_paused
 
 SCHEMA = "fabline.parts/1"
 PART_KINDS = ("strip", "curved-strip", "washer", "clamp", "joint")
+MIN_PART_MM = 0.01
+"""A part's outline narrower than this (across its vertices, either way) is smaller than any kerf: it cannot be cut."""
 
 
 class Polylines(Sequence):
@@ -363,6 +365,16 @@ def load_parts(path: str | os.PathLike) -> PartSet:
     """Load and check a `fabline.parts/1` file (the collector paused: the JSON alone is millions of lists)."""
     with collector_paused():
         return parts_from_dict(read_json(path), str(path))
+
+
+def check_cuttable(partset: PartSet, source: str) -> None:
+    """Refuse (FablineError naming the part) a part whose outline is under MIN_PART_MM wide or high: nothing can
+    cut it, and nesting it ends in placements no validation accepts."""
+    for part in partset.parts:
+        width, height = np.ptp(part.outline[:, :2], axis=0)
+        if min(width, height) < MIN_PART_MM:
+            raise FablineError(f"{source}: part {part.id}: its outline is {width:.3g} x {height:.3g} mm, under "
+                               f"{MIN_PART_MM:g} mm across: too small to cut; fix or remove the part")
 
 
 def save_parts(partset: PartSet, path: str | os.PathLike) -> None:

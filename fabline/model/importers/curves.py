@@ -21,6 +21,11 @@ FAMILY_NAME = re.compile(r"^\s*(?:family[\s_-]*)?([ab])(?![a-z])(.*)$", re.IGNOR
 
 SAGITTA_MM = 0.01
 """Largest distance between a curved CAD entity (spline, arc) and the polyline fabline makes of it."""
+MAX_FLATTENED_POINTS = 1_000_000
+"""Points an arc, circle, ellipse or bulged polyline may flatten to (a 12 m lamella at 0.01 mm takes about 300)."""
+MAX_CURVE_POINTS = 100_000
+"""Points one curve may have (a 12 m lamella sampled every 0.12 mm; the crossing search pairs each point with its
+neighbours within the tolerance, so a denser curve asks for memory as points times density)."""
 
 
 @dataclass
@@ -101,9 +106,48 @@ def assign_ids(curves: list[tuple[str, str | None, np.ndarray, str]], path: str)
     return result
 
 
+def arc_points(radius: np.ndarray, angle: np.ndarray, sagitta: float) -> float:
+    """How many points arcs of `radius` spanning `angle` (radians) flatten to within `sagitta`: each chord spans
+    2 acos(1 - sagitta / radius), written as 4 asin(sqrt(sagitta / 2 radius)) so that a huge radius stays finite."""
+    radius, angle = np.abs(np.asarray(radius, dtype=float)), np.abs(np.asarray(angle, dtype=float))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        step = 4.0 * np.arcsin(np.sqrt(np.minimum(sagitta / (2.0 * radius), 0.5)))
+        return float(np.sum(np.where(angle > 0, np.ceil(angle / step), 0.0))) + 1.0
+
+
+def check_flattening(entity, sagitta: float, path: str, where: str) -> None:
+    """Refuse, before ezdxf flattens it, an ARC, CIRCLE, ELLIPSE or bulged polyline that would make more than
+    MAX_FLATTENED_POINTS points within `sagitta` (model units), or whose size is not a finite number."""
+    kind = entity.dxftype()
+    if kind in ("ARC", "CIRCLE"):
+        span = 2 * np.pi if kind == "CIRCLE" else np.radians((entity.dxf.end_angle - entity.dxf.start_angle) % 360 or 360)
+        radius, angle = [entity.dxf.radius], [span]
+    elif kind == "ELLIPSE":
+        span = (entity.dxf.end_param - entity.dxf.start_param) % (2 * np.pi) or 2 * np.pi
+        radius, angle = [np.linalg.norm(tuple(entity.dxf.major_axis)) / max(entity.dxf.ratio, 1e-12)], [span]
+    elif kind == "LWPOLYLINE":
+        rows = np.asarray(entity.get_points("xyb"), dtype=float).reshape(-1, 3)
+        ends = np.vstack([rows[1:, :2], rows[:1, :2]]) if entity.closed else rows[1:, :2]
+        bulge = rows[:len(ends), 2]
+        chord = np.linalg.norm(ends - rows[:len(ends), :2], axis=1)
+        angle = 4.0 * np.arctan(bulge)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            radius = np.where(bulge != 0, chord / (2.0 * np.abs(np.sin(angle / 2.0))), 0.0)
+    else:
+        return
+    count = arc_points(radius, angle, sagitta)
+    if not np.isfinite(count) or not np.all(np.isfinite(radius)) or count > MAX_FLATTENED_POINTS:
+        raise FablineError(f"{path}: {where}: radius {np.max(radius):.3g} would flatten to about {count:.2g} points "
+                           f"within {sagitta:g}; the limit is {MAX_FLATTENED_POINTS:.0e} points a curve: redraw it "
+                           "smaller or as a polyline")
+
+
 def clean_points(points: np.ndarray, path: str, where: str) -> np.ndarray:
     """Check a polyline for NaN, infinities and zero length, and drop repeated consecutive points."""
     points = np.asarray(points, dtype=float).reshape(-1, 3)
+    if len(points) > MAX_CURVE_POINTS:
+        raise FablineError(f"{path}: {where}: {len(points)} points; the limit is {MAX_CURVE_POINTS} a curve: "
+                           "resample it coarser")
     bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
     if bad.size:
         raise FablineError(f"{path}: {where}: point {bad[0]} contains NaN or infinite values")

@@ -24,7 +24,8 @@ from ezdxf.render import MeshBuilder
 
 from fabline.errors import FablineError
 from fabline.fileio import read_bytes, vet_input
-from fabline.model.importers.curves import SAGITTA_MM, CurveSource, NamedPoint, assign_ids, clean_points, family_and_id
+from fabline.model.importers.curves import (SAGITTA_MM, CurveSource, NamedPoint, assign_ids, check_flattening, clean_points,
+                                            family_and_id)
 from fabline.model.importers.surface import mesh_from_arrays
 from fabline.model.network import UNIT_TO_MM
 
@@ -58,6 +59,8 @@ def read_dxf(path: str | Path, units: str | None = None) -> CurveSource:
             unnamed.append(layer)
             continue
         lamella_id = xdata_id or (layer_id if per_layer[layer] == 1 else None)
+        if not isinstance(geometry, np.ndarray):
+            check_flattening(geometry, sagitta, path, where)
         try:
             points = geometry if isinstance(geometry, np.ndarray) else _points(geometry, sagitta)
         except (ValueError, ZeroDivisionError, IndexError, ezdxf.DXFError) as exc:

@@ -14,9 +14,11 @@ import numpy as np
 
 from fabline.errors import FablineError
 from fabline.fileio import read_text
+from fabline.model.importers.curves import check_flattening
 from fabline.model.network import UNIT_TO_MM
 
 DXF_CURVES = ("LWPOLYLINE", "POLYLINE", "CIRCLE", "ELLIPSE", "SPLINE", "ARC", "LINE")
+FLATTENING = 1e-5  # model units: 0.01 mm at metre scale
 
 
 def read_curves(path: str | Path, units: str | None = None) -> tuple[list[tuple[np.ndarray, str]], str]:
@@ -48,7 +50,8 @@ def read_curves(path: str | Path, units: str | None = None) -> tuple[list[tuple[
         for entity in doc.modelspace():
             if entity.dxftype() not in DXF_CURVES:
                 continue
-            points = np.array([tuple(v) for v in ezdxf.path.make_path(entity).flattening(1e-5)], dtype=float)
+            check_flattening(entity, FLATTENING, path, f"{entity.dxftype()} #{entity.dxf.handle}")
+            points = np.array([tuple(v) for v in ezdxf.path.make_path(entity).flattening(FLATTENING)], dtype=float)
             if entity.dxftype() in ("LWPOLYLINE", "POLYLINE") and entity.is_closed and len(points) > 2 \
                     and np.linalg.norm(points[0] - points[-1]) > 0:
                 points = np.vstack([points, points[:1]])

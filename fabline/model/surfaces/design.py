@@ -25,6 +25,10 @@ DEGENERATE_AREA = 1e-10  # a face smaller than this fraction of the mean edge le
 NODE_SPACING_MM = (10.0, 10_000.0)
 """Node spacings a gridshell (or its scale model) can have: outside, a number is taken for another unit."""
 TRACING_STEP_MM = (0.1, 10_000.0)
+MAX_LAMELLAS = 10_000
+"""Lamellas a traced network may have at most (the reference pavilion, 9 x 12 m at 0.3 m, has about 70)."""
+MAX_TRACED_POINTS = 1_000_000
+"""Tracing points in all at most (lamellas times points per lamella; the reference pavilion takes about 20,000)."""
 
 
 @dataclass
@@ -103,6 +107,7 @@ def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarra
     The quality report (quality_report) and the regions without asymptotic lines go into the network's meta.
     """
     source = str(path)
+    step_given = step is not None
     for name, length in (("--spacing", spacing), ("--step", step)):
         number = length.value if isinstance(length, Length) else length
         if length is not None and not (0 < number < np.inf):
@@ -112,6 +117,9 @@ def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarra
     surface, units, notes = load_surface(path, units)
     spacing = model_length(spacing, units, "--spacing", NODE_SPACING_MM, "a node spacing")
     step = None if step is None else model_length(step, units, "--step", TRACING_STEP_MM, "a tracing step")
+    across = float(np.linalg.norm(np.ptp(surface.vertices, axis=0)))
+    step = step or min(spacing / 4.0, 0.05 * across)
+    check_tracing_size(across, spacing, step, units, step_given)
     k1, k2, _, _ = surface.vertex_curvatures()
     if not np.any((k1 > 0) & (k2 < 0)):
         worst = int(np.argmin(k1 * k2))
@@ -124,7 +132,6 @@ def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarra
     if seed is None:
         seed = _middle(curves[0]) if curves else default_seed(surface)
     seed = check_seed(surface, np.asarray(seed, dtype=float), source)
-    step = step or min(spacing / 4.0, 0.05 * float(np.linalg.norm(np.ptp(surface.vertices, axis=0))))
     layout = rail_layout(surface, seed, spacing, step, CROSSING_TOLERANCE_MM / UNIT_TO_MM[units], source, curves)
     meta = {"design": "asymptotic", "surface": Path(source).name, "spacing": spacing, "seed": seed.round(9).tolist(),
             "seed_curves": len(curves),
@@ -135,6 +142,22 @@ def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarra
     network.meta["stops"] = layout.stops
     network.meta["quality"] = quality_report(network, surface, spacing, material, profile)
     return AsymptoticDesign(network, regions, layout.stops, surface, notes)
+
+
+def check_tracing_size(across: float, spacing: float, step: float, units: str, step_given: bool) -> None:
+    """Refuse, before tracing, a network whose estimated size (two families of `across` / `spacing` lamellas, each
+    `across` / `step` tracing points long, `across` the surface's bounding-box diagonal) is over the limits."""
+    lamellas = 2.0 * across / spacing
+    points = across / step
+    size = f"--spacing {spacing:g} {units} on a surface {across:.4g} {units} across"
+    if lamellas > MAX_LAMELLAS:
+        raise FablineError(f"{size} would trace about {lamellas:.0f} lamellas; the limit is {MAX_LAMELLAS}: give a "
+                           "larger --spacing")
+    if lamellas * points > MAX_TRACED_POINTS:
+        stepped = f"--step {step:g} {units}" if step_given else f"the step {step:g} {units} (spacing/4)"
+        raise FablineError(f"{size} with {stepped} would trace about {lamellas:.0f} lamellas of {points:.0f} points, "
+                           f"{lamellas * points:.2g} points in all; the limit is {MAX_TRACED_POINTS:.0e}: give a larger "
+                           f"{'--step' if step_given else '--spacing'}")
 
 
 def _middle(curve: np.ndarray) -> np.ndarray:

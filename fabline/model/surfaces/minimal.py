@@ -40,6 +40,8 @@ CLOSED_FRACTION = 1e-6  # ends of a curve closer than this fraction of its lengt
 MESH_SIZE_MM = (1.0, 10_000.0)
 """Triangle sizes a gridshell's surface (or its scale model's) can be meshed at: outside, a number is taken for
 another unit (`--mesh-size 0.1` on curves in mm is a size in metres)."""
+MAX_MESH_VERTICES = 1_000_000
+"""Vertices a spanned surface may have at most (the reference pavilion, 9 x 12 m at 0.1 m, has about 12,500)."""
 
 
 def read_boundaries(path: str | Path, units: str | None = None) -> tuple[list[np.ndarray], list[str], str]:
@@ -76,11 +78,24 @@ def minimal_surface(boundaries: list[np.ndarray], mesh_size: float, source: str 
     if min(lengths) < 3 * mesh_size:
         short = int(np.argmin(lengths))
         raise FablineError(f"{names[short]}: mesh size {mesh_size:g} is too coarse for a boundary curve {lengths[short]:.4g} long")
+    _check_mesh_size(boundaries, lengths, mesh_size, source)
     rims = [_resample(c, max(8, int(np.ceil(length / mesh_size)))) for c, length in zip(boundaries, lengths)]
     domain = _planar_domain(rims, mesh_size, source, names, tube_instead=len(rims) == 2)
     vertices, faces, fixed = domain if domain is not None else _tube(boundaries[0], boundaries[1], mesh_size)
     vertices, faces = _minimise(vertices, faces, fixed, mesh_size)
     return trimesh.Trimesh(vertices, faces, process=False)
+
+
+def _check_mesh_size(boundaries: list[np.ndarray], lengths: list[float], mesh_size: float, source: str) -> None:
+    """Refuse, before any array is made, a mesh estimated over MAX_MESH_VERTICES: the rims' points (length / size)
+    and a lattice filling the curves' bounding box across its two largest sides (area / (size^2 sqrt(3)/2))."""
+    sides = np.sort(np.ptp(np.vstack(boundaries), axis=0))
+    rim = sum(length / mesh_size for length in lengths)
+    vertices = rim + sides[1] * sides[2] / (mesh_size * mesh_size * np.sqrt(3) / 2)
+    if vertices > MAX_MESH_VERTICES:
+        raise FablineError(f"{source}: --mesh-size {mesh_size:g} on boundary curves {sides[2]:.4g} x {sides[1]:.4g} "
+                           f"across would make about {vertices:.2g} vertices; the limit is {MAX_MESH_VERTICES:.0e}: "
+                           "give a larger --mesh-size")
 
 
 def _minimise(vertices: np.ndarray, faces: np.ndarray, fixed: np.ndarray, mesh_size: float) -> tuple[np.ndarray, np.ndarray]:
