@@ -19,6 +19,11 @@ from typing import Any, BinaryIO, Iterable, Iterator, TextIO
 
 import orjson
 
+try:
+    import tomllib
+except ImportError:  # Python 3.10
+    import tomli as tomllib
+
 from fabline.errors import FablineError
 
 
@@ -413,6 +418,43 @@ def read_json(path: str | os.PathLike, kind: str = "json") -> Any:
         raise FablineError(f"{path}:{exc.lineno}:{exc.colno}: malformed JSON: {exc.msg}") from None
     except RecursionError:
         raise FablineError(f"{path}: malformed JSON: nested too deeply (lists and objects within each other)") from None
+
+
+TOML_DEPTH = 32
+"""Levels of tables and arrays within each other a TOML input may have (a job file or a profile has 3 or 4); the
+runner's JSON bodies have the same bound (fabline.jobs.web.JSON_DEPTH)."""
+
+
+def read_toml(path: str | os.PathLike, what: str = "", kind: str = "config") -> dict[str, Any]:
+    """A TOML input (vetted and decoded by `read_text`) parsed by `parse_toml`, errors naming the file."""
+    return parse_toml(read_text(path, what, kind), os.fsdecode(path))
+
+
+def parse_toml(text: str, where: str) -> dict[str, Any]:
+    """TOML text as a table, or one FablineError naming `where`: malformed, or nested deeper than TOML_DEPTH
+    (the one reader of TOML: tomllib recurses once per level, so a deep text would exhaust the stack)."""
+    try:
+        table = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise FablineError(f"{where}: malformed TOML: {exc}") from None
+    except RecursionError:
+        table = None
+    if table is None or nesting_depth(table, TOML_DEPTH) > TOML_DEPTH:
+        raise FablineError(f"{where}: nested deeper than {TOML_DEPTH} levels (tables and arrays within each other); "
+                           "no fabline file needs more than a few")
+    return table
+
+
+def nesting_depth(value: Any, limit: int) -> int:
+    """Levels of dicts and lists within each other in a parsed value (a scalar is 0), counted without recursion,
+    stopping once past `limit`."""
+    deepest, stack = 0, [(value, 0)]
+    while stack and deepest <= limit:
+        item, level = stack.pop()
+        if isinstance(item, (dict, list)):
+            deepest = max(deepest, level + 1)
+            stack.extend((child, level + 1) for child in (item.values() if isinstance(item, dict) else item))
+    return deepest
 
 
 def _json_integer(text: str) -> int | float:

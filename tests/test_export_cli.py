@@ -255,6 +255,36 @@ def test_a_profile_cannot_inject_controller_commands(cli, job, field, value, rea
     assert err.startswith(f"fabline export: error: {folder / 'bad.toml'}: {field}: ") and reason in err
 
 
+@pytest.mark.parametrize("field, value, reason", [
+    ("program_start", '["G4 P{power}"]', "unknown placeholder {power} (allowed in program_start: none (a [vars] entry"),
+    ("program_end", '["G0 Z{depth}"]', "unknown placeholder {depth} (allowed in program_end: none"),
+    ("tool_off", '["M5 S{power}"]', "unknown placeholder {power}"),
+    ("tool_on", '["M4 S{speed}"]', "unknown placeholder {speed} (allowed in tool_on: {depth}, {power})"),
+    ("program_start", '["G1 {x"]', "expected '}' before end of string (a placeholder is {name}"),
+    ("program_end", '["}"]', "Single '}' encountered in format string"),
+    ("tool_on", '["M4 S{power:d}"]', "placeholder {power} takes no format or conversion"),
+    ("tool_on", '["M4 S{power!r}"]', "placeholder {power} takes no format or conversion"),
+])
+def test_a_template_placeholder_it_is_not_rendered_with_is_refused_at_load(cli, job, field, value, reason):
+    """Issue 25: `program_start = ["G4 P{power}"]` passed the check (power was offered to every template) and the
+    export died of KeyError; unbalanced braces died of ValueError in the check itself."""
+    folder, _, _ = job
+    text = re.sub(rf"^{field} = .*$", lambda _: f"{field} = {value}", (BUILTIN_DIR / "grbl-laser.toml").read_text(), flags=re.M)
+    (folder / "bad.toml").write_text(text)
+    err = _bad(cli, folder, "--machine", folder / "bad.toml")
+    assert err.startswith(f"fabline export: error: {folder / 'bad.toml'}: {field}: {value[2:-2]!r}: ") and reason in err
+
+
+def test_a_vars_entry_is_a_placeholder_every_template_may_use(tmp_path):
+    text = re.sub(r"^program_end = .*$", 'program_end = ["G4 P{dwell}", "M2"]', (BUILTIN_DIR / "grbl-laser.toml").read_text(),
+                  flags=re.M) + "\n[vars]\ndwell = 0.5\n"
+    (tmp_path / "vars.toml").write_text(text)
+    profile = load_machine(str(tmp_path / "vars.toml"))
+    assert profile.render("program_end") == ("G4 P0.500", "M2")
+    with pytest.raises(TypeError):
+        profile.render("program_end", power=1.0)
+
+
 @pytest.mark.parametrize("profile, words, code", [
     ("grbl-laser", '["G0", "G1", "G2", "G3", "G4", "G17", "G21", "G43", "G90", "G94", "M2", "M4", "M5"]', "'G43'"),
     ("grbl-laser", '["G0", "G1", "G2", "G3", "G4", "G17", "G21", "G90", "G94", "M2", "M4", "M5", "M6"]', "'M6'"),

@@ -37,7 +37,81 @@ class Case:
 
 # --- profiles, job files and TOML (issue 25, item 10) ----------------------------------------------------------
 
-PROFILE_CASES: list[Case] = []
+def _profile(world: Path, tmp: Path, key: str, value: str) -> Path:
+    """The world's machine profile with one line `key = value` replaced, written into tmp."""
+    lines = (world / "machine.toml").read_text().splitlines()
+    text = "\n".join(f"{key} = {value}" if line.startswith(f"{key} =") else line for line in lines)
+    (tmp / "bad.toml").write_text(text + "\n")
+    return tmp / "bad.toml"
+
+
+def _job(world: Path, tmp: Path, machine: str = "", extra: str = "", stages: str = '["unroll"]') -> Path:
+    """A job file in tmp on the world's net, with `machine` lines in its [machine] table and `extra` at the end."""
+    (tmp / "job.toml").write_text(f'name = "hostile"\nstages = {stages}\n[model]\nfile = "{world / "net.json"}"\n'
+                                  f'[output]\nfolder = "out"\n[machine]\n{machine}\n{extra}\n')
+    return tmp / "job.toml"
+
+
+def _export_with(profile: Callable[[Path, Path], Path]) -> Callable[[Path, Path], list[str]]:
+    return lambda w, t: ["export", w / "nesting.json", "--machine", profile(w, t), "--gcode", t / "out.gcode"]
+
+
+def _deep(tmp: Path, name: str, value: str, prefix: str = "") -> Path:
+    (tmp / name).write_text(f"{prefix}a = {value}\n")
+    return tmp / name
+
+
+def _nesting(world: Path, tmp: Path, parts_file: str) -> Path:
+    data = json.loads((world / "nesting.json").read_text())
+    data["parts_file"] = parts_file
+    (tmp / "nesting.json").write_text(json.dumps(data))
+    return tmp / "nesting.json"
+
+
+_LISTS = "[" * 5000 + "]" * 5000
+_TABLES = "{a=" * 5000 + "1" + "}" * 5000
+_JUST_TOO_DEEP = "[" * 33 + "]" * 33
+PROFILE_CASES: list[Case] = [
+    Case("profile format", "program_start {power} (rendered without power)",
+         _export_with(lambda w, t: _profile(w, t, "program_start", '["G4 P{power}"]')), "unknown placeholder {power}"),
+    Case("profile format", "tool_off {depth}",
+         _export_with(lambda w, t: _profile(w, t, "tool_off", '["M5 S{depth}"]')), "tool_off"),
+    Case("profile format", "unclosed brace",
+         _export_with(lambda w, t: _profile(w, t, "program_start", '["G1 {x"]')), "program_start"),
+    Case("profile format", "single closing brace",
+         _export_with(lambda w, t: _profile(w, t, "program_end", '["}"]')), "program_end"),
+    Case("profile format", "format spec on power",
+         _export_with(lambda w, t: _profile(w, t, "tool_on", '["M4 S{power:d}"]')), "no format"),
+    Case("profile format", "attribute of power",
+         _export_with(lambda w, t: _profile(w, t, "tool_on", '["M4 S{power.real}"]')), "{power.real}"),
+    Case("profile format", "job file's machine.profile",
+         lambda w, t: ["run", _job(w, t, 'profile = "%s"' % _profile(w, t, "program_start", '["G4 P{power}"]'))],
+         "machine.profile"),
+    Case("deep TOML", "job file, 5000 nested arrays", lambda w, t: ["run", _job(w, t, extra="[x]\na = " + _LISTS)],
+         "nested deeper than 32 levels"),
+    Case("deep TOML", "job file, 5000 nested inline tables",
+         lambda w, t: ["run", _job(w, t, extra="[x]\na = " + _TABLES)], "job.toml: nested deeper than 32"),
+    Case("deep TOML", "job file, 33 nested arrays", lambda w, t: ["run", _job(w, t, extra="[x]\na = " + _JUST_TOO_DEEP)],
+         "nested deeper than 32"),
+    Case("deep TOML", "machine profile, 5000 nested arrays",
+         _export_with(lambda w, t: _deep(t, "deep.toml", _LISTS)), "deep.toml: nested deeper than 32"),
+    Case("deep TOML", "materials file, 5000 nested inline tables",
+         lambda w, t: ["unroll", w / "net.json", "-o", t / "u.json", "--materials",
+                       _deep(t, "deep.toml", _TABLES, "[m]\n")], "deep.toml: nested deeper than 32"),
+    *(Case("time scale", f"stream sim:// time_scale={v}",
+           lambda w, t, v=v: ["stream", w / "program.gcode", "--port", f"sim://grbl?time_scale={v}"], "at most 1e+06")
+      for v in ("inf", "nan", "1e308", "-1", "0")),
+    *(Case("time scale", f"job machine.port time_scale={v}",
+           lambda w, t, v=v: ["run", _job(w, t, f'port = "sim://grbl?time_scale={v}"')], "machine.port")
+      for v in ("inf", "nan", "1e308", "-1")),
+    *(Case("time scale", f"job machine.time_scale = {v}",
+           lambda w, t, v=v: ["run", _job(w, t, f"time_scale = {v}")], "machine.time_scale")
+      for v in ("inf", "nan", "1e308", "-1")),
+    Case("nesting parts_file", "NUL byte",
+         lambda w, t: ["export", _nesting(w, t, "parts\0.json"), "--gcode", t / "o.gcode"], "nesting.json: parts_file"),
+    Case("nesting parts_file", "empty",
+         lambda w, t: ["export", _nesting(w, t, ""), "--gcode", t / "o.gcode"], "nesting.json: parts_file"),
+]
 
 
 # --- the survey (items 10 and 11) ------------------------------------------------------------------------------

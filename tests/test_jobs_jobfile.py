@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from fabline.errors import FablineError
+from fabline.fileio import TOML_DEPTH, parse_toml
 from fabline.jobs.jobfile import DEFAULT_STAGES, load_job_file
 
 REPO = Path(__file__).resolve().parent.parent
@@ -177,6 +178,18 @@ def test_bad_name_and_malformed_toml(tmp_path):
         load_job_file(write(tmp_path, GOOD + "\n[[[\n"))
     with pytest.raises(FablineError, match="nothere.toml: file not found"):
         load_job_file(tmp_path / "nothere.toml")
+
+
+def test_toml_nested_past_the_bound_is_refused_in_one_line_naming_the_file(tmp_path):
+    """Issue 25: 5000 nested arrays (or inline tables) in a job file ended in tomllib's RecursionError."""
+    arrays = TOML_DEPTH - 1  # the document is a level: 31 arrays in it make 32
+    assert parse_toml("a = " + "[" * arrays + "]" * arrays, "t.toml")
+    with pytest.raises(FablineError, match=f"^t.toml: nested deeper than {TOML_DEPTH} levels"):
+        parse_toml("a = " + "[" * (arrays + 1) + "]" * (arrays + 1), "t.toml")
+    for text in ("a = " + "[" * 5000 + "]" * 5000, "a = " + "{a=" * 5000 + "1" + "}" * 5000,
+                 "[" + ".".join(["a"] * 40) + "]"):
+        with pytest.raises(FablineError, match=f"job.toml: nested deeper than {TOML_DEPTH} levels"):
+            load_job_file(write(tmp_path, GOOD + "\n" + text))
 
 
 def test_cli_bad_design_options_exit_2_and_write_nothing(tmp_path, cli):

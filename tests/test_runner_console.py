@@ -158,7 +158,10 @@ def test_a_job_file_uploaded_from_the_page_is_queued_once(shop, tmp_path):
     for body, said in (({"name": "../x.toml", "text": TINY}, "a job file's name"),
                        ({"name": "bad.toml", "text": "name = "}, "bad.toml: malformed TOML"),
                        ({"name": "bad.toml", "text": TINY + "colour = 1\n"}, "bad.toml: output.colour: unknown key"),
-                       ({"name": "big.toml", "text": "#" * (1 << 21)}, "a job file has at most")):
+                       ({"name": "big.toml", "text": "#" * (1 << 21)}, "a job file has at most"),
+                       ({"name": "deep.toml", "text": "a = " + "[" * 5000 + "]" * 5000}, "deep.toml: nested deeper"),
+                       ({"name": "deep.toml", "text": "a = " + "{a=" * 5000 + "1" + "}" * 5000},
+                        "deep.toml: nested deeper than 32 levels")):
         answer = client.post("/api/jobs/upload", json=body)
         assert answer.status_code == 400 and said in answer.json()["error"], answer.text
     assert not (jobs / "bad.toml").exists() and not (tmp_path / "x.toml").exists()

@@ -223,9 +223,9 @@ def sheet_program(paths: list[Toolpath], profile: MachineProfile) -> tuple[str, 
     operation's power as S; the planner never has to stop for a spindle state change between paths.
     """
     writer = GcodeWriter(profile)
-    writer.template(profile.render(profile.program_start))
+    writer.template(profile.render("program_start"))
     if profile.laser_mode:
-        writer.template(profile.render(profile.tool_on, power=0.0))
+        writer.template(profile.render("tool_on", power=0.0, depth=0.0))
     rounded, entries = _rounded_contours(paths, profile.decimals)
     for index, path in enumerate(paths):
         operation = profile.operations[path.operation]
@@ -241,7 +241,7 @@ def sheet_program(paths: list[Toolpath], profile: MachineProfile) -> tuple[str, 
                 if profile.laser_mode:
                     writer.power = operation.power
                 else:
-                    writer.template(profile.render(profile.tool_on, power=operation.power, depth=depth))
+                    writer.template(profile.render("tool_on", power=operation.power, depth=depth))
                 writer.tool_on = True
             if k == 0 and path.lead_in is not None:
                 writer.line_to(contour[0, :2], operation.feed)
@@ -251,11 +251,11 @@ def sheet_program(paths: list[Toolpath], profile: MachineProfile) -> tuple[str, 
         if not _continues(paths, entries, index + 1, writer, operation.passes):
             writer.tool_on = False
             if not profile.laser_mode:
-                writer.template(profile.render(profile.tool_off))
+                writer.template(profile.render("tool_off"))
     writer.mark = False
     if profile.laser_mode:
-        writer.template(profile.render(profile.tool_off))
-    writer.template(profile.render(profile.program_end))
+        writer.template(profile.render("tool_off"))
+    writer.template(profile.render("program_end"))
     return writer.finish(), writer.moves
 
 

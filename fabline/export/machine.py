@@ -17,22 +17,19 @@ from pathlib import Path
 from typing import Any
 
 from fabline.errors import FablineError
-from fabline.fileio import read_text
+from fabline.fileio import read_toml
 from fabline.link.build import BuildInfo
 from fabline.link.codes import explain_error
 from fabline.link.gcode import REALTIME_COMMANDS, GcodeError, compact_line, parse_block
-
-try:
-    import tomllib
-except ImportError:  # Python 3.10
-    import tomli as tomllib
 
 BUILTIN_DIR = Path(__file__).with_name("machines")
 OPERATIONS = ("engrave-mark", "engrave-text", "cut-inner", "cut-outer")
 MODES = ("laser", "plotter", "mill")
 WORD_PATTERN = re.compile(r"([A-Z])\s*([-+]?\d*\.?\d+)")
 MOTION_PARAMETERS = frozenset("XYZIJKFSPR")
-TEMPLATE_FIELDS = ("program_start", "program_end", "tool_on", "tool_off")
+TEMPLATE_VALUES = {"program_start": (), "program_end": (), "tool_on": ("power", "depth"), "tool_off": ()}
+"""The command templates and the values each is rendered with (MachineProfile.render takes exactly these), besides
+the profile's [vars]: a profile is checked against this at load, so a placeholder it cannot fill is refused then."""
 RS274NGC_CODES = frozenset(
     [f"G{n}" for n in (0, 1, 2, 3, 4, 10, 17, 18, 19, 20, 21, 28, 30, 40, 41, 42, 43, 49, 53, 54, 55, 56, 57, 58, 59,
                        61, 64, 80, 81, 82, 83, 84, 85, 86, 87, 88, 89, 90, 91, 93, 94, 98, 99)]
@@ -86,9 +83,12 @@ class MachineProfile:
     variables: dict[str, float]
     required_settings: tuple["SettingRequirement", ...] = ()  # [requires]: what the controller's `$$` must say
 
-    def render(self, templates: tuple[str, ...], **values: float) -> tuple[str, ...]:
-        """Command templates with `{power}`, `{depth}` and the profile's [vars] filled in, numbers fixed-precision."""
-        return _render(self, templates, tuple(sorted(values.items())))
+    def render(self, field_name: str, **values: float) -> tuple[str, ...]:
+        """The command templates of `field_name` (program_start, tool_on ...) with the values TEMPLATE_VALUES
+        names for it and the profile's [vars] filled in, numbers fixed-precision."""
+        if sorted(values) != sorted(TEMPLATE_VALUES[field_name]):
+            raise TypeError(f"{field_name} is rendered with {TEMPLATE_VALUES[field_name]}, not {tuple(values)}")
+        return _render(self, getattr(self, field_name), tuple(sorted(values.items())))
 
     def controller_settings(self) -> dict[int, float]:
         """The Grbl `$N` settings this profile assumes (max rates, acceleration, bed, S range, laser mode), so
@@ -192,10 +192,7 @@ MAX_EXTENDS = 16  # profiles in one `extends` chain
 def _merged_table(path: Path, seen: tuple[str, ...]) -> dict[str, Any]:
     if len(seen) >= MAX_EXTENDS:
         raise FablineError(f"{path}: extends: more than {MAX_EXTENDS} profiles in one chain")
-    try:
-        table = tomllib.loads(read_text(path, " (a TOML profile is UTF-8)", kind="config"))
-    except tomllib.TOMLDecodeError as exc:
-        raise FablineError(f"{path}: malformed TOML: {exc}") from None
+    table = read_toml(path, " (a TOML profile is UTF-8)")
     parent = table.pop("extends", None)
     if parent is None:
         return table
@@ -337,7 +334,7 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
         if not _controller_accepts(profile, word):
             raise FablineError(f"{source}: words: {word!r} is not a code the {profile.controller or 'controller'} "
                                "accepts")
-    for field_name in TEMPLATE_FIELDS:
+    for field_name in TEMPLATE_VALUES:
         _check_templates(profile, field_name)
     return profile
 
@@ -371,16 +368,27 @@ def _emitted_line_problem(line: str) -> str | None:
 
 
 def _check_templates(profile: MachineProfile, field_name: str) -> None:
-    """Every command template must fill in, be one plain G-code line (for a Grbl, one its parser reads) and use
-    only words the profile declares."""
-    templates = getattr(profile, field_name)
-    keys = set(profile.variables) | {"power", "depth"}
-    for template in templates:
-        for _, name, _, _ in string.Formatter().parse(template):
-            if name is not None and name not in keys:
-                raise FablineError(f"{profile.source}: {field_name}: unknown placeholder {{{name}}} "
-                                   f"(use power, depth or a [vars] entry)")
-        line = profile.render((template,), power=0, depth=0)[0]
+    """Every command template must fill in from the values it is rendered with (TEMPLATE_VALUES) and [vars], be
+    one plain G-code line (for a Grbl, one its parser reads) and use only words the profile declares."""
+    allowed = sorted(TEMPLATE_VALUES[field_name]) + sorted(profile.variables)
+    offer = ", ".join(f"{{{name}}}" for name in allowed) if allowed else "none (a [vars] entry adds one)"
+    for template in getattr(profile, field_name):
+        where = f"{profile.source}: {field_name}: {template!r}"
+        try:
+            fields = list(string.Formatter().parse(template))
+        except ValueError as exc:
+            raise FablineError(f"{where}: {exc} (a placeholder is {{name}}; a literal brace is written {{{{ or }}}}; "
+                               f"placeholders allowed here: {offer})") from None
+        for _, name, spec, conversion in fields:
+            if name is None:
+                continue
+            if name not in allowed:
+                raise FablineError(f"{where}: unknown placeholder {{{name}}} (allowed in {field_name}: {offer})")
+            if spec or conversion:
+                raise FablineError(f"{where}: placeholder {{{name}}} takes no format or conversion (the number is "
+                                   f"written in the profile's decimals); write {{{name}}}")
+        values = dict.fromkeys(TEMPLATE_VALUES[field_name], 0.0)
+        line = _render(profile, (template,), tuple(sorted(values.items())))[0]
         problem = _emitted_line_problem(line)
         if problem is None and profile.grbl:
             try:
@@ -388,7 +396,7 @@ def _check_templates(profile: MachineProfile, field_name: str) -> None:
             except GcodeError as exc:
                 problem = f"Grbl refuses it: {explain_error(exc.code)}"
         if problem is not None:
-            raise FablineError(f"{profile.source}: {field_name}: {template!r}: {problem}")
+            raise FablineError(f"{where}: {problem}")
         for word in unsupported_words(line, profile.words):
             raise FablineError(f"{profile.source}: {field_name}: {word} is not in the profile's words")
 

@@ -15,13 +15,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-try:
-    import tomllib
-except ImportError:  # Python 3.10
-    import tomli as tomllib
-
 from fabline.errors import FablineError
-from fabline.fileio import read_text, vet_input
+from fabline.fileio import parse_toml, read_text, vet_input
 from fabline.units import job_length
 
 if TYPE_CHECKING:  # the nesting stage pulls in shapely; a job file is read before any stage runs
@@ -151,11 +146,7 @@ def load_job_file(path: str | os.PathLike) -> JobSpec:
 def job_from_text(text: str, path: Path, where: str | None = None) -> JobSpec:
     """Parse and check a job file's text as if it lay at `path` (a file read, or an upload before it is written);
     a TOML error names `where` (default: the path)."""
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise FablineError(f"{where or path}: malformed TOML: {exc}") from None
-    return job_from_dict(raw, path)
+    return job_from_dict(parse_toml(text, str(where or path)), path)
 
 
 def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
@@ -428,7 +419,7 @@ def toolpath_options(export: dict[str, Any], machine_kerf: float) -> "ToolpathOp
 
 def _check_values(data: dict[str, Any], where: str) -> None:
     """Ranges and vocabularies: sheet size, profile, material, machine profile, positive numbers."""
-    from fabline.export.machine import available_machines
+    from fabline.export.machine import available_machines, load_machine
     from fabline.nest.stock import parse_sheet_size
     from fabline.unroll.materials import load_materials, parse_profile
 
@@ -448,6 +439,7 @@ def _check_values(data: dict[str, Any], where: str) -> None:
     if machine not in available_machines() and not machine.endswith(".toml"):
         raise FablineError(f"{where}: machine.profile: unknown machine {machine!r} "
                            f"(use one of {', '.join(available_machines())} or a .toml file)")
+    wrapped("machine.profile", load_machine, machine)  # a bad profile is refused now, not after the stages before export
     count = data["stock"]["count"]
     if count is not None and not count > 0:
         raise FablineError(f"{where}: stock.count: must be positive, got {count}")

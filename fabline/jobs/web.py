@@ -37,6 +37,7 @@ from starlette.responses import FileResponse, HTMLResponse, JSONResponse, Respon
 from starlette.routing import Route
 
 from fabline.errors import FablineError
+from fabline.fileio import nesting_depth
 from fabline.jobs.console import check_line, check_override
 from fabline.jobs.jobfile import load_job_file
 from fabline.jobs.pictures import progress_svg
@@ -259,23 +260,12 @@ async def json_object(request: Request, shape: str) -> dict:
     except ValueError as exc:
         raise BadRequest(f"body: not JSON ({str(exc).splitlines()[0][:120]}); expected {shape}") from None
     else:
-        depth = _depth(value)
+        depth = nesting_depth(value, JSON_DEPTH)
     if depth > JSON_DEPTH:
         raise BadRequest(f"body: JSON nested deeper than {JSON_DEPTH} levels; expected {shape}")
     if not isinstance(value, dict):
         raise BadRequest(f"body: expected a JSON object {shape}, got {_json_type(value)}")
     return value
-
-
-def _depth(value: Any) -> int:
-    """Levels of nesting of a parsed JSON value (a scalar is 0), counted without recursion, stopping past JSON_DEPTH."""
-    deepest, stack = 0, [(value, 0)]
-    while stack and deepest <= JSON_DEPTH:
-        item, level = stack.pop()
-        if isinstance(item, (dict, list)):
-            deepest = max(deepest, level + 1)
-            stack.extend((child, level + 1) for child in (item.values() if isinstance(item, dict) else item))
-    return deepest
 
 
 def field(body: dict, name: str, kind: type, what: str, required: bool = True) -> Any:

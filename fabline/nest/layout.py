@@ -106,6 +106,10 @@ def nesting_from_dict(data: Any, source: str = "nesting") -> Nesting:
         raise FablineError(f"{source}: not a {SCHEMA} file")
     if not isinstance(data.get("parts_file"), str):
         raise FablineError(f"{source}: missing 'parts_file'")
+    if not data["parts_file"].strip() or "\0" in data["parts_file"]:
+        fault = "holds a NUL byte, which no file name can" if "\0" in data["parts_file"] else "is empty"
+        raise FablineError(f"{source}: parts_file: {data['parts_file']!r} {fault}: name the parts file, relative to "
+                           "the nesting file's folder (parts.json)")
     sheets, stems = [], {}
     for i, raw in enumerate(_typed(data, "sheets", list, source)):
         raw = _object(raw, f"{source}: sheets[{i}]")

@@ -4,17 +4,11 @@ from __future__ import annotations
 
 import os
 import re
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 from fabline.errors import FablineError
-from fabline.fileio import finite_number, read_text
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - exercised on Python 3.10 only
-    import tomli as tomllib
+from fabline.fileio import finite_number, read_toml
 
 BUILTIN_MATERIALS = Path(__file__).with_name("materials.toml")
 MATERIAL_FIELDS = ("E", "G", "f_y", "density")
@@ -92,10 +86,7 @@ def get_material(name: str, path: str | os.PathLike | None = None) -> Material:
 
 
 def _read_table(path: Path) -> dict[str, Material]:
-    try:
-        data = tomllib.loads(read_text(path, kind="config"))
-    except tomllib.TOMLDecodeError as exc:
-        raise FablineError(f"{path}: malformed TOML: {exc}") from None
+    data = read_toml(path)
     materials = {}
     for name, raw in data.items():
         if not isinstance(raw, dict):
