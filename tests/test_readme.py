@@ -127,6 +127,23 @@ def test_the_readme_command_table_names_every_command():
     assert set(commands(build_parser(), "fabline")) - rows == set(), "commands missing from README's table"
 
 
+def test_the_readme_links_into_the_manual_resolve():
+    """README.md is not part of the MkDocs site, so `mkdocs build --strict` does not check its links: each names a
+    page that exists and, after `#`, one of its headings (slugged as MkDocs and GitHub both do)."""
+    def slug(heading: str) -> str:
+        return re.sub(r"[-\s]+", "-", re.sub(r"[^\w\s-]", "", heading).strip().lower())
+
+    broken = []
+    for target in re.findall(r"\]\((docs/[^)\s]+)\)", (REPO / "README.md").read_text(encoding="utf-8")):
+        path, _, anchor = target.partition("#")
+        page = REPO / path
+        headings = {slug(h) for h in re.findall(r"^#+ (.*)$", page.read_text(encoding="utf-8"), re.M)} \
+            if page.is_file() and path.endswith(".md") else set()
+        if not page.is_file() or (anchor and anchor not in headings):
+            broken.append(target)
+    assert not broken, f"README links that lead nowhere: {broken}"
+
+
 def test_every_skip_states_a_reason_and_every_file_marker_names_a_file():
     for block in BLOCKS:
         assert block.skip is None or len(block.skip.split()) >= 3, f"{block.page}:{block.line}: skip needs a reason"
