@@ -1,4 +1,4 @@
-"""Make the README's sample inputs in this folder (committed; run again to rebuild them the same way):
+"""Make the manual's sample inputs in this folder (committed; run again to rebuild them the same way):
 
 - a small Enneper gridshell (3 x 4 m, nodes 0.5 m apart) as CAD curves: `curves.3dm` (rhino3dm), `curves.obj`
   and `curves.dxf` (with every node as a named point; the DXF also holds the surface as a MESH), and its

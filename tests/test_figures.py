@@ -1,7 +1,7 @@
 """Every figure a user reads is true: machine time by the controller's own clock (not wall time x time scale), no
 wall times of parallel machines summed as one, a resume with nothing left says so and reports no time, progress by
 planned machine time (not lines), an ETA beyond today carries its date, waiting for the operator is not remaining
-work, the survey's four counts add up to its nodes, and lengths at the README's precision."""
+work, the survey's four counts add up to its nodes, and lengths at the manual's precision (docs/index.md, Layout)."""
 
 from __future__ import annotations
 
@@ -234,7 +234,7 @@ def test_resume_after_a_finished_run_cuts_nothing_and_reports_no_time(tmp_path, 
     table = html[html.index("<table id=stream>"):html.index("</table>", html.index("<table id=stream>"))]
     assert table.count("finished in an earlier run") == count
     assert f"{count} of {count} sheets finished ({count} in an earlier run)" in html
-    for sheet in data["nesting"]["sheets"]:  # lengths at the README's precision: m to the millimetre
+    for sheet in data["nesting"]["sheets"]:  # lengths at the manual's precision: m to the millimetre
         assert f"cut {sheet['cut_length_mm'] / 1000:.3f} m, planned machine time" in html
     assert re.search(r"machine time \(summed over the machines\) planned \d+:\d\d:\d\d, taken \d+:\d\d:\d\d", first)
 

@@ -240,7 +240,7 @@ def test_a_stopped_stream_prints_a_resume_command_quoted_for_any_shell(cli, gcod
 
 
 def test_grbl_sim_machine_option_makes_the_profiles_machine_so_its_programs_stream(cli, tmp_path):
-    """The README's `fabline grbl-sim --transport tcp --machine grbl-laser` is the example job's laser: a grbl-laser
+    """docs/streaming.md's `fabline grbl-sim --transport tcp --machine grbl-laser` is the example job's laser: a grbl-laser
     program that a stock Grbl refuses ($32=0, 200 mm travel) streams to it over TCP."""
     program = tmp_path / "laser.gcode"
     program.write_text("; machine grbl-laser (Grbl 1.1), mode laser\nG21 G90 G17 G94\nM4 S0\nG0 X3000 Y1500\n"

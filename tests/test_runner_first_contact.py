@@ -1,5 +1,5 @@
-"""First contact (issue 24): `fabline runner serve --jobs jobs/ --web-port N`, started as the README says with no
-`--machine`, makes a simulated machine set up as the example job's profile (grbl-laser: laser mode, a 4 x 2 m bed),
+"""First contact (issue 24): `fabline runner serve --jobs jobs/ --web-port N`, started as docs/jobs.md says, with
+no `--machine`, makes a simulated machine set up as the example job's profile (grbl-laser: laser mode, a 4 x 2 m bed),
 says so, and cuts a job written for that profile to its end: its sheets stream instead of being refused for
 `$32` or for travel, as they were on a stock controller."""
 

@@ -1,6 +1,6 @@
 """Seams wherever the geometry allows a valid joint: the overlap may hold slots (both layers are cut at the same strip
 stations, so their slots line up), seams shift and shorten within their limits, and when none fits the error says
-which limit fails. The README's helicoid (nodes 250 mm apart, which used to fail) is the test case."""
+which limit fails. The manual's helicoid (docs/model.md) (nodes 250 mm apart, which used to fail) is the test case."""
 
 from __future__ import annotations
 

@@ -142,7 +142,7 @@ def _chosen_command(parser: argparse.ArgumentParser, namespace: argparse.Namespa
 
 
 def hidden_alias(parser: argparse.ArgumentParser, canonical: argparse.Action, *names: str) -> None:
-    """Old names of an option that still work (job files, scripts, README) but no longer show in `--help`."""
+    """Old names of an option that still work (job files, scripts, the manual) but no longer show in `--help`."""
     parser.add_argument(*names, dest=canonical.dest, type=canonical.type, choices=canonical.choices,
                         metavar=canonical.metavar, default=argparse.SUPPRESS, help=argparse.SUPPRESS)
 

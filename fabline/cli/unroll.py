@@ -162,5 +162,5 @@ def run_limits(args: argparse.Namespace) -> int:
         with_radius = f" with radius {args.radius:g} mm" if args.radius else ""
         verdict = "within yield" if t["combined_utilisation"] <= 1.0 else "OVER YIELD"
         print(f"combined{with_radius} (von Mises at the face centre, bending plus helix at the edge): "
-              f"{percent(t['combined_utilisation'])} of f_y, {verdict} (the verdict's rule, README)")
+              f"{percent(t['combined_utilisation'])} of f_y, {verdict} (the verdict's rule, docs/unrolling.md)")
     return 0

@@ -3,7 +3,7 @@
 LightBurn gives each colour a layer of its own (its palette: 00 black, 01 blue, 02 red, 03 green, ... and the
 tool layers T1 and T2, which are never sent to the laser); a file's colours decide the layer each shape lands
 on. The cut and engrave layers use palette colours (ACI colours in the DXF whose RGB is the palette's), the
-sheet outline and annotations the tool layer T1's colour (README, Export: colours and layers).
+sheet outline and annotations the tool layer T1's colour (docs/export.md, Colours and layers).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ class Layer(NamedTuple):
     output: bool = True
 
 
-LAYERS = {      # the colours are LightBurn's palette colours (README, Export: colours and layers)
+LAYERS = {      # the colours are LightBurn's palette colours (docs/export.md, Colours and layers)
     "CUT-OUTER": Layer(1, "#FF0000", "02 red"),
     "CUT-INNER": Layer(5, "#0000FF", "01 blue"),
     "ENGRAVE-MARK": Layer(3, "#00E000", "03 green"),

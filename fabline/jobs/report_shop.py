@@ -108,7 +108,7 @@ def bom_section(bom: dict | None) -> str:
              f"<th>{totals['parts_mass_kg']:.1f}</th><th>{100 * totals['scrap_share']:.1f}</th></tr>")
     cost = (f" At {bom['price_per_kg']:g} {e(totals['currency'])}/kg the sheets cost {totals['cost']:,.2f} "
             f"{e(totals['currency'])}." if totals["cost"] is not None else
-            " No price: add price_per_kg to the material (README, Unrolling: materials) for the cost.")
+            " No price: add price_per_kg to the material (docs/unrolling.md, Structural check: materials) for the cost.")
     hardware = "".join(f"<tr><td>{e(h['item'])}</td><td>{h['count']}</td><td>{e(h['per'])}</td></tr>"
                        for h in bom["hardware"])
     return (f"<h2>Bill of materials</h2><p>{bom['thickness_mm']:g} mm {e(bom['material'])} at "

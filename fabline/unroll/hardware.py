@@ -1,6 +1,6 @@
 """Joint hardware cut in the same run as the strips: star washers, cable clamps and singularity joints.
 
-Sizing rule (documented in the README, Unrolling: Hardware parts), from the profile h x t and the pair spacing d:
+Sizing rule (documented in docs/unrolling.md, Hardware parts), from the profile h x t and the pair spacing d:
 - every arm is 2a wide with a = d/2 + 2t, so it covers both strips of a pair with their slot play;
 - washer (kind "washer"): two per crossing node, above and below; one arm along each lamella pair at the
   node's design crossing angle, reaching d + h/4 from the bolt, with a square hole for the carriage bolt's neck;

@@ -23,7 +23,7 @@ def _default_material() -> Material:
 
 @dataclass
 class UnrollOptions:
-    """How to unroll a network: see the README (Unrolling) for what each setting does and its default's origin."""
+    """How to unroll a network: see docs/unrolling.md for what each setting does and its default's origin."""
 
     profile: Profile = field(default_factory=lambda: Profile(100.0, 1.5))
     material: Material = field(default_factory=_default_material)
