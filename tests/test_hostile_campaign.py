@@ -107,6 +107,11 @@ PROFILE_CASES: list[Case] = [
     *(Case("time scale", f"job machine.time_scale = {v}",
            lambda w, t, v=v: ["run", _job(w, t, f"time_scale = {v}")], "machine.time_scale")
       for v in ("inf", "nan", "1e308", "-1")),
+    *(Case("sim options", f"stream sim:// {option}={v}",
+           lambda w, t, o=option, v=v: ["stream", w / "program.gcode", "--port", f"sim://grbl?{o}={v}"], f"{option}=")
+      for option, v in (("line_time", "nan"), ("line_time", "inf"), ("stall_seconds", "nan"),
+                        ("stall_seconds", "inf"), ("error_line", "1e400"), ("error_line", "1" + "0" * 400),
+                        ("alarm_code", "-1"), ("planner_blocks", "0"), ("rx_buffer", "1e9"))),
     Case("nesting parts_file", "NUL byte",
          lambda w, t: ["export", _nesting(w, t, "parts\0.json"), "--gcode", t / "o.gcode"], "nesting.json: parts_file"),
     Case("nesting parts_file", "empty",

@@ -95,7 +95,8 @@ def check_port(url: str, *, inputs: tuple = (), outputs: tuple = (), within: str
 
 def _check_sim_option(url: str, name: str, value: str) -> None:
     """A sim:// option the simulator would refuse when it starts, refused now: `machine=` a known profile's name
-    (a path is not taken: a URL must not make fabline read any file it names), `time_scale=` in its range."""
+    (a path is not taken: a URL must not make fabline read any file it names), `time_scale=` and every number
+    option in its range."""
     if name == "machine":
         from fabline.export.machine import available_machines
 
@@ -109,6 +110,14 @@ def _check_sim_option(url: str, name: str, value: str) -> None:
             check_time_scale(float(value))
         except ValueError as exc:
             raise FablineError(f"port {url}: time_scale={value!r}: {exc if 'time_scale' in str(exc) else 'not a number'}") from None
+    else:
+        from fabline.link.protocol_sim import NUMBER_OPTIONS, sim_number
+
+        if name in NUMBER_OPTIONS:
+            try:
+                sim_number(name, value)
+            except ValueError as exc:
+                raise FablineError(f"port {url}: {exc}") from None
 
 
 def port_endpoints(url: str) -> list[str]:
