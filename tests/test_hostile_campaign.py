@@ -18,7 +18,7 @@ from typing import Callable
 
 import pytest
 
-from test_bad_input_campaign import _digest, world_folder
+from test_bad_input_campaign import _digest, _png_claiming, world_folder
 
 MEMORY_CAP = 6 * 2**30
 TIME_CAP_S = 60
@@ -121,7 +121,72 @@ PROFILE_CASES: list[Case] = [
 
 # --- the survey (items 10 and 11) ------------------------------------------------------------------------------
 
-SURVEY_CASES: list[Case] = []
+def _simulate(*option: str) -> Callable[[Path, Path], list[str]]:
+    return lambda world, tmp: ["survey", "simulate", "--model", world / "net.json", "-o", tmp / "sim", *option]
+
+
+def _survey_job(line: str) -> Callable[[Path, Path], list[str]]:
+    """`fabline run` on a job of the world's model whose [survey] section simulates with `line` in it."""
+    def command(world: Path, tmp: Path) -> list[str]:
+        (tmp / "job.toml").write_text(f'name = "hostile"\n[model]\nfile = "{world / "net.json"}"\n'
+                                      f'[output]\nfolder = "{tmp / "out"}"\n[survey]\nsimulate = true\n{line}\n')
+        return ["run", tmp / "job.toml"]
+    return command
+
+
+def _tag_map_offset(offset: str) -> Callable[[Path, Path], list[str]]:
+    """`survey measure` with a tag map whose mounting offset is `offset` (JSON text)."""
+    def command(world: Path, tmp: Path) -> list[str]:
+        (tmp / "photos").mkdir()
+        (tmp / "photos" / "photo.png").write_bytes((world / "photo.png").read_bytes())
+        (tmp / "tagmap.json").write_text('{"schema": "fabline.tagmap/1", "family": "tag36h11", "tag_size_mm": 65, '
+                                         f'"mount_offset_mm": {offset}, "tags": [{{"tag": 0, "node": "n0"}}]}}')
+        return ["survey", "measure", tmp / "photos", "--model", world / "net.json", "--tags", tmp / "tagmap.json",
+                "-o", tmp / "out"]
+    return command
+
+
+def _bad_crc_png(width: int, height: int) -> bytes:
+    """`_png_claiming` with every chunk's CRC wrong, so that a reader checking them gives up on the header."""
+    data = bytearray(_png_claiming(width, height))
+    at = 8
+    while at < len(data):
+        length = int.from_bytes(data[at:at + 4], "big")
+        data[at + 8 + length:at + 12 + length] = bytes(b ^ 0xFF for b in data[at + 8 + length:at + 12 + length])
+        at += 12 + length
+    return bytes(data)
+
+
+def _jpeg_claiming(width: int, height: int) -> bytes:
+    """A JPEG's first segments: a comment, then a baseline frame header claiming width x height grey pixels."""
+    comment = b"\xff\xfe" + (2 + 5).to_bytes(2, "big") + b"hello"
+    frame = b"\xff\xc0" + (11).to_bytes(2, "big") + bytes([8]) + height.to_bytes(2, "big") + width.to_bytes(2, "big") \
+        + bytes([1, 1, 0x11, 0])
+    return b"\xff\xd8" + comment + frame + b"\xff\xda" + b"\0" * 64 + b"\xff\xd9"
+
+
+def _detect(name: str, data: bytes) -> Callable[[Path, Path], list[str]]:
+    def command(world: Path, tmp: Path) -> list[str]:
+        (tmp / name).write_bytes(data)
+        return ["survey", "detect", tmp / name]
+    return command
+
+
+SURVEY_CASES: list[Case] = [
+    Case("survey options", "--resolution 200000x200000", _simulate("--resolution", "200000x200000"), "megapixels"),
+    Case("survey options", "--photos 100000", _simulate("--photos", "100000"), "the limit is 1000"),
+    Case("survey options", "--seed -1", _simulate("--seed", "-1"), "0..2147483647"),
+    Case("survey options", "job survey.resolution 200000x200000", _survey_job('resolution = "200000x200000"'),
+         "survey.resolution"),
+    Case("survey options", "job survey.photos 100000", _survey_job("photos = 100000"), "survey.photos"),
+    Case("survey options", "job survey.seed 2**31", _survey_job(f"seed = {2**31}"), "survey.seed"),
+    Case("tag map", "mount_offset_mm 1e300", _tag_map_offset("1e300"), "mount_offset_mm"),
+    Case("tag map", "mount_offset_mm -2e6", _tag_map_offset("-2e6"), "mount_offset_mm"),
+    Case("photo header", "PNG 25000 x 25000 with bad CRCs", _detect("big.png", _bad_crc_png(25000, 25000)),
+         "25000 x 25000"),
+    Case("photo header", "JPEG frame 60000 x 60000", _detect("big.jpg", _jpeg_claiming(60000, 60000)),
+         "60000 x 60000"),
+]
 
 
 # --- design, geometry and nesting (items 10 and 11) ------------------------------------------------------------

@@ -198,5 +198,5 @@ def test_a_photo_bomb_is_skipped_and_a_cut_jpeg_noted_the_survey_goes_on(cli, mo
     assert code == 0, err
     problems = json.loads((tmp_path / "out" / "survey.json").read_text())["problems"]
     assert [p["problem"] for p in problems if p.get("file") == str(photos / "bomb.png")] == [
-        f"{photos / 'bomb.png'}: the image is larger than 150 megapixels (by its header): not read"]
+        f"{photos / 'bomb.png'}: the image is 100000 x 100000 px by its header, more than 150 megapixels: not read"]
     assert any(p.get("file") == str(cut) and "JPEG is cut short" in p["problem"] for p in problems), problems

@@ -179,7 +179,7 @@ def _calibrate(args: argparse.Namespace) -> int:
 def _simulate(args: argparse.Namespace) -> int:
     from fabline.model import load_network
     from fabline.survey import SyntheticSpec, simulate_survey
-    from fabline.survey.photos import MAX_PHOTO_PIXELS, MAX_SIMULATED_PHOTOS
+    from fabline.survey.photos import check_simulation
 
     try:
         width, height = (int(v) for v in args.resolution.lower().split("x"))
@@ -187,9 +187,7 @@ def _simulate(args: argparse.Namespace) -> int:
         raise FablineError(f"--resolution {args.resolution!r}: expected WxH in pixels, e.g. 6000x4000") from None
     if width < 64 or height < 64 or args.photos < 2:
         raise FablineError("--resolution must be at least 64x64 and --photos at least 2")
-    if width * height > MAX_PHOTO_PIXELS or args.photos > MAX_SIMULATED_PHOTOS:
-        raise FablineError(f"--resolution {args.resolution} --photos {args.photos}: at most {MAX_PHOTO_PIXELS / 1e6:g} megapixels "
-                           f"per photo and {MAX_SIMULATED_PHOTOS} photos")
+    check_simulation(width, height, args.photos, args.seed, {"resolution": "--resolution", "photos": "--photos", "seed": "--seed"})
     if not 0 < args.coverage <= 2:
         raise FablineError(f"--coverage must be in (0, 2], got {args.coverage}")
     check_outputs(folders=(args.output,), inputs=(args.model,))

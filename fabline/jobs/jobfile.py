@@ -279,6 +279,7 @@ def _default_stages(survey: dict[str, Any]) -> list[str]:
 def _check_survey(survey: dict[str, Any], where: str) -> dict[str, Any]:
     """`survey.result` (an existing survey to show) or `survey.simulate` with its settings, defaults filled in."""
     from fabline.jobs.survey_stage import load_survey_result, parse_resolution
+    from fabline.survey.photos import check_simulation
 
     if survey["result"] is not None and survey["simulate"]:
         raise FablineError(f"{where}: survey: give survey.result (an existing survey) or survey.simulate = true, not both")
@@ -295,7 +296,7 @@ def _check_survey(survey: dict[str, Any], where: str) -> dict[str, Any]:
     checked = {"result": None, "simulate": True,
                **{key: default if survey[key] is None else survey[key] for key, default in SIMULATED_SURVEY_DEFAULTS.items()}}
     try:
-        parse_resolution(checked["resolution"])
+        width, height = parse_resolution(checked["resolution"])
     except FablineError as exc:
         raise FablineError(f"{where}: survey.resolution: {exc}") from None
     for key, ok, rule in (("photos", checked["photos"] >= 2, "must be at least 2"),
@@ -306,6 +307,8 @@ def _check_survey(survey: dict[str, Any], where: str) -> dict[str, Any]:
                           ("scale_bars", 0 <= checked["scale_bars"] <= 2, "must be 0, 1 or 2")):
         if not ok:
             raise FablineError(f"{where}: survey.{key}: {rule}, got {checked[key]}")
+    check_simulation(width, height, checked["photos"], checked["seed"],
+                     {key: f"{where}: survey.{key}" for key in ("resolution", "photos", "seed")})
     if checked["reference"] not in ("all", "supports"):
         raise FablineError(f"{where}: survey.reference: {checked['reference']!r} must be 'all' or 'supports'")
     return checked

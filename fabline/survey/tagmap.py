@@ -51,10 +51,24 @@ def check_tag_size_mm(value: float, source: str = "--tag-size") -> float:
     return check_plausible(value, "mm", TAG_SIZE_RANGE_MM, source, "a tag's black-square edge")
 
 
+MAX_MOUNT_OFFSET_MM = 1e6
+"""Largest |mounting offset| (1 km in mm): more than any structure is large, so a tag that far is a mistake."""
+
+
+def check_mount_offset_mm(value: float, source: str = "--mount-offset") -> float:
+    """`value` as a tag's mounting offset in mm; a non-finite one or one beyond MAX_MOUNT_OFFSET_MM raises naming
+    `source`."""
+    if not finite_number(value) or abs(value) > MAX_MOUNT_OFFSET_MM:
+        raise FablineError(f"{source}: {value} mm is not a mounting offset; the tag face sits within "
+                           f"{MAX_MOUNT_OFFSET_MM:g} mm (1 km) of its node, typically 10-50 mm")
+    return float(value)
+
+
 def make_tag_map(network: Network, tag_size_mm: float = 65.0, mount_offset_mm: float = 20.0,
                  every: int = 1) -> TagMap:
     """Give tag ids 0, 1, ... to the model's nodes in order (every `every`-th node, supports always)."""
     check_tag_size_mm(tag_size_mm)
+    check_mount_offset_mm(mount_offset_mm)
     if every < 1:
         raise FablineError(f"--every must be at least 1, got {every}")
     chosen = [nid for i, (nid, node) in enumerate(network.nodes.items()) if i % every == 0 or node.kind == "support"]
@@ -90,6 +104,7 @@ def tagmap_from_dict(data: object, source: str = "tag map") -> TagMap:
             raise FablineError(f"{source}: field '{key}' must be a number")
         numbers[key] = float(value)
     check_tag_size_mm(numbers["tag_size_mm"], f"{source}: field 'tag_size_mm'")
+    check_mount_offset_mm(numbers["mount_offset_mm"], f"{source}: field 'mount_offset_mm'")
     entries = data.get("tags")
     if not isinstance(entries, list):
         raise FablineError(f"{source}: missing or malformed 'tags' (expected a list)")
