@@ -18,7 +18,7 @@ import numpy as np
 from ezdxf import units
 
 from fabline.export.contours import stack_contours
-from fabline.export.layers import LAYERS
+from fabline.shop.layers import LAYERS
 from fabline.export.toolpath import inner_contours
 from fabline.nest.layout import Sheet, place
 from fabline.unroll.parts import Part

@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 from fabline.errors import FablineError
 from fabline.export.contours import (arc_centres, offset, remove_intervals, reverse, rotate_start, segment_lengths,
                                      stack_contours, to_polygon, with_bulges)
-from fabline.export.machine import OPERATIONS
+from fabline.machine.profile import OPERATIONS
 from fabline.nest.layout import CommonCut, Placement, Sheet, place
 from fabline.unroll.parts import Part
 

@@ -18,7 +18,7 @@ import shapely
 
 from fabline.export.toolpath import inner_contours
 from fabline.nest.layout import Nesting
-from fabline.unroll.materials import Material
+from fabline.mechanics.materials import Material
 from fabline.unroll.parts import Part, PartSet, flatten_contour
 
 

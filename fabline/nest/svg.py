@@ -30,9 +30,9 @@ def _path_data(contours: list[np.ndarray], height: float, closed: bool = True) -
 
 def sheet_svg(sheet: Sheet, parts: dict[str, Part], margin: float, remnants: list[dict]) -> ET.Element:
     """The SVG element tree of one sheet at 1:1 (width and height in mm, user units mm): each part a group with
-    its id, cut and engrave paths in their layer colours (`fabline.export.layers`), the sheet, margin, remnants
+    its id, cut and engrave paths in their layer colours (`fabline.shop.layers`), the sheet, margin, remnants
     and part labels in the tool-layer colour LightBurn does not output."""
-    from fabline.export.layers import LAYERS
+    from fabline.shop.layers import LAYERS
     from fabline.export.toolpath import inner_contours
 
     colour = {name: layer.rgb for name, layer in LAYERS.items()}

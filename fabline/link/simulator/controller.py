@@ -6,8 +6,8 @@ import threading
 from collections import deque
 from pathlib import Path
 
-from fabline.link.build import STOCK_BUILD, BuildInfo
-from fabline.link.gcode import ModalState
+from fabline.machine.build import STOCK_BUILD, BuildInfo
+from fabline.machine.gcode import ModalState
 from fabline.link.simulator.clock import Clock, check_time_scale
 from fabline.link.simulator.faults import Faults
 from fabline.link.simulator.firmware import BANNER, DEFAULT_SETTINGS, Firmware

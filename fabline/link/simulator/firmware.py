@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from fabline.link.gcode import GcodeError, execute
+from fabline.machine.gcode import GcodeError, execute
 from fabline.link.simulator.planner import Pending
 
 VERSION = "1.1h"

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from fabline.link.gcode import Block, Segment
+from fabline.machine.gcode import Block, Segment
 
 
 @dataclass(slots=True)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 from collections import deque
 
-from fabline.link.gcode import GcodeError, execute
+from fabline.machine.gcode import GcodeError, execute
 from fabline.link.simulator.faults import ConnectionDropped
 from fabline.link.simulator.planner import Pending
 

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from fabline.unroll.materials import Material, Profile
+from fabline.mechanics.materials import Material, Profile
 
 if TYPE_CHECKING:  # type hints only: `fabline limits` needs no scipy (darboux imports it)
     from fabline.geometry.darboux import LamellaGeometry
