@@ -22,7 +22,7 @@ from fabline.machine.build import BuildInfo
 from fabline.machine.codes import explain_error
 from fabline.machine.gcode import REALTIME_COMMANDS, GcodeError, compact_line, parse_block
 
-BUILTIN_DIR = Path(__file__).with_name("machines")
+BUILTIN_DIR = Path(__file__).with_name("profiles")
 OPERATIONS = ("engrave-mark", "engrave-text", "cut-inner", "cut-outer")
 MODES = ("laser", "plotter", "mill")
 WORD_PATTERN = re.compile(r"([A-Z])\s*([-+]?\d*\.?\d+)")
