@@ -26,8 +26,8 @@ from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from fabline.model.surfaces import design_asymptotic  # noqa: E402
-from fabline.model.surfaces.samples import closed_form_cases, rail_grid  # noqa: E402
+from fabline.design import design_asymptotic  # noqa: E402
+from fabline.design.samples import closed_form_cases, rail_grid  # noqa: E402
 
 SPACING = 0.35
 TRACE_GOAL_SECONDS = 10.0
@@ -94,7 +94,7 @@ def main() -> None:
 def minimal_table(triangles: int, folder: Path) -> None:
     import trimesh
 
-    from fabline.model.surfaces.minimal import catenoid_waist, coaxial_circles, minimal_surface
+    from fabline.design.minimal import catenoid_waist, coaxial_circles, minimal_surface
 
     circles = coaxial_circles(1.0, 1.0)
     area = 2 * np.pi * 1.0 * 1.0

@@ -2,7 +2,7 @@
 
     python benchmarks/eta_bench.py [--sheets N] [--gcode DIR]
 
-For each program, `fabline.export.motion.line_timeline` (the estimate the stream bar, `fabline run`, the report
+For each program, `fabline.machine.motion.line_timeline` (the estimate the stream bar, `fabline run`, the report
 and the runner page start from) is compared with the machine time the Grbl 1.1h simulator
 (`fabline.link.simulator.timed_run`: acceleration, junction deviation, $12 arc chords, a 15-block planner the
 host keeps full) takes, both for the grbl-laser profile's settings. Programs: the first N sheets (default 2) of
@@ -21,11 +21,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from fabline.export import ToolpathOptions, export_job, load_machine  # noqa: E402
-from fabline.export.motion import line_timeline  # noqa: E402
+from fabline.export import ToolpathOptions, export_job
+from fabline.machine import load_machine  # noqa: E402
+from fabline.machine.motion import line_timeline  # noqa: E402
 from fabline.export.samplejob import pavilion_job  # noqa: E402
-from fabline.link.gcode import ModalState  # noqa: E402
-from fabline.link.program import parse_program  # noqa: E402
+from fabline.machine.gcode import ModalState  # noqa: E402
+from fabline.machine.program import parse_program  # noqa: E402
 from fabline.link.simulator import DEFAULT_SETTINGS, timed_run  # noqa: E402
 from fabline.units import duration  # noqa: E402
 

@@ -25,8 +25,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from fabline.export import (OPERATIONS, ToolpathOptions, export_job, load_job, load_machine,  # noqa: E402
-                            sheet_toolpaths, summarise)
+from fabline.machine import OPERATIONS, load_machine, summarise
+from fabline.export import ToolpathOptions, export_job, load_job, sheet_toolpaths
 from fabline.export import dxf, toolpath  # noqa: E402
 from fabline.export.contours import reverse  # noqa: E402
 from fabline.export.gcode import sheet_program  # noqa: E402

@@ -20,7 +20,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from fabline.link import SimulatorServer, Streamer, executed_file_lines, load_program  # noqa: E402
+from fabline.link import SimulatorServer, Streamer, executed_file_lines
+from fabline.machine import load_program  # noqa: E402
 
 BAUD = 115200
 BYTES_PER_SECOND = BAUD / 10

@@ -1,6 +1,6 @@
 """Progress bars for long work (shown on a terminal, silent in pipes, tests and CI) and the time a job has left.
 
-`estimate` is the one ETA rule of fabline: the planner's machine time (`fabline.export.motion`), corrected by the
+`estimate` is the one ETA rule of fabline: the planner's machine time (`fabline.machine.motion`), corrected by the
 pace actually made so far. The stream bar, the `fabline run` display and summary, the report and the runner page
 all use it.
 """

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from fabline.link import load_program
+from fabline.machine import load_program
 
 JOBS_CLI = [sys.executable, "-c", (
     "import argparse, sys\n"

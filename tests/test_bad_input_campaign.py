@@ -53,11 +53,11 @@ def _make_world(folder: Path) -> None:
     import rhino3dm
     import trimesh
 
-    from fabline.export.machine import BUILTIN_DIR
+    from fabline.machine.profile import BUILTIN_DIR
     from fabline.model import load_network, save_network
     from fabline.model.designs import catenoid_network
     from fabline.model.writers import write_dxf, write_obj
-    from fabline.nest.stock import StockItem, save_stock
+    from fabline.shop.stock import StockItem, save_stock
     from fabline.survey.camera import Camera, save_camera
 
     network = catenoid_network(waist=1.0, height=1.5, count=8)

@@ -11,9 +11,9 @@ import trimesh
 from scipy.optimize import fsolve
 
 from fabline.errors import FablineError
-from fabline.model.surfaces import design_asymptotic
-from fabline.model.surfaces import minimal
-from fabline.model.surfaces.minimal import catenoid_waist, coaxial_circles, minimal_surface
+from fabline.design import design_asymptotic
+from fabline.design import minimal
+from fabline.design.minimal import catenoid_waist, coaxial_circles, minimal_surface
 
 
 def circle(centre: tuple[float, float], radius: float, height: float, count: int = 400) -> list[list[float]]:
@@ -96,7 +96,7 @@ def test_an_open_dxf_arc_is_refused(tmp_path):
     doc = ezdxf.new()
     doc.modelspace().add_arc((0, 0), 1.0, 0, 270)
     doc.saveas(tmp_path / "arc.dxf")
-    from fabline.model.surfaces.minimal import read_boundaries
+    from fabline.design.minimal import read_boundaries
     with pytest.raises(FablineError, match=r"ARC #\w+: open curve"):
         read_boundaries(tmp_path / "arc.dxf")
 

@@ -1,6 +1,6 @@
 """`fabline design asymptotic`: curvature from irregular meshes, traced networks against the closed forms, bad input.
 
-The meshes are irregular Delaunay triangulations of the closed-form surfaces (fabline.model.surfaces.samples);
+The meshes are irregular Delaunay triangulations of the closed-form surfaces (fabline.design.samples);
 the truth is the closed form: Enneper's curvature and asymptotic u, v lines, and the rail-layout grid of
 each surface's asymptotic coordinates computed by arc-length integration of its partial derivatives.
 """
@@ -18,9 +18,9 @@ from scipy.spatial import Delaunay, cKDTree
 from fabline.errors import FablineError
 from fabline.model import load_network
 from fabline.model.designs import enneper_network, enneper_surface
-from fabline.model.surfaces import SmoothMesh, design_asymptotic
-from fabline.model.surfaces.field import asymptotic_directions
-from fabline.model.surfaces.samples import closed_form_cases, ellipse, irregular_mesh, rail_grid
+from fabline.design import SmoothMesh, design_asymptotic
+from fabline.design.field import asymptotic_directions
+from fabline.design.samples import closed_form_cases, ellipse, irregular_mesh, rail_grid
 
 COARSE_TRIANGLES = 8000  # the suite's meshes; the benchmark runs the pavilion's 20,000 and more
 

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from fabline.export.motion import MoveLog, estimate_time, line_timeline
-from fabline.link.gcode import ModalState
-from fabline.link.program import parse_program
+from fabline.machine.motion import MoveLog, estimate_time, line_timeline
+from fabline.machine.gcode import ModalState
+from fabline.machine.program import parse_program
 from fabline.link.simulator import DEFAULT_SETTINGS, timed_run
 from fabline.progress import estimate, simulated_speedup
 from fabline.units import duration
@@ -141,7 +141,8 @@ def test_duration_and_simulated_speedup():
 def test_the_stream_progress_carries_the_planned_eta(tmp_path):
     """The streamer's progress reports time from the controller's own settings ($$) and the simulator's time scale:
     planned = the program's timeline / time scale; at the end everything planned is done."""
-    from fabline.link import Streamer, load_program
+    from fabline.link import Streamer
+    from fabline.machine import load_program
     from fabline.link.protocol_sim import close_simulator
 
     path = tmp_path / "square.gcode"

@@ -7,8 +7,9 @@ import re
 import pytest
 
 from fabline.errors import FablineError
-from fabline.export import ToolpathOptions, check_program, export_job, load_machine
-from fabline.export.machine import BUILTIN_DIR
+from fabline.export import ToolpathOptions, check_program, export_job
+from fabline.machine import load_machine
+from fabline.machine.profile import BUILTIN_DIR
 from fabline.nest.layout import Placement, Sheet, save_nesting
 from fabline.unroll.parts import save_parts
 

@@ -9,7 +9,8 @@ import ezdxf
 import numpy as np
 import pytest
 
-from fabline.export import ToolpathOptions, export_job, load_machine
+from fabline.export import ToolpathOptions, export_job
+from fabline.machine import load_machine
 from fabline.export.dxf import LAYERS, _part_shapes, block_name, drawing_text, lwpolylines_text, new_drawing
 from fabline.nest.layout import place
 

@@ -9,7 +9,8 @@ import re
 import numpy as np
 import pytest
 
-from fabline.export import MoveLog, ToolpathOptions, check_program, estimate_time, export_job, load_machine
+from fabline.machine import MoveLog, estimate_time, load_machine
+from fabline.export import ToolpathOptions, check_program, export_job
 from fabline.export import samplejob
 from fabline.export.gcode import round_half_even
 
@@ -179,7 +180,7 @@ def test_whole_array_rounding_is_pythons_round():
 def test_junction_speeds_match_a_move_by_move_planner():
     """The planner's backward and forward passes, written the plain way (one junction at a time, as Grbl
     does), against the cumulative-minimum form estimate_time uses: random limits with stops, long and short moves."""
-    from fabline.export.motion import _reachable
+    from fabline.machine.motion import _reachable
 
     rng = np.random.default_rng(3)
     for moves in (1, 2, 50, 3000):

@@ -16,7 +16,8 @@ import pytest
 
 from fabline.cli import main
 from fabline.jobs.report_shop import stream_table, summary_block
-from fabline.link import Streamer, load_program
+from fabline.link import Streamer
+from fabline.machine import load_program
 from fabline.link.protocol_sim import close_simulator, get_simulator
 from fabline.progress import StreamBar, estimate
 

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import re
 
-from fabline.link import executed_file_lines, load_program, read_journal
+from fabline.link import executed_file_lines, read_journal
+from fabline.machine import load_program
 from fabline.link.journal import Journal
 
 JOB = """

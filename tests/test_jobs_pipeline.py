@@ -16,10 +16,11 @@ import pytest
 
 from fabline.cli import main
 from fabline.geometry import analyse, lamella_table
-from fabline.link import load_program
+from fabline.machine import load_program
 from fabline.model import load_network
 from fabline.nest import load_nesting
-from fabline.unroll import get_material, load_parts, parse_profile
+from fabline.mechanics import get_material, parse_profile
+from fabline.unroll import load_parts
 from runner_support import executed_program_lines, headless_chromium
 
 JOB = """

@@ -8,7 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from fabline.link import SimulatorServer, load_program
+from fabline.link import SimulatorServer
+from fabline.machine import load_program
 from fabline.link.journal import Journal
 from fabline.locks import exclusive_lock, lock_path
 from runner_support import executed_program_lines

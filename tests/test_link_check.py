@@ -10,9 +10,9 @@ import serial
 
 from fabline.errors import FablineError
 from fabline.link import Streamer
-from fabline.link.build import BuildInfo
-from fabline.link.gcode import ModalState
-from fabline.link.program import load_program
+from fabline.machine.build import BuildInfo
+from fabline.machine.gcode import ModalState
+from fabline.machine.program import load_program
 from fabline.link.protocol_sim import close_simulator, get_simulator
 from fabline.nest.layout import save_nesting
 from fabline.unroll.parts import save_parts
@@ -60,7 +60,7 @@ def test_exported_sheets_pass_the_controllers_check_mode(cli, url, sheets, machi
     assert " G2 " in text or "\nG2 " in text or "\nG3 " in text or " G3 " in text   # the sheet has arcs
     program = load_program(sheets[machine])           # the rs274-mill header (G40 G49 G80) was error:20 here
     assert len(program.lines) > 100
-    from fabline.export import load_machine
+    from fabline.machine import load_machine
 
     settings = ",".join(f"{key}:{value:g}" for key, value in load_machine(machine).controller_settings().items())
     port = url[0].replace("time_scale=500", f"time_scale=50000&settings={settings}")  # the machine the profile is for

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 from pygcode.words import text2words
 
-from fabline.link.build import STOCK_BUILD, BuildInfo
-from fabline.link.gcode import GcodeError, ModalState, compact_line, execute, split_words
+from fabline.machine.build import STOCK_BUILD, BuildInfo
+from fabline.machine.gcode import GcodeError, ModalState, compact_line, execute, split_words
 
 TRANSCRIPT = Path(__file__).parent / "data" / "grbl-1.1h-transcript.txt"
 START = (0.0, 0.0, 0.0)

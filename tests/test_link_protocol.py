@@ -8,10 +8,11 @@ import re
 import pytest
 
 from fabline.errors import FablineError
-from fabline.link import explain_alarm, explain_error, parse_program, read_journal
-from fabline.link.gcode import GcodeError, ModalState, execute
+from fabline.machine import explain_alarm, explain_error, parse_program
+from fabline.link import read_journal
+from fabline.machine.gcode import GcodeError, ModalState, execute
 from fabline.link.journal import Journal
-from fabline.link.program import line_tag
+from fabline.machine.program import line_tag
 from fabline.link.protocol import CharacterCounter, LineSplitter, classify, parse_status
 
 
@@ -125,7 +126,7 @@ def test_plain_lines_are_stripped_as_the_character_loop_strips_them():
     gives (or the same error), over random lines of G-code letters, whitespace (Unicode's too), % and specials."""
     import random
 
-    from fabline.link import program
+    from fabline.machine import program
 
     def by_loop(text: str) -> str:
         saved, program._PLAIN = program._PLAIN, re.compile(r"(?!)")

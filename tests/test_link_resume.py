@@ -18,7 +18,8 @@ import pytest
 import serial
 
 from fabline.errors import FablineError
-from fabline.link import SimulatorServer, Streamer, StreamInterrupted, executed_file_lines, load_program, read_journal
+from fabline.link import SimulatorServer, Streamer, StreamInterrupted, executed_file_lines, read_journal
+from fabline.machine import load_program
 from fabline.link.protocol_sim import close_simulator, get_simulator
 
 REPO = Path(__file__).resolve().parents[1]

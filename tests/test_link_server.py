@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from fabline.link import SimulatorServer, Streamer, executed_file_lines, load_program
+from fabline.link import SimulatorServer, Streamer, executed_file_lines
+from fabline.machine import load_program
 from fabline.link.server import _Wire
 
 

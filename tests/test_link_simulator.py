@@ -162,7 +162,7 @@ def test_jog_cancel_stops_a_jog_and_keeps_the_position(host):
 
 
 def test_settings_configure_the_simulated_machine_like_its_profile():
-    from fabline.export import load_machine
+    from fabline.machine import load_machine
 
     settings = load_machine("grbl-laser").controller_settings()
     simulator = GrblSimulator(time_scale=1.0, settings=settings)

@@ -8,7 +8,8 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from fabline.nest import load_nesting, load_stock, parts_path, validate_nesting
+from fabline.nest import load_nesting, parts_path, validate_nesting
+from fabline.shop import load_stock
 from fabline.nest.synthetic import pavilion_like_parts
 from fabline.unroll import Part, PartSet, load_parts, save_parts
 
@@ -153,7 +154,7 @@ def test_small_parts_go_into_large_holes_only_when_allowed(fill_holes, cli, tmp_
 def test_sheet_svgs_are_one_to_one_with_cut_and_engrave_in_their_layer_colours(nested, small_parts):
     """A 4000 x 2000 mm sheet is a 4000 mm x 2000 mm SVG in mm user units; every placed part is a group with its
     id; its paths are in the documented layer colours and the reference lines in the tool-layer colour."""
-    from fabline.export.layers import LAYERS
+    from fabline.shop.layers import LAYERS
 
     nesting = load_nesting(nested / "nesting.json")
     parts = {p.id: p for p in load_parts(small_parts).parts}

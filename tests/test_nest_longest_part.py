@@ -1,4 +1,4 @@
-"""Unroll and nest share one rule for the longest part a sheet holds (`fabline.nest.stock.usable_extent`): a strip
+"""Unroll and nest share one rule for the longest part a sheet holds (`fabline.shop.stock.usable_extent`): a strip
 the unroll makes at that length, straight or bent by a few hundredths of a millimetre, nests on an empty sheet."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import pytest
 
 from fabline.errors import FablineError
 from fabline.nest import NestOptions, nest
-from fabline.nest.stock import StockItem, usable_extent
+from fabline.shop.stock import StockItem, usable_extent
 from fabline.unroll import Part, PartSet, UnrollOptions
 
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from shapely.geometry import Polygon, box
 
-from fabline.nest import NestOptions, StockItem, nest, place, validate_nesting
+from fabline.nest import NestOptions, nest, place, validate_nesting
+from fabline.shop import StockItem
 from fabline.model.designs import enneper_network
 from fabline.nest.nester import lower_bounds
 from fabline.nest.shapes import nest_shapes

@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from fabline.nest import (CommonCut, Nesting, NestOptions, Placement, Sheet, StockItem, nest, nesting_to_dict,
-                          validate_nesting)
+from fabline.nest import CommonCut, Nesting, NestOptions, Placement, Sheet, nest, nesting_to_dict, validate_nesting
+from fabline.shop import StockItem
 from fabline.nest.synthetic import pavilion_like_parts
 from fabline.unroll import Part, PartSet
 

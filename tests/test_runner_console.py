@@ -129,7 +129,7 @@ def test_while_a_sheet_streams_only_overrides_go_out(shop, monkeypatch):
     executed = len(executed_program_lines(shop["log"]))
     assert (cut["sheets_finished"], cut["sheets"], stopped["sheet"]) == ([], 1, "long")
     assert stopped["done"] <= stopped["acked"] and stopped["done"] <= executed <= stopped["acked"]
-    lines = [line.file_line for line in __import__("fabline.link", fromlist=["x"]).load_program(program).lines]
+    lines = [line.file_line for line in __import__("fabline.machine", fromlist=["x"]).load_program(program).lines]
     assert stopped["file_line"] == lines[stopped["done"] - 1] and stopped["acked_file_line"] == lines[stopped["acked"] - 1]
 
 

@@ -8,7 +8,7 @@ import time
 
 from fabline.jobs.queue import JobQueue
 from fabline.jobs.runner import MachineConfig, Runner
-from fabline.link import load_program
+from fabline.machine import load_program
 from runner_support import executed_program_lines
 
 GOOD = """

@@ -12,7 +12,7 @@ import pytest
 from fabline.jobs import pipeline
 from fabline.jobs.queue import JobQueue
 from fabline.jobs.runner import Runner
-from fabline.link import load_program
+from fabline.machine import load_program
 from fabline.model import save_network
 from fabline.model.designs import DESIGNS
 

@@ -16,7 +16,7 @@ from fabline.nest.layout import Nesting, Placement, Sheet
 from fabline.unroll import Part, PartSet, save_parts
 from fabline.unroll.flat import circle
 from fabline.unroll.hardware import HardwareSizes, clamp, washers
-from fabline.unroll.materials import Profile, get_material, load_materials
+from fabline.mechanics.materials import Profile, get_material, load_materials
 
 
 def _rectangle(width, height):

@@ -14,10 +14,10 @@ import pytest
 from fabline.geometry import analyse
 from fabline.model import save_network
 from fabline.model.designs import enneper_network
-from fabline.model.surfaces.quality import quality_report, summary_lines
-from fabline.unroll.materials import Profile, get_material
-from fabline.unroll.structure import (check_lamellas, combined_radius_limit, combined_twist_limit, structural_verdict,
-                                      verdict_lines)
+from fabline.design.quality import quality_report, summary_lines
+from fabline.mechanics.materials import Profile, get_material
+from fabline.mechanics.structure import (check_lamellas, combined_radius_limit, combined_twist_limit,
+                                         structural_verdict, verdict_lines)
 
 STAINLESS = get_material("stainless")
 PROFILE = Profile(100.0, 1.5)
@@ -180,7 +180,7 @@ def test_the_example_job_passes_its_own_structural_check():
 
     from fabline.jobs.jobfile import load_job_file
     from fabline.jobs.pipeline import build_network
-    from fabline.unroll.materials import parse_profile
+    from fabline.mechanics.materials import parse_profile
 
     spec = load_job_file(Path(__file__).resolve().parent.parent / "jobs" / "pavilion.toml")
     network = build_network(spec)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from fabline.nest import NestOptions, nest
-from fabline.nest.stock import StockItem
+from fabline.shop.stock import StockItem
 from fabline.unroll import UnrollOptions, unroll_network
 
 

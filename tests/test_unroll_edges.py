@@ -21,7 +21,7 @@ from fabline.nest.layout import Nesting
 from fabline.nest.validate import validate_nesting
 from fabline.unroll import PartSet, UnrollOptions, flatten_contour, load_parts, unroll_network
 from fabline.unroll.edges import BoundaryCurve, boundary_chains, boundary_curves, curve_parts, edge_strips
-from fabline.unroll.materials import get_material
+from fabline.mechanics.materials import get_material
 
 H, T = 100.0, 1.5
 LAYER_OFFSET = {"T": (H + T) / 2.0, "B": -(H + T) / 2.0}  # along the surface normal

@@ -7,7 +7,7 @@ import pytest
 from shapely.geometry import LineString, Polygon
 
 from fabline.unroll import UnrollOptions, flatten_contour, unroll_network
-from fabline.unroll.materials import Profile
+from fabline.mechanics.materials import Profile
 from fabline.unroll.strokes import layout
 
 

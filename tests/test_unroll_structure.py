@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from fabline.errors import FablineError
-from fabline.unroll import (Profile, bending_stress, get_material, helix_stresses, limits, load_materials, max_twist,
-                            min_bending_radius, parse_profile, twist_shear_stress)
-from fabline.unroll.structure import helix_strains
+from fabline.mechanics import (Profile, bending_stress, get_material, helix_stresses, limits, load_materials, max_twist,
+                               min_bending_radius, parse_profile, twist_shear_stress)
+from fabline.mechanics.structure import helix_strains
 
 PROFILE = Profile(100.0, 1.5)
 
@@ -92,7 +92,7 @@ def test_per_interval_check_of_a_circular_lamella(s235):
 
     sys.path.insert(0, str(Path(__file__).parent))
     from fabline.geometry import analyse
-    from fabline.unroll import check_lamella
+    from fabline.mechanics import check_lamella
     from test_unroll_geometry import polar_grid
 
     radius = 1200.0
@@ -112,7 +112,7 @@ def test_lamellas_checked_together_equal_each_checked_alone(enneper, s235):
     """`check_lamellas` works on all lamellas' samples at once: every number of every lamella's check, warnings
     included, must equal the check of that lamella alone, to the last bit."""
     from fabline.geometry import analyse
-    from fabline.unroll.structure import check_lamella, check_lamellas, helix_edge_extension
+    from fabline.mechanics.structure import check_lamella, check_lamellas, helix_edge_extension
 
     profile = Profile(60.0, 2.0)  # thick enough for some intervals to warn
     geometries = list(analyse(enneper).lamellas.values())

@@ -9,9 +9,10 @@ import re
 
 import pytest
 
-from fabline.unroll import UnrollOptions, get_material, unroll_network
-from fabline.unroll.materials import Profile
-from fabline.unroll.structure import percent
+from fabline.unroll import UnrollOptions, unroll_network
+from fabline.mechanics import get_material
+from fabline.mechanics.materials import Profile
+from fabline.mechanics.structure import percent
 
 
 @pytest.mark.parametrize("value, text", [(1.003, "100.3 %"), (0.997, "99.7 %"), (0.99996, "99.996 %"),
@@ -60,7 +61,7 @@ def test_the_combined_overstress_of_the_pavilion_centre_fails_and_warns(enneper,
 
 def test_the_job_report_says_colours_and_lists_by_the_same_rule(pavilion_parts):
     from fabline.jobs.report import _structure_table
-    from fabline.unroll.structure import VERDICT_RULE
+    from fabline.mechanics.structure import VERDICT_RULE
 
     rows = [{k: v for k, v in row.items() if k != "intervals"} for row in pavilion_parts.report["lamellas"]]
     failing = [row["lamella"] for row in rows if not row["passes"]]

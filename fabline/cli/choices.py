@@ -12,4 +12,4 @@ SINGULARITY_MODES = ("joint", "slots")
 STREAM_MODES = ("counting", "send-response")
 """fabline.link.streamer.MODES: the streamer's flow control."""
 STOCK_BUILD_OPTIONS = "V"
-"""fabline.link.build.STOCK_BUILD.options: the $I option letters of a stock Grbl 1.1h build."""
+"""fabline.machine.build.STOCK_BUILD.options: the $I option letters of a stock Grbl 1.1h build."""

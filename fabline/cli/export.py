@@ -49,7 +49,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_export(args: argparse.Namespace) -> int:
     """Export and print a per-sheet summary table."""
-    from fabline.export import ToolpathOptions, export_nesting, load_machine
+    from fabline.export import ToolpathOptions, export_nesting
+    from fabline.machine import load_machine
     from fabline.export.job import export_outputs
     from fabline.nest.layout import load_nesting, parts_path
 
@@ -93,8 +94,9 @@ def default_export_folder(nesting: str | Path) -> Path:
 
 def run_check(args: argparse.Namespace) -> int:
     """Check one program; exit 1 when problems were found."""
-    from fabline.export import check_gcode, load_machine
-    from fabline.link.build import BuildInfo
+    from fabline.export import check_gcode
+    from fabline.machine import load_machine
+    from fabline.machine.build import BuildInfo
 
     build = BuildInfo(options=args.build_options)
     report = check_gcode(args.file, load_machine(args.machine), build)

@@ -85,8 +85,8 @@ def _point(text: str) -> tuple[float, float, float]:
 def run_asymptotic(args: argparse.Namespace) -> int:
     """Trace the network, write it, print what was found and the quality report."""
     from fabline.model import save_network
-    from fabline.model.surfaces import design_asymptotic, summary_lines
-    from fabline.model.surfaces.curves import read_curves
+    from fabline.design import design_asymptotic, summary_lines
+    from fabline.design.curves import read_curves
 
     check_outputs(files=(args.output,), inputs=(args.surface, args.seed_curves))
     curves = None
@@ -119,7 +119,7 @@ def run_asymptotic(args: argparse.Namespace) -> int:
 
 def run_minimal(args: argparse.Namespace) -> int:
     """Compute the minimal surface and write it as a mesh."""
-    from fabline.model.surfaces.minimal import MESH_SIZE_MM, minimal_surface, read_boundaries, write_mesh
+    from fabline.design.minimal import MESH_SIZE_MM, minimal_surface, read_boundaries, write_mesh
     from fabline.model_units import model_length
 
     check_outputs(files=(args.output,), inputs=(args.boundary,))
@@ -173,7 +173,7 @@ def run_inspect(args: argparse.Namespace) -> int:
           f"max k_n {max(r['max_k_n'] for r in rows):.2e} 1/m; crossing angles "
           + (f"{min(angles):.2f}..{max(angles):.2f} deg" if angles else "none"))
     if "quality" in network.meta:
-        from fabline.model.surfaces import summary_lines
+        from fabline.design import summary_lines
 
         print(f"\ntraced on the surface {network.meta.get('surface', '')} (fabline design asymptotic):")
         for line in summary_lines(network.meta["quality"], network.units):

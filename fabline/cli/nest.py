@@ -52,7 +52,8 @@ def run_nest(args: argparse.Namespace) -> int:
     check_outputs(files=(args.output, args.stock_out), folders=(args.svg,), inputs=(args.parts, args.stock))
     partset = load_parts(args.parts)  # a missing or broken parts file is told before the nester is imported
     check_cuttable(partset, args.parts)
-    from fabline.nest import NestOptions, StockItem, load_stock, nest, save_nesting, save_stock, stock_after, write_sheet_svgs
+    from fabline.nest import NestOptions, nest, save_nesting, write_sheet_svgs
+    from fabline.shop import StockItem, load_stock, save_stock, stock_after
 
     options = NestOptions(kerf=args.kerf, gap=args.gap, margin=args.sheet_margin, rotation_steps=args.rotations,
                           common_line=args.common_line, fill_holes=args.fill_holes,

@@ -70,7 +70,8 @@ def _material_arguments(parser: argparse.ArgumentParser) -> None:
 def run_unroll(args: argparse.Namespace) -> int:
     """Unroll, write the parts (and previews), print the lamella table; warnings to stderr."""
     from fabline.model import load_network
-    from fabline.unroll import UnrollOptions, get_material, parse_profile, save_parts
+    from fabline.unroll import UnrollOptions, save_parts
+    from fabline.mechanics import get_material, parse_profile
 
     check_outputs(files=(args.output,), folders=(args.svg,), inputs=(args.model, args.materials))
     network = load_network(args.model)
@@ -85,7 +86,7 @@ def run_unroll(args: argparse.Namespace) -> int:
         edge_width=args.edge_width)
     from fabline.unroll import unroll_network  # after the model and the options are checked: it takes a second
     from fabline.unroll.preview import write_previews
-    from fabline.unroll.structure import percent, verdict_lines
+    from fabline.mechanics.structure import percent, verdict_lines
 
     try:
         partset = unroll_network(network, options)
@@ -119,7 +120,7 @@ def run_unroll(args: argparse.Namespace) -> int:
 
 
 def _print_table(rows: list[dict]) -> None:
-    from fabline.unroll.structure import percent
+    from fabline.mechanics.structure import percent
 
     print(f"{'lamella':<10}{'length m':>10}{'min r m':>10}{'twist /m':>10}{'sigma_b':>9}{'tau':>8}{'sigma_H':>9}"
           f"{'util %':>8}{'helix top/bot mm':>18}")
@@ -132,8 +133,8 @@ def _print_table(rows: list[dict]) -> None:
 
 def run_limits(args: argparse.Namespace) -> int:
     """Print the profile's minimum radius and maximum twist, and stresses at a given radius or twist."""
-    from fabline.unroll import get_material, limits, parse_profile
-    from fabline.unroll.structure import percent
+    from fabline.mechanics import get_material, limits, parse_profile
+    from fabline.mechanics.structure import percent
 
     for name, value in (("--radius", args.radius), ("--twist", args.twist)):
         if value is not None and not value > 0:

@@ -4,7 +4,7 @@ Reports unsupported words, lines over the controller's limit, moves outside the 
 the tool on (laser firing or pen down during G0), and recomputes cut, mark and travel lengths and the run
 time with the profile's acceleration.
 
-For a Grbl profile every line also goes through the firmware's own parser (`fabline.link.gcode`, for the
+For a Grbl profile every line also goes through the firmware's own parser (`fabline.machine.gcode`, for the
 controller's build: stock Grbl 1.1h unless told otherwise), and each line Grbl would refuse is reported with
 its error code in words; a refused line changes nothing, as on the controller. Whatever the profile, lines
 that would act on the controller rather than be cut are problems: `$` system commands, the real-time
@@ -26,11 +26,11 @@ import numpy as np
 
 from fabline.errors import FablineError
 from fabline.fileio import read_bytes
-from fabline.export.machine import MOTION_PARAMETERS, MachineProfile, canonical_word
-from fabline.export.motion import MotionSummary, MoveLog, summarise
-from fabline.link.build import STOCK_BUILD, BuildInfo
-from fabline.link.codes import explain_error
-from fabline.link.gcode import REALTIME_COMMANDS, GcodeError, ModalState, compact_line, execute, split_words
+from fabline.machine.profile import MOTION_PARAMETERS, MachineProfile, canonical_word
+from fabline.machine.motion import MotionSummary, MoveLog, summarise
+from fabline.machine.build import STOCK_BUILD, BuildInfo
+from fabline.machine.codes import explain_error
+from fabline.machine.gcode import REALTIME_COMMANDS, GcodeError, ModalState, compact_line, execute, split_words
 
 OPERATION_COMMENT = re.compile(r"^\s*;\s*((?:engrave|cut)-[a-z]+)\b")
 MOTION_WORDS = {0: "rapid", 1: "line", 2: "cw", 3: "ccw"}

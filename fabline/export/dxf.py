@@ -18,8 +18,7 @@ import numpy as np
 from ezdxf import units
 
 from fabline.export.contours import stack_contours
-from fabline.export.layers import LAYERS
-from fabline.export.toolpath import inner_contours
+from fabline.shop.layers import LAYERS
 from fabline.nest.layout import Sheet, place
 from fabline.unroll.parts import Part
 
@@ -133,7 +132,7 @@ def _text_column(values: np.ndarray, where: np.ndarray) -> tuple[np.ndarray, np.
 def _part_shapes(part: Part) -> tuple[np.ndarray, list[tuple[str, bool, int, int]]]:
     """All contours of a part stacked into one [x, y, bulge] array (closed ones without the repeated last vertex),
     and (layer, closed, first row, end row) for each, so a placement transforms the whole part at once."""
-    inner = inner_contours(part)
+    inner = part.inner_contours()
     layers = (["CUT-OUTER"] + ["CUT-INNER"] * len(inner) + ["ENGRAVE-MARK"] * len(part.marks)
               + ["ENGRAVE-TEXT"] * len(part.text))
     stacked, ends, closed = stack_contours([part.outline, *inner, *part.marks, *part.text])

@@ -15,8 +15,8 @@ import numpy as np
 
 from fabline.errors import FablineError
 from fabline.export.contours import reverse
-from fabline.export.machine import MachineProfile, strip_comment
-from fabline.export.motion import MoveLog
+from fabline.machine.profile import MachineProfile, strip_comment
+from fabline.machine.motion import MoveLog
 from fabline.export.toolpath import Toolpath
 from fabline.unroll.parts import flatten_contour
 

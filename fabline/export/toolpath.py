@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 from fabline.errors import FablineError
 from fabline.export.contours import (arc_centres, offset, remove_intervals, reverse, rotate_start, segment_lengths,
                                      stack_contours, to_polygon, with_bulges)
-from fabline.export.machine import OPERATIONS
+from fabline.machine.profile import OPERATIONS
 from fabline.nest.layout import CommonCut, Placement, Sheet, place
 from fabline.unroll.parts import Part
 
@@ -122,7 +122,7 @@ def _part_contours(part: Part, options: ToolpathOptions) -> tuple[np.ndarray, li
     half = options.kerf / 2.0
     operations = ["engrave-mark"] * len(part.marks) + ["engrave-text"] * len(part.text)
     contours = [*part.marks, *part.text]
-    for contour, operation, distance in ([(c, "cut-inner", -half) for c in inner_contours(part)]
+    for contour, operation, distance in ([(c, "cut-inner", -half) for c in part.inner_contours()]
                                          + [(part.outline, "cut-outer", half)]):
         moved = _cached_offset(contour, distance, options._cache)
         if moved is None:
@@ -134,16 +134,6 @@ def _part_contours(part: Part, options: ToolpathOptions) -> tuple[np.ndarray, li
     pieces = [(operation, operation.startswith("cut") or shut, start, end)
               for operation, shut, start, end in zip(operations, closed.tolist(), [0] + ends[:-1], ends)]
     return stacked, pieces
-
-
-def inner_contours(part: Part) -> list[np.ndarray]:
-    """The contours cut inside a part: its holes and its closed slots (edge slots are part of the outline)."""
-    return list(part.holes) + [slot.outline for slot in part.slots if slot.edge is None
-                               and not any(_same_contour(slot.outline, hole) for hole in part.holes)]
-
-
-def _same_contour(a: np.ndarray, b: np.ndarray) -> bool:
-    return a.shape == b.shape and bool(np.allclose(a, b, atol=1e-6))
 
 
 def _cached_offset(contour: np.ndarray, distance: float, cache: dict) -> np.ndarray | None:

@@ -16,16 +16,15 @@ from typing import Any
 import numpy as np
 import shapely
 
-from fabline.export.toolpath import inner_contours
 from fabline.nest.layout import Nesting
-from fabline.unroll.materials import Material
+from fabline.mechanics.materials import Material
 from fabline.unroll.parts import Part, PartSet, flatten_contour
 
 
 def net_area(part: Part) -> float:
     """The part's area in mm2: its outline less its holes and inner cuts."""
     outline = shapely.Polygon(flatten_contour(part.outline)[:, :2])
-    cuts = [shapely.Polygon(flatten_contour(c)[:, :2]) for c in inner_contours(part)]
+    cuts = [shapely.Polygon(flatten_contour(c)[:, :2]) for c in part.inner_contours()]
     return float(outline.area - sum(c.area for c in cuts))
 
 

@@ -375,7 +375,7 @@ def _existing(base: Path, relative: str, where: str) -> Path:
 def nest_options(nest: dict[str, Any]) -> "NestOptions":
     """The nesting stage's options from a job's [nest] table (remnant_min checked: a FablineError names the key)."""
     from fabline.nest.nester import NestOptions
-    from fabline.nest.stock import parse_sheet_size
+    from fabline.shop.stock import parse_sheet_size
 
     try:
         remnant_min = parse_sheet_size(nest["remnant_min"])
@@ -390,7 +390,7 @@ def unroll_options(lamella: dict[str, Any], unroll: dict[str, Any], stock: dict[
                    nest: dict[str, Any]) -> "UnrollOptions":
     """The unroll stage's options from a job's tables, checked (a FablineError names the key): profile and material
     from [lamella], the strip length limit from the sheet's longer side and nest.sheet_margin unless [unroll] sets them."""
-    from fabline.unroll.materials import get_material, parse_profile
+    from fabline.mechanics.materials import get_material, parse_profile
     from fabline.unroll.options import UnrollOptions
 
     given = {key: value for key, value in unroll.items() if value is not None and key != "previews"}
@@ -403,7 +403,7 @@ def unroll_options(lamella: dict[str, Any], unroll: dict[str, Any], stock: dict[
 
 def _sheet_length(stock: dict[str, Any]) -> float:
     """The longer side of the job's sheet, mm: the stock file's first full sheet (0 if it has none) or stock.sheet."""
-    from fabline.nest.stock import load_stock, parse_sheet_size
+    from fabline.shop.stock import load_stock, parse_sheet_size
 
     if stock["file"]:
         sheets = [item for item in load_stock(stock["file"]) if not item.remnant]
@@ -422,9 +422,9 @@ def toolpath_options(export: dict[str, Any], machine_kerf: float) -> "ToolpathOp
 
 def _check_values(data: dict[str, Any], where: str) -> None:
     """Ranges and vocabularies: sheet size, profile, material, machine profile, positive numbers."""
-    from fabline.export.machine import available_machines, load_machine
-    from fabline.nest.stock import parse_sheet_size
-    from fabline.unroll.materials import load_materials, parse_profile
+    from fabline.machine.profile import available_machines, load_machine
+    from fabline.shop.stock import parse_sheet_size
+    from fabline.mechanics.materials import load_materials, parse_profile
 
     def wrapped(key_path: str, check, *args):
         try:

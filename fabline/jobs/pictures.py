@@ -119,8 +119,8 @@ def _label(text: str, outline: np.ndarray, holes: tuple[np.ndarray, ...], placem
 @lru_cache(maxsize=32)
 def _program_paths(path: str, mtime: float) -> tuple[tuple[np.ndarray, bool], ...]:
     """Per program line, the polyline it moves along (machine mm) and whether it is a rapid; cached per file."""
-    from fabline.link.gcode import ModalState
-    from fabline.link.program import load_program
+    from fabline.machine.gcode import ModalState
+    from fabline.machine.program import load_program
 
     blocks = load_program(path).plan(ModalState(), (0.0, 0.0, 0.0))
     moves = []

@@ -143,7 +143,7 @@ def run_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None,
 
 def structure_lines(result: JobResult) -> list[str]:
     """The unroll stage's structural verdict in the words `fabline unroll` and the report use (none without it)."""
-    from fabline.unroll.structure import verdict_lines
+    from fabline.mechanics.structure import verdict_lines
 
     verdict = result.partset.report.get("verdict") if result.partset else None
     return verdict_lines(verdict) if verdict else []
@@ -190,7 +190,7 @@ def _unroll(result: JobResult) -> None:
 def _nest(result: JobResult) -> None:
     from fabline.nest import save_nesting, write_sheet_svgs
     from fabline.nest.nester import nest
-    from fabline.nest.stock import StockItem, load_stock, parse_sheet_size, save_stock, stock_after
+    from fabline.shop.stock import StockItem, load_stock, parse_sheet_size, save_stock, stock_after
 
     spec = result.spec
     if spec.stock["file"]:
@@ -208,7 +208,8 @@ def _nest(result: JobResult) -> None:
 
 
 def _export(result: JobResult) -> None:
-    from fabline.export import export_job, load_machine
+    from fabline.export import export_job
+    from fabline.machine import load_machine
     from fabline.export.preview import PREVIEW_SUFFIX
     from fabline.jobs.pictures import sheet_svg
 

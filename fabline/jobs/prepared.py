@@ -85,7 +85,7 @@ def record(folder: str | os.PathLike, key: str, programs: list[tuple], report: s
     """Write `prepared.json` into a job folder just prepared: the key, the sheet programs (paths relative to the
     folder) with each G-code file's SHA-256 and command lines (counted once here: that parses every line, 40 s
     for the example job's 430,000 on a busy machine), and the report; returns the line counts."""
-    from fabline.link import load_program
+    from fabline.machine import load_program
 
     folder = Path(folder).resolve()
     lines = [len(load_program(p[1]).lines) for p in programs]

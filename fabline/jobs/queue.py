@@ -732,6 +732,6 @@ class JobQueue:
 
 def _count_lines(program: str | os.PathLike) -> int:
     """Command lines of a G-code program as the streamer sends them; a bad program is a FablineError."""
-    from fabline.link.program import load_program
+    from fabline.machine.program import load_program
 
     return len(load_program(program).lines)

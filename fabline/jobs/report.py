@@ -22,7 +22,7 @@ from fabline.jobs.pictures import model_svg
 from fabline.model.extent import plan_extent_m, extent_text
 from fabline.units import metres, mm
 from fabline.verdicts import verdict_text
-from fabline.unroll.structure import CHECKS, VERDICT_RULE, percent, verdict_lines
+from fabline.mechanics.structure import CHECKS, VERDICT_RULE, percent, verdict_lines
 
 REPORT_SCHEMA = "fabline.report/1"
 _STYLE = """

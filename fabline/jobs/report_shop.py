@@ -40,7 +40,7 @@ def bill_of_materials(result: Any) -> dict | None:
     if not (result.nesting and result.partset):
         return None
     from fabline.jobs.bom import bill_of_materials as bom
-    from fabline.unroll.materials import get_material
+    from fabline.mechanics.materials import get_material
 
     lamella = result.spec.lamella
     return bom(result.nesting, result.partset, get_material(lamella["material"], lamella.get("materials_file")))
@@ -69,7 +69,7 @@ def summary_block(data: dict[str, Any]) -> str:
                              f"({100 * totals['scrap_share']:.1f} % scrap){cost}"))
     structure = data["structure"]
     if structure["lamellas"]:
-        from fabline.unroll.structure import verdict_lines  # numpy: the runner imports this module and starts fast
+        from fabline.mechanics.structure import verdict_lines  # numpy: the runner imports this module and starts fast
 
         rows.append(("structure", verdict_lines(structure["verdict"])[0].removeprefix("structure: ")))
     else:

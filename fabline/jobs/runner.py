@@ -53,7 +53,7 @@ def describe_machine(machine: MachineConfig) -> str:
     and travel), or that a controller on a port keeps its own `$` settings (checked against each program's profile)."""
     import urllib.parse
 
-    from fabline.export import load_machine
+    from fabline.machine import load_machine
 
     parts = urllib.parse.urlsplit(machine.port)
     if parts.scheme != "sim":

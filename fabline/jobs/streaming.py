@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import Callable
 
 from fabline.errors import FablineError
-from fabline.link import STOP_SIGNALS, Progress, Streamer, default_journal_path, load_program, read_journal
+from fabline.link import STOP_SIGNALS, Progress, Streamer, default_journal_path, read_journal
+from fabline.machine import load_program
 from fabline.progress import Eta, simulated_speedup
 
 OnProgress = Callable[[int, "tuple[float, ...] | None", "str | None"], None]
@@ -184,7 +185,7 @@ def journal_summary(port: str, program: str | os.PathLike) -> dict:
 def frame_program(program: str | os.PathLike) -> str:
     """G-code that traces the bounding box of a sheet program's cuts with the laser off (M5, G0 only) and returns
     to work zero, so the operator sees where the sheet is cut before confirming it is loaded right."""
-    from fabline.link.gcode import ModalState
+    from fabline.machine.gcode import ModalState
 
     loaded, name = load_program(program), Path(program).name
     points = [segment.point_at(t) for block in loaded.plan(ModalState(), (0.0, 0.0, 0.0))
@@ -227,9 +228,9 @@ def checkpoint(program: str | os.PathLike, journal: str | os.PathLike | None, re
 def program_timeline(program: str | os.PathLike):
     """Planned machine seconds from the start of a sheet program to the end of each of its lines, on the machine
     its header names (`; machine grbl-laser ...`; a stock Grbl 1.1h's default settings without one)."""
-    from fabline.export.motion import line_timeline
+    from fabline.machine.motion import line_timeline
     from fabline.link.compat import program_machine
-    from fabline.link.gcode import ModalState
+    from fabline.machine.gcode import ModalState
     from fabline.link.simulator import DEFAULT_SETTINGS
 
     loaded = load_program(program)

@@ -14,12 +14,12 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from fabline.errors import FablineError
-from fabline.link.build import BuildInfo
-from fabline.link.gcode import Block, Vector
-from fabline.link.program import Program
+from fabline.machine.build import BuildInfo
+from fabline.machine.gcode import Block, Vector
+from fabline.machine.program import Program
 
 if TYPE_CHECKING:
-    from fabline.export.machine import MachineProfile
+    from fabline.machine.profile import MachineProfile
 
 _MIST = re.compile(r"M0*7(?![0-9.])")
 _AXES = "XYZ"
@@ -32,7 +32,7 @@ def program_machine(program: Program, machine: str | None) -> "MachineProfile | 
     name = machine or program.machine
     if name is None:
         return None
-    from fabline.export.machine import load_machine  # the export stage is heavy to import: only when a profile is named
+    from fabline.machine.profile import load_machine  # the export stage is heavy to import: only when a profile is named
     try:
         return load_machine(name)
     except FablineError as exc:

@@ -98,7 +98,7 @@ def _check_sim_option(url: str, name: str, value: str) -> None:
     (a path is not taken: a URL must not make fabline read any file it names), `time_scale=` and every number
     option in its range."""
     if name == "machine":
-        from fabline.export.machine import available_machines
+        from fabline.machine.profile import available_machines
 
         if value not in available_machines():
             raise FablineError(f"port {url}: machine={value!r}: not a machine profile's name (use one of "

@@ -17,7 +17,7 @@ import urllib.parse
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout
 
-from fabline.link.build import STOCK_BUILD, BuildInfo
+from fabline.machine.build import STOCK_BUILD, BuildInfo
 from fabline.link.simulator import ConnectionDropped, Faults, GrblSimulator, check_time_scale
 
 SIM_OPTIONS = ("time_scale", "line_time", "log", "machine", "settings", "drop_at", "corrupt_at", "error_line",
@@ -90,7 +90,7 @@ def simulator_from_options(query: str) -> GrblSimulator:
         raise ValueError(f"build_options must be option letters such as VN, not {build.options!r}")
     settings = {}
     if "machine" in options:
-        from fabline.export import load_machine
+        from fabline.machine import load_machine
 
         settings.update(load_machine(options.pop("machine")).controller_settings())
     for pair in options.pop("settings", "").split(","):

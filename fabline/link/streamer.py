@@ -40,13 +40,13 @@ import serial
 
 from fabline.errors import FablineError
 from fabline.fileio import open_append
-from fabline.link.build import ANY_BUILD, STOCK_BUILD, BuildInfo
-from fabline.link.codes import explain_alarm, explain_error, listing
+from fabline.machine.build import ANY_BUILD, STOCK_BUILD, BuildInfo
+from fabline.machine.codes import explain_alarm, explain_error, listing
 from fabline.link.compat import controller_problems, program_machine
-from fabline.link.gcode import ModalState, Vector
+from fabline.machine.gcode import ModalState, Vector
 from fabline.link.ports import check_port, port_endpoints
 from fabline.link.journal import Journal, JournalError, JournalState, default_journal_path, read_journal
-from fabline.link.program import TAG_CYCLE, Program, line_tag, load_program
+from fabline.machine.program import TAG_CYCLE, Program, line_tag, load_program
 from fabline.link.protocol import (CYCLE_START, FEED_HOLD, OVERRIDES, SOFT_RESET, STATUS_QUERY, CharacterCounter,
                                    LineSplitter, Response, StatusReport, classify)
 from fabline.locks import exclusive_lock, lock_path
@@ -1170,7 +1170,7 @@ class Streamer:
         """Planned seconds (on this machine: a simulator's time scale applied) from the start of the program to the
         end of each line, from the controller's own settings; computed once per run."""
         if self._timeline_for is not self.blocks:
-            from fabline.export.motion import line_timeline
+            from fabline.machine.motion import line_timeline
             from fabline.link.simulator import DEFAULT_SETTINGS
 
             settings = {**DEFAULT_SETTINGS, **self.settings}

@@ -9,7 +9,6 @@ __getattr__, __all__ = lazy_surface(__name__, {
     "layout": ("SCHEMA", "CommonCut", "Nesting", "Placement", "Sheet", "load_nesting", "nesting_from_dict",
                "nesting_to_dict", "parts_path", "place", "save_nesting"),
     "nester": ("NestOptions", "NestResult", "nest"),
-    "stock": ("StockItem", "load_stock", "parse_sheet_size", "save_stock", "stock_after"),
     "svg": ("write_sheet_svgs",),
     "validate": ("validate_nesting",),
 })

@@ -24,7 +24,7 @@ from fabline.nest.layout import CommonCut, Nesting, Placement, Sheet
 from fabline.nest.raster import Canvas, Lattice, Template, densest_lattice, make_template, place_copies
 from fabline.nest.remnants import leftover_rectangles
 from fabline.nest.shapes import NestShape, nest_shapes
-from fabline.nest.stock import StockItem, usable_extent
+from fabline.shop.stock import StockItem, usable_extent
 from fabline.nest.validate import validate_nesting
 from fabline.progress import progress
 from fabline.unroll.parts import PartSet

@@ -15,6 +15,7 @@ import numpy as np
 
 from fabline.fileio import atomic_output
 from fabline.naming import file_stem
+from fabline.shop.layers import LAYERS
 from fabline.nest.layout import Nesting, Sheet, place
 from fabline.unroll.parts import Part, PartSet, flatten_contour
 
@@ -30,11 +31,8 @@ def _path_data(contours: list[np.ndarray], height: float, closed: bool = True) -
 
 def sheet_svg(sheet: Sheet, parts: dict[str, Part], margin: float, remnants: list[dict]) -> ET.Element:
     """The SVG element tree of one sheet at 1:1 (width and height in mm, user units mm): each part a group with
-    its id, cut and engrave paths in their layer colours (`fabline.export.layers`), the sheet, margin, remnants
+    its id, cut and engrave paths in their layer colours (`fabline.shop.layers`), the sheet, margin, remnants
     and part labels in the tool-layer colour LightBurn does not output."""
-    from fabline.export.layers import LAYERS
-    from fabline.export.toolpath import inner_contours
-
     colour = {name: layer.rgb for name, layer in LAYERS.items()}
     note = {"fill": "none", "stroke": colour["SHEET"], "stroke-width": STROKE}
     root = ET.Element("svg", xmlns="http://www.w3.org/2000/svg", width=f"{sheet.width:g}mm",
@@ -51,7 +49,7 @@ def sheet_svg(sheet: Sheet, parts: dict[str, Part], margin: float, remnants: lis
         part = parts[placement.part]
         group = ET.SubElement(root, "g", id=part.id, **{"class": f"part {part.kind}"})
         ET.SubElement(group, "title").text = part.id
-        layers = [("CUT-OUTER", [part.outline], True), ("CUT-INNER", inner_contours(part), True),
+        layers = [("CUT-OUTER", [part.outline], True), ("CUT-INNER", part.inner_contours(), True),
                   ("ENGRAVE-MARK", part.marks, False), ("ENGRAVE-TEXT", part.text, False)]
         for layer, contours, closed in layers:
             if len(contours):

@@ -6,11 +6,8 @@ The names below load their modules on first use, so reading a parts file does no
 from fabline.lazy import lazy_surface
 
 __getattr__, __all__ = lazy_surface(__name__, {
-    "materials": ("Material", "Profile", "get_material", "load_materials", "parse_profile"),
     "options": ("SINGULARITY_MODES", "UnrollOptions"),
     "parts": ("PART_KINDS", "SCHEMA", "Part", "PartSet", "Polylines", "Slot", "flatten_contour", "load_parts",
               "parts_from_dict", "parts_to_dict", "save_parts"),
-    "structure": ("bending_stress", "check_lamella", "helix_stresses", "limits", "max_twist", "min_bending_radius",
-                  "twist_shear_stress"),
     "unroller": ("unroll_network",),
 })

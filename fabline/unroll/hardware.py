@@ -23,7 +23,7 @@ from shapely.geometry import Polygon, box
 from shapely.ops import unary_union
 
 from fabline.unroll.flat import circle
-from fabline.unroll.materials import Profile
+from fabline.mechanics.materials import Profile
 from fabline.unroll.options import TEXT_GAP
 from fabline.unroll.parts import Part, Polylines
 from fabline.unroll.strokes import characters, gather

@@ -11,7 +11,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from fabline.errors import FablineError
-from fabline.unroll.materials import Material, Profile, get_material
+from fabline.mechanics.materials import Material, Profile, get_material
 
 SINGULARITY_MODES = ("joint", "slots")
 TEXT_GAP = 1.5  # mm between a mark and its text, and between text and an edge
@@ -85,8 +85,8 @@ class UnrollOptions:
 
     @property
     def usable_length(self) -> float:
-        """Longest strip segment a sheet holds (mm): the nester's rule (`fabline.nest.stock.usable_extent`)."""
-        from fabline.nest.stock import usable_extent
+        """Longest strip segment a sheet holds (mm): the nester's rule (`fabline.shop.stock.usable_extent`)."""
+        from fabline.shop.stock import usable_extent
 
         return usable_extent(self.sheet_length, self.sheet_margin)
 

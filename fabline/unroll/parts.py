@@ -111,6 +111,12 @@ class Part:
     grain: bool = False
     meta: dict = field(default_factory=dict)
 
+    def inner_contours(self) -> list[np.ndarray]:
+        """The contours cut inside the part: its holes and its closed slots (edge slots are part of the outline);
+        every drawing and toolpath of the part cuts these, so the rule lives with the part."""
+        return list(self.holes) + [slot.outline for slot in self.slots if slot.edge is None
+                                   and not any(_same_contour(slot.outline, hole) for hole in self.holes)]
+
 
 @dataclass
 class PartSet:
@@ -121,6 +127,10 @@ class PartSet:
     material: str = ""
     source: str = ""
     report: dict = field(default_factory=dict)
+
+
+def _same_contour(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and bool(np.allclose(a, b, atol=1e-6))
 
 
 def flatten_contour(contour: np.ndarray, tolerance: float = 0.05) -> np.ndarray:

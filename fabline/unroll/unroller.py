@@ -24,7 +24,7 @@ from fabline.unroll.parts import Part, PartSet
 from fabline.unroll.pieces import is_seam, segment_part
 from fabline.unroll.seams import Segment, split_strip
 from fabline.unroll.stations import Strip, singular_nodes, strip_stations
-from fabline.unroll.structure import check_lamellas, limits, structural_verdict
+from fabline.mechanics.structure import check_lamellas, limits, structural_verdict
 
 
 def unroll_network(network: Network, options: UnrollOptions | None = None,

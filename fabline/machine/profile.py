@@ -1,6 +1,6 @@
 """Machine profiles as data: TOML files that say what a controller accepts and how to run each operation.
 
-Built-in profiles live in `fabline/export/machines/`; a user adds one by passing the path of a TOML file,
+Built-in profiles live in `fabline/machine/profiles/`; a user adds one by passing the path of a TOML file,
 or by putting `<name>.toml` in a folder listed in the FABLINE_MACHINE_PATH environment variable. A profile
 may start from another with `extends = "<name>"` and override only what differs.
 """
@@ -18,11 +18,11 @@ from typing import Any
 
 from fabline.errors import FablineError
 from fabline.fileio import read_toml
-from fabline.link.build import BuildInfo
-from fabline.link.codes import explain_error
-from fabline.link.gcode import REALTIME_COMMANDS, GcodeError, compact_line, parse_block
+from fabline.machine.build import BuildInfo
+from fabline.machine.codes import explain_error
+from fabline.machine.gcode import REALTIME_COMMANDS, GcodeError, compact_line, parse_block
 
-BUILTIN_DIR = Path(__file__).with_name("machines")
+BUILTIN_DIR = Path(__file__).with_name("profiles")
 OPERATIONS = ("engrave-mark", "engrave-text", "cut-inner", "cut-outer")
 MODES = ("laser", "plotter", "mill")
 WORD_PATTERN = re.compile(r"([A-Z])\s*([-+]?\d*\.?\d+)")
@@ -36,7 +36,7 @@ RS274NGC_CODES = frozenset(
     + ["G38.2", "G59.1", "G59.2", "G59.3", "G61.1", "G92", "G92.1", "G92.2", "G92.3"]
     + [f"M{n}" for n in (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30, 48, 49, 60)])
 """The G and M codes of the NIST RS274/NGC interpreter (version 3, table 4: modal groups), for profiles whose
-controller is not a Grbl (a Grbl profile is checked by Grbl 1.1h's own parser rules, fabline.link.gcode)."""
+controller is not a Grbl (a Grbl profile is checked by Grbl 1.1h's own parser rules, fabline.machine.gcode)."""
 ANY_GRBL_BUILD = BuildInfo(options="VMR")
 """A Grbl 1.1h with every option that adds a G-code (M7, M56): a profile may need them, a connected build is checked."""
 

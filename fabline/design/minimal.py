@@ -3,7 +3,7 @@
 Curves whose projections onto their mean plane nest (an outer curve, any number of openings or inner
 rings inside it) start as the planar region between them, triangulated and lifted harmonically; two
 curves that do not nest (coaxial rings) start as a tube of rows between them. The interior then
-minimises area with the boundary fixed: rounds of isotropic remeshing (fabline.model.surfaces.remesh)
+minimises area with the boundary fixed: rounds of isotropic remeshing (fabline.design.remesh)
 alternate with steps that solve the cotangent Laplace equation of the current mesh for the interior
 vertices (Pinkall and Polthier's iteration, libigl's cotangent matrix) and relax them tangentially
 towards their neighbours' centroid, so the triangles stay well shaped while the surface converges;
@@ -26,9 +26,9 @@ from shapely.geometry import Polygon
 
 from fabline.errors import FablineError
 from fabline.fileio import atomic_output
-from fabline.model.surfaces.curves import read_curves
-from fabline.model.surfaces.mesh import tangent_basis, xyz_text
-from fabline.model.surfaces.remesh import remesh
+from fabline.design.curves import read_curves
+from fabline.design.mesh import tangent_basis, xyz_text
+from fabline.design.remesh import remesh
 
 MAX_ITERATIONS = 400
 RELAX_SWEEPS = 2
@@ -45,7 +45,7 @@ MAX_MESH_VERTICES = 1_000_000
 
 
 def read_boundaries(path: str | Path, units: str | None = None) -> tuple[list[np.ndarray], list[str], str]:
-    """Closed boundary curves from a DXF or JSON file (fabline.model.surfaces.curves), where each is (for messages), and the units.
+    """Closed boundary curves from a DXF or JSON file (fabline.design.curves), where each is (for messages), and the units.
 
     A JSON curve is closed when its last point repeats its first; a DXF polyline by its closed flag too.
     """

@@ -16,7 +16,7 @@ from scipy.interpolate import NdBSpline
 from scipy.spatial import cKDTree
 
 from fabline.errors import FablineError
-from fabline.model.surfaces.mesh import SurfacePoints, ambient_form, principal
+from fabline.design.mesh import SurfacePoints, ambient_form, principal
 
 SAMPLES = 121  # sample grid per direction: Newton seeds, regions, size
 NEWTON_STEPS = 8

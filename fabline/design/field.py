@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from fabline.model.surfaces.mesh import principal
+from fabline.design.mesh import principal
 
 FLAT_FRACTION = 0.02  # |k| below this fraction of the surface's largest |k|: a near-flat point
 

@@ -20,7 +20,7 @@ import math
 import re
 from dataclasses import dataclass, replace
 
-from fabline.link.build import STOCK_BUILD, BuildInfo
+from fabline.machine.build import STOCK_BUILD, BuildInfo
 
 Vector = tuple[float, float, float]
 

@@ -17,9 +17,9 @@ from pathlib import Path
 
 from fabline.errors import FablineError
 from fabline.fileio import read_bytes
-from fabline.link.build import STOCK_BUILD, BuildInfo
-from fabline.link.codes import explain_error, listing
-from fabline.link.gcode import Block, GcodeError, ModalState, Vector, execute, split_words
+from fabline.machine.build import STOCK_BUILD, BuildInfo
+from fabline.machine.codes import explain_error, listing
+from fabline.machine.gcode import Block, GcodeError, ModalState, Vector, execute, split_words
 
 LINE_BUFFER_SIZE = 80
 """GRBL's line buffer: at most 79 characters after whitespace and comments are removed."""

@@ -203,7 +203,7 @@ def _reachable(limit: np.ndarray, gain: np.ndarray) -> np.ndarray:
 
 def line_timeline(blocks, settings: dict[int, float], planner_blocks: int = PLANNER_BLOCKS) -> np.ndarray:
     """Planned machine seconds from the start to the end of each line of a program, the lines given as the
-    interpreter's blocks (`fabline.link.gcode.Block`, one per line) and the controller as its Grbl `$N`
+    interpreter's blocks (`fabline.machine.gcode.Block`, one per line) and the controller as its Grbl `$N`
     settings ($11, $12, $110, $111, $120, $121). The machine stops where Grbl syncs: before a spindle or
     coolant change, a dwell, a program pause or end (an S change alone does not stop it, as in laser mode)."""
     rows, stop, previous = [], True, None

@@ -21,10 +21,10 @@ from scipy.spatial import cKDTree
 from fabline.errors import FablineError
 from fabline.model.importers.crossings import find_crossings
 from fabline.model.network import UNIT_TO_MM, Lamella, Network, Node, validate
-from fabline.model.surfaces.field import asymptotic_directions
-from fabline.model.surfaces.mesh import SmoothMesh, xyz_text
-from fabline.model.surfaces.nurbs import NurbsPatch
-from fabline.model.surfaces.trace import TracedCurve, trace_family
+from fabline.design.field import asymptotic_directions
+from fabline.design.mesh import SmoothMesh, xyz_text
+from fabline.design.nurbs import NurbsPatch
+from fabline.design.trace import TracedCurve, trace_family
 
 TracingSurface = SmoothMesh | NurbsPatch
 

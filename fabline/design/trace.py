@@ -13,7 +13,7 @@ from typing import Protocol
 
 import numpy as np
 
-from fabline.model.surfaces.field import asymptotic_directions
+from fabline.design.field import asymptotic_directions
 
 TRIM_BISECTIONS = 30
 

@@ -11,9 +11,9 @@ import numpy as np
 
 from fabline.geometry import analyse
 from fabline.model.network import Network
-from fabline.unroll.materials import get_material, parse_profile
-from fabline.unroll.structure import (check_lamellas, combined_radius_limit, combined_twist_limit, percent,
-                                     structural_verdict, verdict_lines)
+from fabline.mechanics.materials import get_material, parse_profile
+from fabline.mechanics.structure import (check_lamellas, combined_radius_limit, combined_twist_limit, percent,
+                                         structural_verdict, verdict_lines)
 
 MM_PER_M = 1000.0
 

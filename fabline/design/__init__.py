@@ -9,7 +9,7 @@ quality report; `quality_report` measures any network the same way. The names lo
 from fabline.lazy import lazy_surface
 
 __getattr__, __all__ = lazy_surface(__name__, {
-    "design": ("AsymptoticDesign", "design_asymptotic", "read_surface"),
+    "asymptotic": ("AsymptoticDesign", "design_asymptotic", "read_surface"),
     "mesh": ("SmoothMesh",),
     "quality": ("quality_report", "summary_lines"),
 })

@@ -12,14 +12,29 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
-from fabline.unroll.materials import Material, Profile
+from fabline.mechanics.materials import Material, Profile
 
-if TYPE_CHECKING:  # type hints only: `fabline limits` needs no scipy (darboux imports it)
-    from fabline.geometry.darboux import LamellaGeometry
+
+
+class LamellaGeometry(Protocol):
+    """What the check reads of a lamella's Darboux frame (`fabline.geometry.LamellaGeometry` has it): the lamella
+    (its `id`), its length, the arc length stations s (mm), the curvatures k_n, k_g and the geodesic torsion tau_g
+    (1/mm) there, and its nodes."""
+
+    lamella: object
+    s: np.ndarray
+    k_n: np.ndarray
+    k_g: np.ndarray
+    tau_g: np.ndarray
+    node_ids: list
+    node_s: np.ndarray
+
+    @property
+    def length(self) -> float: ...
 
 MM_PER_M = 1000.0
 SEPARATE_CHECKS = ("bending", "shear", "helix")

@@ -1,0 +1,168 @@
+"""Grbl's motion planner (planner.c, motion_control.c): arcs into chords, per-axis limits, junction speeds and
+the backward and forward replanning passes over the planner buffer."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from fabline.machine.gcode import Block, Segment
+
+
+@dataclass(slots=True)
+class Pending:
+    """A parsed line waiting for planner room, or (spindle, coolant, dwell changes) for the planner to empty."""
+
+    line: str
+    block: Block
+    sync: bool
+    queued: bool = False
+    accessory_change: bool = False
+    pause: bool = False
+    pieces: list[Segment] | None = None
+    """Motion blocks still to go into the planner (an arc's chords wait for room one by one, as in Grbl's mc_arc)."""
+
+
+@dataclass(slots=True)
+class Planned:
+    """A line queued for execution: a motion, a dwell, or a zero-time modal change."""
+
+    text: str
+    segment: Segment | None = None
+    rate: float = 0.0
+    programmed_rate: float = 0.0
+    dwell: float = 0.0
+    progress: float = 0.0
+    line_number: int | None = None
+    jog: bool = False
+    pause: bool = False
+    spindle: str = "M5"
+    speed: float = 0.0
+    final: bool = True
+    """The last planner block of its line (an arc's last chord): completing it completes the line."""
+    length: float = 0.0
+    accel: float = 0.0
+    unit: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    max_entry2: float = 0.0
+    entry2: float = 0.0
+
+
+class Planner:
+    """GrblSimulator's planner buffer: parsed lines in, planner blocks with their entry speeds out."""
+
+    @property
+    def _moving(self) -> bool:
+        return any(block.segment is not None or block.dwell for block in self.planner)
+
+    def _motion_blocks(self) -> int:
+        return len(self._moves)
+
+    def _queue(self, pending: Pending, jog: bool = False) -> bool:
+        """Put a parsed line into the planner; an arc's chords go in while there is room. True once all are in."""
+        block = pending.block
+        if pending.pieces is None:
+            segment = block.segment if block.segment is not None and block.segment.length > 0 else None
+            pending.pieces = self._chords(segment)[::-1] if segment is not None else []  # next chord last
+            if segment is None:
+                planned = Planned(text=pending.line, line_number=block.line_number, jog=jog, pause=pending.pause,
+                                   spindle=block.modal.spindle, speed=block.modal.speed, dwell=block.dwell)
+                self.planner.append(planned)
+                if planned.dwell <= 0 and len(self.planner) == 1:
+                    self._complete()  # nothing ahead of it: Grbl executes a non-motion line in the parser, before its ok
+                return True
+        programmed = block.modal.feed * (25.4 if block.modal.units == "G20" else 1.0)
+        while pending.pieces and (jog or len(self._moves) < self.build.planner_blocks):
+            piece = pending.pieces.pop()
+            planned = Planned(text=pending.line, line_number=block.line_number, jog=jog, pause=pending.pause,
+                               spindle=block.modal.spindle, speed=block.modal.speed, segment=piece,
+                               programmed_rate=programmed, final=not pending.pieces)
+            self._plan(planned)
+            if self.state == "Idle":
+                self.state = "Jog" if jog else "Run"
+        return not pending.pieces
+
+    def _chords(self, segment: Segment) -> list[Segment]:
+        """The planner blocks of a motion: a line is one; an arc is split into chords that stray at most $12 from
+        it (motion_control.c, mc_arc: floor(length / sqrt(tol (2 r - tol))) chords, the last ending on target)."""
+        if segment.center is None:
+            return [segment]
+        a, b, _ = segment.plane
+        radius = math.hypot(segment.start[a] - segment.center[a], segment.start[b] - segment.center[b])
+        tolerance = self.settings[12]
+        chord = math.sqrt(tolerance * (2 * radius - tolerance)) if 2 * radius > tolerance > 0 else 0.0
+        count = int(segment.length / chord) if chord > 0 else 1
+        if count <= 1:
+            return [Segment(segment.start, segment.end, segment.rapid)]
+        points = [segment.start, *segment.points(count)[:-1], segment.end]
+        return [Segment(p, q, False) for p, q in zip(points, points[1:])]
+
+    def _axis_limit(self, first_setting: int, unit: tuple[float, float, float]) -> float:
+        """Grbl's limit_value_by_axis_maximum: the largest value along `unit` with no axis over its own setting."""
+        settings, limit = self.settings, math.inf
+        x, y, z = unit
+        if x:
+            limit = settings[first_setting] / abs(x)
+        if y:
+            limit = min(limit, settings[first_setting + 1] / abs(y))
+        if z:
+            limit = min(limit, settings[first_setting + 2] / abs(z))
+        return limit
+
+    def _plan(self, block: Planned) -> None:
+        """Add a motion block to the planner (planner.c, plan_buffer_line) and replan the buffer."""
+        segment = block.segment
+        start, end = segment.start, segment.end
+        dx, dy, dz = end[0] - start[0], end[1] - start[1], end[2] - start[2]
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        unit = (dx / length, dy / length, dz / length)
+        rapid_rate = self._axis_limit(110, unit)
+        block.rate = (rapid_rate if segment.rapid else min(block.programmed_rate, rapid_rate)) / 60.0
+        block.length, block.unit, block.accel = length, unit, self._axis_limit(120, unit)
+        nominal2 = block.rate * block.rate
+        if not self._moves:
+            block.max_entry2 = 0.0  # the planner is empty: the machine stands still
+        else:
+            previous = self._moves[-1]
+            px, py, pz = previous.unit
+            cos_theta = -(px * unit[0] + py * unit[1] + pz * unit[2])
+            if cos_theta > 0.999999:
+                junction2 = 0.0  # a full reversal
+            elif cos_theta < -0.999999:
+                junction2 = math.inf  # straight on
+            else:
+                tx, ty, tz = unit[0] - px, unit[1] - py, unit[2] - pz
+                norm = math.sqrt(tx * tx + ty * ty + tz * tz)
+                accel = self._axis_limit(120, (tx / norm, ty / norm, tz / norm))
+                sin_half = math.sqrt(0.5 * (1.0 - cos_theta))
+                junction2 = accel * self.settings[11] * sin_half / (1.0 - sin_half)
+            block.max_entry2 = min(junction2, nominal2, previous.rate * previous.rate)
+        self.planner.append(block)
+        self._moves.append(block)
+        self._replan()
+
+    def _replan(self) -> None:
+        """Grbl's planner_recalculate over the blocks after the optimal pointer: the backward pass from the newest
+        block (which ends at rest), then the forward pass from the executing block's actual speed."""
+        moves, first = self._moves, self._optimal
+        last = len(moves) - 1
+        if last <= first:
+            return
+        newest = moves[last]
+        newest.entry2 = min(newest.max_entry2, 2.0 * newest.accel * newest.length)
+        for index in range(last - 1, first, -1):
+            current = moves[index]
+            if current.entry2 != current.max_entry2:
+                current.entry2 = min(current.max_entry2, moves[index + 1].entry2 + 2.0 * current.accel * current.length)
+        for index in range(first, last):
+            current, following = moves[index], moves[index + 1]
+            if index == 0:
+                entry2, length = self._speed * self._speed, current.length - current.progress
+            else:
+                entry2, length = current.entry2, current.length
+            if entry2 < following.entry2:
+                reachable = entry2 + 2.0 * current.accel * length
+                if reachable < following.entry2:
+                    following.entry2 = reachable
+                    self._optimal = index + 1
+            if following.entry2 == following.max_entry2:
+                self._optimal = index + 1
