@@ -93,3 +93,11 @@ def test_the_check_sees_an_import_against_the_flow(tmp_path, monkeypatch):
     assert any("nest/planted.py:2: nest imports fabline.export.toolpath (export is above it)" in p for p in problems)
     assert any("shop/planted.py:1: shop imports fabline.machine (machine is beside it)" in p for p in problems)
     assert len(problems) == 2, problems
+
+
+def test_the_link_reads_in_one_sitting():
+    """Every module of the link under 400 lines: the streamer is a composition of parts (connection, controller,
+    sender, ledger, stopping, recovery), each small enough to read through."""
+    long = {str(p.relative_to(PACKAGE)): n for p in (PACKAGE / "link").rglob("*.py")
+            if (n := len(p.read_text(encoding="utf-8").splitlines())) >= 400}
+    assert not long, f"modules of 400 lines or more: {long}"

@@ -1,0 +1,212 @@
+"""The record of what ran: lines sent, acknowledged and known executed, journaled as the controller answers, and
+the executing line told from a stopped position.
+
+`ok` means parsed into the planner; a status report `Ln:N` means every line before N is done; Idle with nothing
+in flight means every acknowledged line is done. After a stop with the planner flushed the executing line is one of
+the window of lines that can still have been in the planner, the one whose path holds the stopped position.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+from fabline.errors import FablineError
+from fabline.link.controller import Grbl
+from fabline.machine.gcode import Vector
+from fabline.machine.program import Program
+from fabline.link.protocol import CharacterCounter, Response, StatusReport
+
+SEGMENT_BUFFER = 6
+"""Grbl's stepper segment buffer (SEGMENT_BUFFER_SIZE): up to this many blocks may still run after leaving the planner."""
+POSITION_TOLERANCE = 0.01
+"""mm: status reports carry three decimals; a stopped position is matched to a path within this."""
+
+
+def file_line(program: Program, index: int) -> int | None:
+    """The file line of program line `index` (clamped to the program)."""
+    lines = program.lines
+    return lines[min(max(index, 0), len(lines) - 1)].file_line if lines else None
+
+
+class Undecided(Exception):
+    """The stopped position does not tell which line was executing: the operator must say (--from-line)."""
+
+
+class Ledger:
+    """What ran of `program` on one controller. `blocks` (the planned program) and `origin` are set once the start
+    is known, `journal` once open; `counter` is the flow control's while lines are in flight, else None. The
+    window is as deep as the `controller`'s build's planner."""
+
+    def __init__(self, program: Program, controller: Grbl):
+        self.program, self.controller = program, controller
+        self.blocks = None
+        self.origin: Vector | None = None
+        self.journal = None
+        self.counter: CharacterCounter | None = None
+        self.acked = self.done = self.sent = self.first_index = 0
+        self.errors: list[tuple[int | None, int | None]] = []
+        self.pauses: list[int] = []  # acknowledged M0 lines whose pause has not been reported yet
+        self.status_after_last_ok = False
+        self.on_pause: Callable[[int], None] | None = None
+        """Told the index of an M0 line when the machine stops there."""
+
+    def at(self, executed: int) -> None:
+        """Every count set to `executed` lines (a start or a resume)."""
+        self.acked = self.done = self.sent = executed
+
+    def begin(self, counter: CharacterCounter) -> None:
+        """A stream starts with `counter` its flow control: nothing answered, rejected or paused yet."""
+        self.counter, self.errors, self.pauses = counter, [], []
+        self.status_after_last_ok = False
+
+    @property
+    def url(self) -> str:
+        return self.controller.url
+
+    # ----- as the controller answers (a Connection's listener) ------------------------------------------------------
+    def heard(self, response: Response) -> None:
+        counter = self.counter
+        if response.kind in ("ok", "error") and counter is not None and counter.in_flight:
+            self.answered(response)
+        elif response.kind == "status" and counter is not None:
+            self.track(response.status)
+
+    def reset(self) -> None:
+        """The controller flushed its buffers: nothing is in flight any more."""
+        if self.counter is not None:
+            self.counter.clear()
+            self.counter = None
+
+    def sending(self, index: int) -> None:
+        """Line `index` goes to the controller (journaled before it reaches the port: the caller flushes first)."""
+        self.journal.record("sent", n=index, line=self.program.lines[index].file_line)
+        self.sent = index + 1
+
+    def answered(self, response: Response) -> None:
+        """Match an ok or error:N to the oldest line in flight; errors are queued for the stream loop."""
+        index = self.counter.answered()
+        self.status_after_last_ok = False
+        if response.kind == "ok":
+            if index is not None:
+                self.journal.record("ok", n=index, line=self.program.lines[index].file_line)
+                self.acked = index + 1
+                if self.blocks[index].pause:
+                    self.pauses.append(index)
+            return
+        if index is not None:
+            self.journal.record("error", n=index, line=self.program.lines[index].file_line, code=response.code)
+        self.errors.append((index, response.code))
+
+    def track(self, status: StatusReport) -> None:
+        """Advance the count of executed lines from `Ln:` (or Idle with nothing in flight)."""
+        self.status_after_last_ok = True
+        if self.errors:
+            return  # after a rejected line only the halt decides what ran
+        if self.pauses and status.state == "Hold" and status.substate == 0 and self.on_pause is not None:
+            self.on_pause(self.pauses.pop(0))
+        executed = self.done
+        if status.line_number is not None and status.state in ("Run", "Hold"):
+            index = self.index_of_file_line(status.line_number, strict=False)
+            if index is not None and index >= self.done:
+                executed = index
+        elif status.state == "Idle" and self.counter.in_flight == 0:
+            executed = self.acked
+        if executed > self.done:
+            self.done = executed
+            self.journal.record("done", count=executed)
+
+    # ----- where a stopped machine was ------------------------------------------------------------------------------
+    def executed_from_position(self, status: StatusReport, wco, planner_empty: bool, rejected: int | None = None) -> int:
+        """Lines executed when the machine stopped at `status` with its planner flushed: the executing line is one
+        of the window of lines that can still have been in the planner (`window`), the one whose path holds
+        the stopped position; `Ln:` names it where the build reports it. Raises Undecided when no line or
+        several lines of the window fit the position."""
+        acked = self.acked
+        if planner_empty:
+            return rejected if rejected is not None else acked
+        if status.line_number is not None and status.state in ("Run", "Hold"):
+            index = self.index_of_file_line(status.line_number, strict=False)
+            if index is not None and self.done <= index <= self.sent:
+                return index if rejected is None else min(index, rejected)
+        position = status.work_position(wco)
+        counts = self.counts_at(position)
+        if rejected is not None:
+            beyond = sorted(count for count in counts if count > rejected)
+            if beyond:
+                raise Undecided(f"{self.url}: the controller ran file line {self.file_line(beyond[0])}, past the "
+                                f"rejected line {self.program.lines[rejected].file_line}; check the part and resume "
+                                "with --from-line")
+            if not counts:
+                return rejected
+        if len(counts) == 1:
+            return counts.pop()
+        where = ", ".join(f"{v:.3f}" for v in position)
+        if not counts:
+            raise Undecided(f"{self.url}: cannot tell which line the machine stopped in (work position {where}, "
+                            f"none of file lines {self.file_line(self.window()[0])}.."
+                            f"{self.file_line(self.sent - 1)} passes there); check the part and resume with "
+                            "--from-line")
+        lines = [str(self.file_line(count)) if count < len(self.program.lines) else "the end" for count in sorted(counts)]
+        raise Undecided(f"{self.program.name}: the machine stopped at {where}, where the path passes more than once "
+                        f"(file lines {', '.join(lines)} can have been cutting); look at the part and resume with "
+                        f"--resume --from-line N, N the first line not yet cut (one of {', '.join(lines)})")
+
+    def window(self) -> tuple[int, int]:
+        """The lines that can have been executing: back from the last acknowledged line by at most the planner's
+        size plus the stepper's segment buffer in motion lines (a motion takes at least one planner block, and
+        leaves the planner once prepared into segments, before it has run), up to the last line sent."""
+        rejected = {index for index, _ in self.errors}
+        low, motions, room = self.acked, 0, self.controller.build.planner_blocks + SEGMENT_BUFFER
+        while low > self.done:
+            if self.blocks[low - 1].segment is not None and low - 1 not in rejected:
+                if motions == room:
+                    break
+                motions += 1
+            low -= 1
+        return low, min(max(self.sent, self.acked), len(self.blocks))
+
+    def counts_at(self, position: Vector) -> set[int]:
+        """Every count of executed lines the stopped `position` fits: strictly inside motion line m (m lines done), or
+        at rest between motion lines p and q (p + 1 done, and the lines between them that were acknowledged)."""
+        low, high = self.window()
+        motions = [index for index in range(low, high) if self.moves(index)]
+        before = next((index for index in range(low - 1, -1, -1) if self.moves(index)), None)
+        counts = set()
+        rest = self.origin if before is None else self.blocks[before].segment.end
+        following = motions + [len(self.blocks)]
+        if math.dist(position, rest) <= POSITION_TOLERANCE:
+            counts.add(min(max(self.acked, (before if before is not None else -1) + 1), following[0]))
+        for number, index in enumerate(motions):
+            segment = self.blocks[index].segment
+            if math.dist(position, segment.end) <= POSITION_TOLERANCE:
+                counts.add(min(max(self.acked, index + 1), following[number + 1]))
+            elif (math.dist(position, segment.start) > POSITION_TOLERANCE
+                  and segment.contains(position, POSITION_TOLERANCE)):
+                counts.add(index)
+        return {count for count in counts if count >= self.done}
+
+    def moves(self, index: int) -> bool:
+        segment = self.blocks[index].segment
+        return segment is not None and segment.length > POSITION_TOLERANCE
+
+    def position_after(self, executed: int) -> Vector:
+        """Where the program is after its first `executed` lines."""
+        for block in reversed(self.blocks[:executed]):
+            if block.segment is not None:
+                return block.segment.end
+        return self.origin
+
+    # ----- file lines -----------------------------------------------------------------------------------------------
+    def file_line(self, index: int) -> int | None:
+        return file_line(self.program, index)
+
+    def index_of_file_line(self, file_line: int, strict: bool = True) -> int | None:
+        for line in self.program.lines:
+            if line.file_line >= file_line:
+                if line.file_line == file_line or not strict:
+                    return line.index
+                break
+        if strict:
+            raise FablineError(f"{self.program.name}:{file_line}: no G-code command on that line to restart from")
+        return None
