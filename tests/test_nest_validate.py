@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from fabline.errors import FablineError
 from fabline.nest import CommonCut, Nesting, NestOptions, Placement, Sheet, nest, nesting_to_dict, validate_nesting
 from fabline.shop import StockItem
 from fabline.nest.synthetic import pavilion_like_parts
@@ -224,3 +225,19 @@ def test_nest_check_refuses_a_nul_byte_in_parts_file(cli, tmp_path):
     path.write_text(json.dumps(data))
     code, out, err = cli("nest", "--check", path)
     assert code == 2 and out == "" and err.count("\n") == 1 and "holds a NUL byte" in err and "parts" in err, err
+
+
+def test_parts_in_a_rings_hole_fit_by_material_not_by_outline():
+    """A ring filling its sheet with a square in its hole: the outlines cover more than the sheet, the material
+    does not, so the fit check lets the pair check decide (it finds nothing)."""
+    from fabline.nest import Nesting, Placement, Sheet
+    from fabline.nest.validate import check_fit
+    from fabline.unroll import Part, PartSet
+
+    square = lambda x0, y0, x1, y1: np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]], dtype=float)
+    ring = Part("ring", "washer", square(0, 0, 100, 100), holes=[square(10, 10, 90, 90)])
+    inner = Part("inner", "washer", square(0, 0, 60, 60))
+    sheet = Sheet("S1", 100.0, 100.0, [Placement("ring", 0.0, 0.0, 0.0), Placement("inner", 20.0, 20.0, 0.0)])
+    check_fit(Nesting([sheet], "p.json"), PartSet([ring, inner]), "n.json")  # 10000 + 3600 mm² of outline, 7200 of material
+    with pytest.raises(FablineError, match="sheet S1"):
+        check_fit(Nesting([sheet], "p.json"), PartSet([inner, Part("ring", "washer", square(0, 0, 100, 100))]), "n.json")

@@ -26,9 +26,10 @@ MAX_SHEET_PROBLEMS = 100  # a sheet's pairs are checked until this many problems
 
 
 def check_fit(nesting: Nesting, partset: PartSet, source: str) -> None:
-    """Refuse (FablineError naming the sheet) a sheet whose placed parts cover more area than the sheet has: they
-    cannot fit however they are placed, and checking them pair by pair would take time and memory as their square."""
-    areas = {p.id: outline_area(p.outline) for p in partset.parts}
+    """Refuse (FablineError naming the sheet) a sheet whose placed parts' material covers more area than the sheet
+    has: they cannot fit however they are placed, and checking them pair by pair would take time and memory as their
+    square. Material, not outline: a part nested in another's hole covers no area of its own."""
+    areas = {p.id: outline_area(p.outline) - sum(outline_area(h) for h in p.holes) for p in partset.parts}
     for sheet in nesting.sheets:
         placed = sum(areas.get(placement.part, 0.0) for placement in sheet.placements)
         if placed > sheet.width * sheet.height:
