@@ -1,5 +1,5 @@
 """The stages' names and defaults that the commands' `--help` shows, written out here so that building the parser
-imports no stage (tests/test_cli_fast.py checks each against the stage's own constant)."""
+imports no stage (tests/cli/test_cli_fast.py checks each against the stage's own constant)."""
 
 MODEL_UNITS = ("cm", "ft", "in", "m", "mm")
 """fabline.model.network.UNIT_TO_MM, sorted: the units a model file can be in."""
