@@ -64,6 +64,32 @@ CAMPAIGNS = ("test_bad_input_campaign.py", "test_hostile_campaign.py")
 
 
 def pytest_terminal_summary(terminalreporter):
+    _campaign_counts(terminalreporter)
+    _time_per_folder(terminalreporter)
+
+
+def _time_per_folder(terminalreporter):
+    """The suite's time per folder (a stage's tests): the sum of its tests' set-up, call and tear-down times, and
+    its count of tests. Workers run files side by side, so the sums add up to more than the wall time."""
+    seconds: dict[str, float] = {}
+    tests: dict[str, set] = {}
+    for reports in terminalreporter.stats.values():
+        for report in reports:
+            nodeid, duration = getattr(report, "nodeid", ""), getattr(report, "duration", None)
+            if not nodeid.startswith("tests/") or duration is None:
+                continue
+            parts = nodeid.split("::")[0].split("/")
+            folder = parts[1] if len(parts) > 2 else "(top)"
+            seconds[folder] = seconds.get(folder, 0.0) + duration
+            tests.setdefault(folder, set()).add(nodeid)
+    if seconds:
+        terminalreporter.write_sep("-", "time per folder (sum of test times; workers run files side by side)")
+        for folder, total in sorted(seconds.items(), key=lambda item: -item[1]):
+            terminalreporter.write_line(f"{folder:<12}{total:>9.1f} s{len(tests[folder]):>7} tests")
+        terminalreporter.write_line(f"{'total':<12}{sum(seconds.values()):>9.1f} s{sum(map(len, tests.values())):>7} tests")
+
+
+def _campaign_counts(terminalreporter):
     """The campaigns' count of cases per reader (per output kind, number option and hostile kind), in every run that
     ran them, even with -q."""
     counts: dict[str, list[int]] = {}
