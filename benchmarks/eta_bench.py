@@ -22,12 +22,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fabline.export import ToolpathOptions, export_job
-from fabline.machine import load_machine  # noqa: E402
-from fabline.machine.motion import line_timeline  # noqa: E402
 from fabline.export.samplejob import pavilion_job  # noqa: E402
-from fabline.machine.gcode import ModalState  # noqa: E402
-from fabline.machine.program import parse_program  # noqa: E402
 from fabline.link.simulator import DEFAULT_SETTINGS, timed_run  # noqa: E402
+from fabline.machine import load_machine  # noqa: E402
+from fabline.machine.gcode import ModalState  # noqa: E402
+from fabline.machine.motion import line_timeline  # noqa: E402
+from fabline.machine.program import parse_program  # noqa: E402
 from fabline.units import duration  # noqa: E402
 
 GOAL = 0.05

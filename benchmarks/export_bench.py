@@ -25,13 +25,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from fabline.machine import OPERATIONS, load_machine, summarise
 from fabline.export import ToolpathOptions, export_job, load_job, sheet_toolpaths
 from fabline.export import dxf, toolpath  # noqa: E402
 from fabline.export.contours import reverse  # noqa: E402
 from fabline.export.gcode import sheet_program  # noqa: E402
 from fabline.export.samplejob import pavilion_job  # noqa: E402
 from fabline.export.toolpath import Toolpath  # noqa: E402
+from fabline.machine import OPERATIONS, load_machine, summarise
 
 
 def benchmark_job(nesting_path: str | None):

@@ -27,11 +27,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from fabline.model.designs import enneper_network  # noqa: E402
 from fabline.nest import NestOptions, Nesting, Placement, Sheet, nest, validate_nesting
-from fabline.shop import StockItem  # noqa: E402
 from fabline.nest.shapes import NestShape, nest_shapes  # noqa: E402
 from fabline.nest.synthetic import pavilion_like_parts  # noqa: E402
-from fabline.model.designs import enneper_network  # noqa: E402
+from fabline.shop import StockItem  # noqa: E402
 from fabline.unroll import PartSet, load_parts, unroll_network  # noqa: E402
 
 SHEET = (4000.0, 2000.0)

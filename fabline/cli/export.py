@@ -8,9 +8,9 @@ from pathlib import Path
 
 from fabline.cli.choices import STOCK_BUILD_OPTIONS
 from fabline.cli.units import length_mm
-from fabline.units import duration, metres
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
+from fabline.units import duration, metres
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -50,8 +50,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_export(args: argparse.Namespace) -> int:
     """Export and print a per-sheet summary table."""
     from fabline.export import ToolpathOptions, export_nesting
-    from fabline.machine import load_machine
     from fabline.export.job import export_outputs
+    from fabline.machine import load_machine
     from fabline.nest.layout import load_nesting, parts_path
 
     profile = load_machine(args.machine)

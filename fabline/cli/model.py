@@ -84,9 +84,9 @@ def _point(text: str) -> tuple[float, float, float]:
 
 def run_asymptotic(args: argparse.Namespace) -> int:
     """Trace the network, write it, print what was found and the quality report."""
-    from fabline.model import save_network
     from fabline.design import design_asymptotic, summary_lines
     from fabline.design.curves import read_curves
+    from fabline.model import save_network
 
     check_outputs(files=(args.output,), inputs=(args.surface, args.seed_curves))
     curves = None

@@ -8,9 +8,9 @@ from pathlib import Path
 
 from fabline.cli import hidden_alias
 from fabline.cli.units import length_mm
-from fabline.units import mm, parse_length
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
+from fabline.units import mm, parse_length
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -69,9 +69,9 @@ def _material_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_unroll(args: argparse.Namespace) -> int:
     """Unroll, write the parts (and previews), print the lamella table; warnings to stderr."""
+    from fabline.mechanics import get_material, parse_profile
     from fabline.model import load_network
     from fabline.unroll import UnrollOptions, save_parts
-    from fabline.mechanics import get_material, parse_profile
 
     check_outputs(files=(args.output,), folders=(args.svg,), inputs=(args.model, args.materials))
     network = load_network(args.model)
@@ -84,9 +84,9 @@ def run_unroll(args: argparse.Namespace) -> int:
         singularity=args.singularity, hardware=not args.no_hardware, text_height=args.text_height,
         min_crossing_angle=args.min_crossing_angle, strict=args.strict, edge_members=args.edge_members,
         edge_width=args.edge_width)
+    from fabline.mechanics.structure import percent, verdict_lines
     from fabline.unroll import unroll_network  # after the model and the options are checked: it takes a second
     from fabline.unroll.preview import write_previews
-    from fabline.mechanics.structure import percent, verdict_lines
 
     try:
         partset = unroll_network(network, options)

@@ -8,18 +8,18 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from fabline.design.curves import declared_or_given
+from fabline.design.field import Region, special_regions
 from fabline.errors import FablineError
 from fabline.model.importers.surface import mesh_from_arrays, read_mesh_arrays
 from fabline.model.network import UNIT_TO_MM, Network
-from fabline.design.curves import declared_or_given
-from fabline.design.field import Region, special_regions
 from fabline.design.layout import (CROSSING_TOLERANCE_MM, SupportRule, build_network, check_on_surface, check_seed,
                                    default_seed, rail_layout)
 from fabline.design.mesh import SmoothMesh, xyz_text
 from fabline.design.nurbs import NurbsPatch, read_nurbs
 from fabline.design.quality import quality_report
-from fabline.model_units import Length, model_length
 from fabline.mechanics.materials import get_material, parse_profile
+from fabline.model_units import Length, model_length
 
 DEGENERATE_AREA = 1e-10  # a face smaller than this fraction of the mean edge length squared has no area
 NODE_SPACING_MM = (10.0, 10_000.0)

@@ -18,13 +18,13 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.spatial import cKDTree
 
-from fabline.errors import FablineError
-from fabline.model.importers.crossings import find_crossings
-from fabline.model.network import UNIT_TO_MM, Lamella, Network, Node, validate
 from fabline.design.field import asymptotic_directions
 from fabline.design.mesh import SmoothMesh, xyz_text
 from fabline.design.nurbs import NurbsPatch
 from fabline.design.trace import TracedCurve, trace_family
+from fabline.errors import FablineError
+from fabline.model.importers.crossings import find_crossings
+from fabline.model.network import UNIT_TO_MM, Lamella, Network, Node, validate
 
 TracingSurface = SmoothMesh | NurbsPatch
 

@@ -24,11 +24,11 @@ from scipy.sparse.linalg import splu
 from scipy.spatial import Delaunay
 from shapely.geometry import Polygon
 
-from fabline.errors import FablineError
-from fabline.fileio import atomic_output
 from fabline.design.curves import read_curves
 from fabline.design.mesh import tangent_basis, xyz_text
 from fabline.design.remesh import remesh
+from fabline.errors import FablineError
+from fabline.fileio import atomic_output
 
 MAX_ITERATIONS = 400
 RELAX_SWEEPS = 2

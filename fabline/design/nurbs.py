@@ -15,8 +15,8 @@ import trimesh
 from scipy.interpolate import NdBSpline
 from scipy.spatial import cKDTree
 
-from fabline.errors import FablineError
 from fabline.design.mesh import SurfacePoints, ambient_form, principal
+from fabline.errors import FablineError
 
 SAMPLES = 121  # sample grid per direction: Newton seeds, regions, size
 NEWTON_STEPS = 8

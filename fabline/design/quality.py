@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from fabline.geometry import analyse
-from fabline.model.network import Network
 from fabline.mechanics.materials import get_material, parse_profile
+from fabline.model.network import Network
 from fabline.mechanics.structure import (check_lamellas, combined_radius_limit, combined_twist_limit, percent,
                                          structural_verdict, verdict_lines)
 

@@ -26,11 +26,11 @@ import numpy as np
 
 from fabline.errors import FablineError
 from fabline.fileio import read_bytes
-from fabline.machine.profile import MOTION_PARAMETERS, MachineProfile, canonical_word
-from fabline.machine.motion import MotionSummary, MoveLog, summarise
 from fabline.machine.build import STOCK_BUILD, BuildInfo
 from fabline.machine.codes import explain_error
 from fabline.machine.gcode import REALTIME_COMMANDS, GcodeError, ModalState, compact_line, execute, split_words
+from fabline.machine.motion import MotionSummary, MoveLog, summarise
+from fabline.machine.profile import MOTION_PARAMETERS, MachineProfile, canonical_word
 
 OPERATION_COMMENT = re.compile(r"^\s*;\s*((?:engrave|cut)-[a-z]+)\b")
 MOTION_WORDS = {0: "rapid", 1: "line", 2: "cw", 3: "ccw"}

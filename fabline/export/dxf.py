@@ -18,8 +18,8 @@ import numpy as np
 from ezdxf import units
 
 from fabline.export.contours import stack_contours
-from fabline.shop.layers import LAYERS
 from fabline.nest.layout import Sheet, place
+from fabline.shop.layers import LAYERS
 from fabline.unroll.parts import Part
 
 SHEET_SPACING = 200.0           # mm between sheets in the all-sheets drawing

@@ -15,9 +15,9 @@ import numpy as np
 
 from fabline.errors import FablineError
 from fabline.export.contours import reverse
-from fabline.machine.profile import MachineProfile, strip_comment
-from fabline.machine.motion import MoveLog
 from fabline.export.toolpath import Toolpath
+from fabline.machine.motion import MoveLog
+from fabline.machine.profile import MachineProfile, strip_comment
 from fabline.unroll.parts import flatten_contour
 
 ARC_FLATTEN_TOLERANCE = 0.005   # mm, for arcs written as lines (profile without arcs, or arcs too flat to write)

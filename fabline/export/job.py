@@ -23,11 +23,11 @@ from fabline.export import dxf
 from fabline.export.contours import arc_centres
 from fabline.export.cutlist import CUTLIST_NAME, cutlist_csv
 from fabline.export.gcode import header_block, sheet_program
-from fabline.machine.profile import MachineProfile
-from fabline.machine.motion import MotionSummary, summarise
 from fabline.export.preview import PREVIEW_SUFFIX, cut_order_svg
 from fabline.export.toolpath import Toolpath, ToolpathOptions, check_placements, sheet_toolpaths
 from fabline.fileio import atomic_output
+from fabline.machine.motion import MotionSummary, summarise
+from fabline.machine.profile import MachineProfile
 from fabline.naming import file_stem
 from fabline.nest.layout import Nesting, Sheet, load_nesting, parts_path
 from fabline.nest.validate import check_fit, validate_nesting

@@ -12,11 +12,11 @@ import html
 import math
 import re
 
-from fabline.shop.layers import LAYERS
 from fabline.errors import FablineError
 from fabline.machine.codes import explain_error
 from fabline.machine.gcode import GcodeError, ModalState, Segment, execute
 from fabline.machine.program import strip_line
+from fabline.shop.layers import LAYERS
 
 OPERATION = re.compile(r"^\s*;\s*((?:engrave|cut)-[a-z]+)\b\s*(\S*)")   # the writer's `; <operation> <part>` lines
 ORDER_COLOURS = ((0x21, 0x66, 0xAC), (0x7B, 0x32, 0x94), (0xD7, 0x19, 0x1C))   # first, middle, last

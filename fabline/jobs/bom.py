@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import shapely
 
-from fabline.nest.layout import Nesting
 from fabline.mechanics.materials import Material
+from fabline.nest.layout import Nesting
 from fabline.unroll.parts import Part, PartSet, flatten_contour
 
 

@@ -423,8 +423,8 @@ def toolpath_options(export: dict[str, Any], machine_kerf: float) -> "ToolpathOp
 def _check_values(data: dict[str, Any], where: str) -> None:
     """Ranges and vocabularies: sheet size, profile, material, machine profile, positive numbers."""
     from fabline.machine.profile import available_machines, load_machine
-    from fabline.shop.stock import parse_sheet_size
     from fabline.mechanics.materials import load_materials, parse_profile
+    from fabline.shop.stock import parse_sheet_size
 
     def wrapped(key_path: str, check, *args):
         try:

@@ -209,9 +209,9 @@ def _nest(result: JobResult) -> None:
 
 def _export(result: JobResult) -> None:
     from fabline.export import export_job
-    from fabline.machine import load_machine
     from fabline.export.preview import PREVIEW_SUFFIX
     from fabline.jobs.pictures import sheet_svg
+    from fabline.machine import load_machine
 
     spec = result.spec
     profile = load_machine(spec.machine["profile"])

@@ -19,10 +19,10 @@ from typing import Any
 
 from fabline.jobs import report_shop
 from fabline.jobs.pictures import model_svg
+from fabline.mechanics.structure import CHECKS, VERDICT_RULE, percent, verdict_lines
 from fabline.model.extent import plan_extent_m, extent_text
 from fabline.units import metres, mm
 from fabline.verdicts import verdict_text
-from fabline.mechanics.structure import CHECKS, VERDICT_RULE, percent, verdict_lines
 
 REPORT_SCHEMA = "fabline.report/1"
 _STYLE = """

@@ -228,10 +228,10 @@ def checkpoint(program: str | os.PathLike, journal: str | os.PathLike | None, re
 def program_timeline(program: str | os.PathLike):
     """Planned machine seconds from the start of a sheet program to the end of each of its lines, on the machine
     its header names (`; machine grbl-laser ...`; a stock Grbl 1.1h's default settings without one)."""
-    from fabline.machine.motion import line_timeline
     from fabline.link.compat import program_machine
-    from fabline.machine.gcode import ModalState
     from fabline.link.simulator import DEFAULT_SETTINGS
+    from fabline.machine.gcode import ModalState
+    from fabline.machine.motion import line_timeline
 
     loaded = load_program(program)
     profile = program_machine(loaded, None)

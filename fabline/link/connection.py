@@ -14,11 +14,11 @@ import serial
 
 from fabline.errors import FablineError
 from fabline.fileio import open_append
-from fabline.machine.codes import explain_error
 from fabline.link.journal import JournalError
 from fabline.link.ports import port_endpoints
 from fabline.link.protocol import STATUS_QUERY, LineSplitter, Response, StatusReport, classify
 from fabline.locks import exclusive_lock, lock_path
+from fabline.machine.codes import explain_error
 from fabline.machine.gcode import Vector
 
 

@@ -10,10 +10,10 @@ import re
 import time
 
 from fabline.errors import FablineError
-from fabline.machine.build import STOCK_BUILD, BuildInfo
-from fabline.machine.codes import explain_alarm
 from fabline.link.connection import Connection
 from fabline.link.protocol import CYCLE_START, FEED_HOLD, SOFT_RESET, STATUS_QUERY
+from fabline.machine.build import STOCK_BUILD, BuildInfo
+from fabline.machine.codes import explain_alarm
 
 _FLUSH_LINE = b"#\n"
 _TAG = re.compile(r"\bT(\d+)\b")

@@ -13,9 +13,9 @@ from typing import Callable
 
 from fabline.errors import FablineError
 from fabline.link.controller import Grbl
+from fabline.link.protocol import CharacterCounter, Response, StatusReport
 from fabline.machine.gcode import Vector
 from fabline.machine.program import Program
-from fabline.link.protocol import CharacterCounter, Response, StatusReport
 
 SEGMENT_BUFFER = 6
 """Grbl's stepper segment buffer (SEGMENT_BUFFER_SIZE): up to this many blocks may still run after leaving the planner."""

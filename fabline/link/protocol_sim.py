@@ -17,8 +17,8 @@ import urllib.parse
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout
 
-from fabline.machine.build import STOCK_BUILD, BuildInfo
 from fabline.link.simulator import ConnectionDropped, Faults, GrblSimulator, check_time_scale
+from fabline.machine.build import STOCK_BUILD, BuildInfo
 
 SIM_OPTIONS = ("time_scale", "line_time", "log", "machine", "settings", "drop_at", "corrupt_at", "error_line",
                "error_code", "alarm_line", "alarm_code", "stall_at", "stall_seconds", "build_options", "planner_blocks",

@@ -16,9 +16,9 @@ from pathlib import Path
 from fabline.errors import FablineError
 from fabline.link.connection import Connection
 from fabline.link.controller import Grbl
-from fabline.machine.gcode import ModalState, Vector
 from fabline.link.journal import JournalState, read_journal
 from fabline.link.ledger import POSITION_TOLERANCE, Ledger, Undecided, file_line
+from fabline.machine.gcode import ModalState, Vector
 from fabline.machine.program import TAG_CYCLE, Program, line_tag
 
 _MOTION_WORD = re.compile(r"G0*[0-3](?![0-9.])")

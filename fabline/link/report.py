@@ -119,8 +119,8 @@ class Reporter:
         end of each line, from the controller's own settings; computed once per run."""
         blocks = self.ledger.blocks
         if self._timeline_for is not blocks:
-            from fabline.machine.motion import line_timeline
             from fabline.link.simulator import DEFAULT_SETTINGS
+            from fabline.machine.motion import line_timeline
 
             settings = {**DEFAULT_SETTINGS, **self.controller.settings}
             self._timeline = (line_timeline(blocks, settings, self.controller.build.planner_blocks)

@@ -7,15 +7,15 @@ from __future__ import annotations
 import time
 
 from fabline.errors import FablineError
-from fabline.machine.codes import explain_error, listing
 from fabline.link.connection import Connection, Lost
 from fabline.link.controller import Grbl
 from fabline.link.controls import Controls
 from fabline.link.ledger import Ledger
-from fabline.machine.program import Program
 from fabline.link.protocol import STATUS_QUERY, CharacterCounter
 from fabline.link.report import Reporter, StreamResult
 from fabline.link.stopping import Stopper
+from fabline.machine.codes import explain_error, listing
+from fabline.machine.program import Program
 
 MODES = ("counting", "send-response")
 

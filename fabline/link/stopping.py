@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import time
 
-from fabline.machine.codes import explain_alarm, explain_error
 from fabline.link.connection import Connection
 from fabline.link.controller import Grbl
 from fabline.link.journal import JournalError
 from fabline.link.ledger import Ledger, Undecided
 from fabline.link.report import Reporter, StreamInterrupted, StreamResult
+from fabline.machine.codes import explain_alarm, explain_error
 
 
 class Stopper:

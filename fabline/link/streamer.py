@@ -33,22 +33,22 @@ from pathlib import Path
 from typing import Callable
 
 from fabline.errors import FablineError
-from fabline.machine.build import ANY_BUILD
-from fabline.machine.codes import explain_alarm, explain_error
 from fabline.link.compat import controller_problems, program_machine
 from fabline.link.connection import Connection, Lost
 from fabline.link.controller import Grbl
 from fabline.link.controls import Controls, override_byte
-from fabline.machine.gcode import ModalState
 from fabline.link.journal import Journal, JournalError, JournalState, default_journal_path
 from fabline.link.ledger import Ledger, Undecided
 from fabline.link.ports import check_port
-from fabline.machine.program import Program, load_program
 from fabline.link.recovery import Recovery, previous_job
 from fabline.link.report import Progress, Reporter, StreamInterrupted, StreamResult
 from fabline.link.sender import MODES, Sender, check_mode
 from fabline.link.stopping import Stopper
 from fabline.locks import exclusive_lock, lock_path
+from fabline.machine.build import ANY_BUILD
+from fabline.machine.codes import explain_alarm, explain_error
+from fabline.machine.gcode import ModalState
+from fabline.machine.program import Program, load_program
 
 __all__ = ["MODES", "STOP_SIGNALS", "Progress", "StreamInterrupted", "StreamResult", "Streamer"]
 

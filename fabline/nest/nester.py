@@ -24,9 +24,9 @@ from fabline.nest.layout import CommonCut, Nesting, Placement, Sheet
 from fabline.nest.raster import Canvas, Lattice, Template, densest_lattice, make_template, place_copies
 from fabline.nest.remnants import leftover_rectangles
 from fabline.nest.shapes import NestShape, nest_shapes
-from fabline.shop.stock import StockItem, usable_extent
 from fabline.nest.validate import validate_nesting
 from fabline.progress import progress
+from fabline.shop.stock import StockItem, usable_extent
 from fabline.unroll.parts import PartSet
 
 # Raster resolution for irregular parts: about 60 cells across the part, between these bounds (mm).

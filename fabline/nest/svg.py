@@ -15,8 +15,8 @@ import numpy as np
 
 from fabline.fileio import atomic_output
 from fabline.naming import file_stem
-from fabline.shop.layers import LAYERS
 from fabline.nest.layout import Nesting, Sheet, place
+from fabline.shop.layers import LAYERS
 from fabline.unroll.parts import Part, PartSet, flatten_contour
 
 STROKE = "0.5"       # mm: thin enough for LightBurn to read the paths as lines, thick enough to see

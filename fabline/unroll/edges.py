@@ -28,15 +28,15 @@ from scipy.sparse.csgraph import connected_components
 from fabline.errors import FablineError
 from fabline.geometry.darboux import CurveFit, LamellaGeometry
 from fabline.geometry.offsets import OffsetCurve
+from fabline.mechanics.materials import Profile
+from fabline.mechanics.structure import check_lamellas
 from fabline.model.designs import design_surface
 from fabline.model.network import Lamella, Network
-from fabline.mechanics.materials import Profile
 from fabline.unroll.options import UnrollOptions
 from fabline.unroll.parts import Part
 from fabline.unroll.pieces import segment_part
 from fabline.unroll.seams import Segment, split_strip
 from fabline.unroll.stations import Strip
-from fabline.mechanics.structure import check_lamellas
 
 EDGE_FAMILY = "E"
 NEIGHBOUR_HOPS = 3        # boundary neighbours: lamella ends at most this many node intervals apart along lamellas

@@ -22,8 +22,8 @@ from shapely import affinity
 from shapely.geometry import Polygon, box
 from shapely.ops import unary_union
 
-from fabline.unroll.flat import circle
 from fabline.mechanics.materials import Profile
+from fabline.unroll.flat import circle
 from fabline.unroll.options import TEXT_GAP
 from fabline.unroll.parts import Part, Polylines
 from fabline.unroll.strokes import characters, gather

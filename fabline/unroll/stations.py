@@ -17,8 +17,8 @@ from fabline.errors import FablineError
 from fabline.geometry.darboux import LamellaGeometry, NetworkGeometry
 from fabline.geometry.offsets import (Location, OffsetCurve, OffsetCurves, SplineTable, closest_approach,
                                       offset_arc_lengths)
-from fabline.unroll.options import UnrollOptions
 from fabline.mechanics.structure import helix_strains
+from fabline.unroll.options import UnrollOptions
 
 NEWTON_STEPS = 3  # from the tangent-plane guess (error ~ k d^2 < 1 mm) each step gains a factor ~100
 CROSSING_GAP_MM = 1.0  # two strips whose offset curves pass farther apart than this at a node do not cross there

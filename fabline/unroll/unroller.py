@@ -19,12 +19,12 @@ from fabline.unroll.batch import straight_flags, straight_parts
 from fabline.unroll.collector import collector_paused
 from fabline.unroll.hardware import (HardwareSizes, checkerboard, clamp, clamp_ids, singularity_joints, washer_ids,
                                      washer_keys, washers)
+from fabline.mechanics.structure import check_lamellas, limits, structural_verdict
 from fabline.unroll.options import UnrollOptions
 from fabline.unroll.parts import Part, PartSet
 from fabline.unroll.pieces import is_seam, segment_part
 from fabline.unroll.seams import Segment, split_strip
 from fabline.unroll.stations import Strip, singular_nodes, strip_stations
-from fabline.mechanics.structure import check_lamellas, limits, structural_verdict
 
 
 def unroll_network(network: Network, options: UnrollOptions | None = None,

@@ -82,8 +82,8 @@ print(" ".join(sorted(m for m in sys.modules if m.split(".")[0] in ("fabline",) 
 
 
 def test_the_helps_names_and_defaults_are_the_stages_own():
-    from fabline.machine.build import STOCK_BUILD
     from fabline.link.streamer import MODES
+    from fabline.machine.build import STOCK_BUILD
     from fabline.model.designs import BOUNDARIES
     from fabline.model.importers import FORMATS
     from fabline.model.network import UNIT_TO_MM

@@ -12,8 +12,8 @@ import pytest
 from tests.conftest import without_usage
 from fabline.cli import STAGE_COMMANDS, build_parser, main
 from fabline.cli.units import length_m, length_mm
-from fabline.units import parse_length, parse_size
 from fabline.jobs.jobfile import job_from_dict
+from fabline.units import parse_length, parse_size
 from tests.jobs.test_jobs_jobfile import GOOD
 
 try:

@@ -10,10 +10,10 @@ import pytest
 import trimesh
 from scipy.optimize import fsolve
 
-from fabline.errors import FablineError
 from fabline.design import design_asymptotic
 from fabline.design import minimal
 from fabline.design.minimal import catenoid_waist, coaxial_circles, minimal_surface
+from fabline.errors import FablineError
 
 
 def circle(centre: tuple[float, float], radius: float, height: float, count: int = 400) -> list[list[float]]:

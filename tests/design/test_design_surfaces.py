@@ -15,12 +15,12 @@ import pytest
 import trimesh
 from scipy.spatial import Delaunay, cKDTree
 
-from fabline.errors import FablineError
-from fabline.model import load_network
-from fabline.model.designs import enneper_network, enneper_surface
 from fabline.design import SmoothMesh, design_asymptotic
 from fabline.design.field import asymptotic_directions
 from fabline.design.samples import closed_form_cases, ellipse, irregular_mesh, rail_grid
+from fabline.errors import FablineError
+from fabline.model import load_network
+from fabline.model.designs import enneper_network, enneper_surface
 
 COARSE_TRIANGLES = 8000  # the suite's meshes; the benchmark runs the pavilion's 20,000 and more
 

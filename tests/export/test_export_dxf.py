@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from fabline.export import ToolpathOptions, export_job
-from fabline.machine import load_machine
 from fabline.export.dxf import LAYERS, _part_shapes, block_name, drawing_text, lwpolylines_text, new_drawing
+from fabline.machine import load_machine
 from fabline.nest.layout import place
 
 from tests.export.test_export_helpers import every_kind_nesting, every_kind_partset

@@ -9,10 +9,10 @@ import re
 import numpy as np
 import pytest
 
-from fabline.machine import MoveLog, estimate_time, load_machine
 from fabline.export import ToolpathOptions, check_program, export_job
 from fabline.export import samplejob
 from fabline.export.gcode import round_half_even
+from fabline.machine import MoveLog, estimate_time, load_machine
 
 from tests.export.test_export_helpers import every_kind_nesting, every_kind_partset, gcodeparser, read_toolpaths
 

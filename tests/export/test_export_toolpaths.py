@@ -7,9 +7,9 @@ import pytest
 import shapely
 
 from fabline.export import ToolpathOptions, export_job, sheet_toolpaths, travel_length
-from fabline.machine import load_machine
 from fabline.export import samplejob
 from fabline.export.contours import offset, segment_lengths, signed_area
+from fabline.machine import load_machine
 from fabline.nest.layout import CommonCut, Nesting, Placement, Sheet
 from fabline.unroll.parts import Part, PartSet
 

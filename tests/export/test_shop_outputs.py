@@ -11,12 +11,12 @@ import pytest
 
 from fabline.errors import FablineError
 from fabline.jobs.bom import bill_of_materials, net_area
+from fabline.mechanics.materials import Profile, get_material, load_materials
 from fabline.nest import save_nesting
 from fabline.nest.layout import Nesting, Placement, Sheet
 from fabline.unroll import Part, PartSet, save_parts
 from fabline.unroll.flat import circle
 from fabline.unroll.hardware import HardwareSizes, clamp, washers
-from fabline.mechanics.materials import Profile, get_material, load_materials
 
 
 def _rectangle(width, height):

@@ -17,8 +17,8 @@ import pytest
 from fabline.cli import main
 from fabline.jobs.report_shop import stream_table, summary_block
 from fabline.link import Streamer
-from fabline.machine import load_program
 from fabline.link.protocol_sim import close_simulator, get_simulator
+from fabline.machine import load_program
 from fabline.progress import StreamBar, estimate
 
 A = 800.0  # mm/s^2 on X and Y ($120, $121); the max rates ($110, $111) 6000 mm/min, above every feed

@@ -7,8 +7,8 @@ from __future__ import annotations
 import re
 
 from fabline.link import executed_file_lines, read_journal
-from fabline.machine import load_program
 from fabline.link.journal import Journal
+from fabline.machine import load_program
 
 JOB = """
 name = "lines"

@@ -17,9 +17,9 @@ import pytest
 from fabline.cli import main
 from fabline.geometry import analyse, lamella_table
 from fabline.machine import load_program
+from fabline.mechanics import get_material, parse_profile
 from fabline.model import load_network
 from fabline.nest import load_nesting
-from fabline.mechanics import get_material, parse_profile
 from fabline.unroll import load_parts
 from tests.runner_support import executed_program_lines, headless_chromium
 

@@ -9,9 +9,9 @@ import sys
 from pathlib import Path
 
 from fabline.link import SimulatorServer
-from fabline.machine import load_program
 from fabline.link.journal import Journal
 from fabline.locks import exclusive_lock, lock_path
+from fabline.machine import load_program
 from tests.runner_support import executed_program_lines
 
 JOB = """

@@ -26,8 +26,8 @@ import serial
 
 from fabline.errors import FablineError
 from fabline.link import SimulatorServer, Streamer, StreamInterrupted, executed_file_lines, read_journal
-from fabline.machine import load_program
 from fabline.link.protocol_sim import close_simulator, get_simulator
+from fabline.machine import load_program
 
 REPO = Path(__file__).resolve().parents[2]
 CASES = 200

@@ -10,10 +10,10 @@ import serial
 
 from fabline.errors import FablineError
 from fabline.link import Streamer
+from fabline.link.protocol_sim import close_simulator, get_simulator
 from fabline.machine.build import BuildInfo
 from fabline.machine.gcode import ModalState
 from fabline.machine.program import load_program
-from fabline.link.protocol_sim import close_simulator, get_simulator
 from fabline.nest.layout import save_nesting
 from fabline.unroll.parts import save_parts
 

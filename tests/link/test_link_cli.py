@@ -17,8 +17,8 @@ import serial
 from tests.conftest import without_usage
 from fabline.cli import main
 from fabline.link import executed_file_lines
-from fabline.machine import load_program
 from fabline.link.protocol_sim import close_simulator
+from fabline.machine import load_program
 
 PROGRAM = "G21\nG90\nM4 S600\n" + "".join(f"G1 X{i % 7} Y{i % 5} F3000\n" for i in range(1, 60)) + "M5\nG0 X0 Y0\n"
 

@@ -7,11 +7,11 @@ import pytest
 
 from fabline.link.connection import Connection
 from fabline.link.controller import Grbl
-from fabline.machine.gcode import ModalState
 from fabline.link.ledger import Ledger, Undecided
-from fabline.machine.program import parse_program
 from fabline.link.protocol import CharacterCounter, classify
 from fabline.link.protocol_sim import close_simulator
+from fabline.machine.gcode import ModalState
+from fabline.machine.program import parse_program
 
 SQUARE = b"G21 G90\nG1 X10 F600\nG1 X10 Y10\nG1 X0 Y10\nG1 X0 Y0\n"
 

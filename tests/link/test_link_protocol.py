@@ -8,12 +8,12 @@ import re
 import pytest
 
 from fabline.errors import FablineError
-from fabline.machine import explain_alarm, explain_error, parse_program
 from fabline.link import read_journal
-from fabline.machine.gcode import GcodeError, ModalState, execute
 from fabline.link.journal import Journal
-from fabline.machine.program import line_tag
 from fabline.link.protocol import CharacterCounter, LineSplitter, classify, parse_status
+from fabline.machine import explain_alarm, explain_error, parse_program
+from fabline.machine.gcode import GcodeError, ModalState, execute
+from fabline.machine.program import line_tag
 
 
 def test_status_report_from_the_transcript_is_parsed():

@@ -19,8 +19,8 @@ import serial
 
 from fabline.errors import FablineError
 from fabline.link import SimulatorServer, Streamer, StreamInterrupted, executed_file_lines, read_journal
-from fabline.machine import load_program
 from fabline.link.protocol_sim import close_simulator, get_simulator
+from fabline.machine import load_program
 
 REPO = Path(__file__).resolve().parents[2]
 HEAD = ["G21", "G90", "G17", "G94", "M4 S800", "F600"]

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from fabline.link import SimulatorServer, Streamer, executed_file_lines
-from fabline.machine import load_program
 from fabline.link.server import _Wire
+from fabline.machine import load_program
 
 
 def test_pty_link_is_paced_like_115200_baud_and_runs_the_program_exactly(tmp_path):

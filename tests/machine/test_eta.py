@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from fabline.machine.motion import MoveLog, estimate_time, line_timeline
-from fabline.machine.gcode import ModalState
-from fabline.machine.program import parse_program
 from fabline.link.simulator import DEFAULT_SETTINGS, timed_run
+from fabline.machine.gcode import ModalState
+from fabline.machine.motion import MoveLog, estimate_time, line_timeline
+from fabline.machine.program import parse_program
 from fabline.progress import estimate, simulated_speedup
 from fabline.units import duration
 
@@ -142,8 +142,8 @@ def test_the_stream_progress_carries_the_planned_eta(tmp_path):
     """The streamer's progress reports time from the controller's own settings ($$) and the simulator's time scale:
     planned = the program's timeline / time scale; at the end everything planned is done."""
     from fabline.link import Streamer
-    from fabline.machine import load_program
     from fabline.link.protocol_sim import close_simulator
+    from fabline.machine import load_program
 
     path = tmp_path / "square.gcode"
     path.write_text("G21\nG90\nM4 S0\n" + "".join(f"G1 X{x} Y{y} F3000 S500\n" for x, y in

@@ -11,11 +11,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from fabline.design.quality import quality_report, summary_lines
 from fabline.geometry import analyse
+from fabline.mechanics.materials import Profile, get_material
 from fabline.model import save_network
 from fabline.model.designs import enneper_network
-from fabline.design.quality import quality_report, summary_lines
-from fabline.mechanics.materials import Profile, get_material
 from fabline.mechanics.structure import (check_lamellas, combined_radius_limit, combined_twist_limit,
                                          structural_verdict, verdict_lines)
 

@@ -9,10 +9,10 @@ import re
 
 import pytest
 
-from fabline.unroll import UnrollOptions, unroll_network
 from fabline.mechanics import get_material
 from fabline.mechanics.materials import Profile
 from fabline.mechanics.structure import percent
+from fabline.unroll import UnrollOptions, unroll_network
 
 
 @pytest.mark.parametrize("value, text", [(1.003, "100.3 %"), (0.997, "99.7 %"), (0.99996, "99.996 %"),

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from fabline.nest import load_nesting, parts_path, validate_nesting
-from fabline.shop import load_stock
 from fabline.nest.synthetic import pavilion_like_parts
+from fabline.shop import load_stock
 from fabline.unroll import Part, PartSet, load_parts, save_parts
 
 

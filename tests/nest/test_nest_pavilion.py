@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from shapely.geometry import Polygon, box
 
-from fabline.nest import NestOptions, nest, place, validate_nesting
-from fabline.shop import StockItem
 from fabline.model.designs import enneper_network
+from fabline.nest import NestOptions, nest, place, validate_nesting
 from fabline.nest.nester import lower_bounds
 from fabline.nest.shapes import nest_shapes
 from fabline.nest.synthetic import pavilion_like_parts
+from fabline.shop import StockItem
 from fabline.unroll import Part, flatten_contour, unroll_network
 
 

@@ -10,8 +10,8 @@ import pytest
 
 from fabline.errors import FablineError
 from fabline.nest import CommonCut, Nesting, NestOptions, Placement, Sheet, nest, nesting_to_dict, validate_nesting
-from fabline.shop import StockItem
 from fabline.nest.synthetic import pavilion_like_parts
+from fabline.shop import StockItem
 from fabline.unroll import Part, PartSet
 
 GAP, KERF, MARGIN = 3.0, 0.2, 10.0

@@ -14,8 +14,8 @@ import pytest
 from fabline.errors import FablineError
 from fabline.survey import (Camera, SyntheticSpec, detect_expected_tags, detect_tags, load_camera, read_gray, refine_corners,
                             saddle_network, simulate_survey, tag_pose)
-from fabline.survey.reconstruct import rotation_matrices
 from fabline.survey.detect import APRILTAG_ORDER, identify
+from fabline.survey.reconstruct import rotation_matrices
 from fabline.survey.simulate import _render_tag
 
 

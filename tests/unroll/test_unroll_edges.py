@@ -16,12 +16,12 @@ from scipy.integrate import cumulative_trapezoid, quad
 
 from fabline.errors import FablineError
 from fabline.jobs.bom import bill_of_materials
+from fabline.mechanics.materials import get_material
 from fabline.model import Lamella, Network, Node
 from fabline.nest.layout import Nesting
 from fabline.nest.validate import validate_nesting
 from fabline.unroll import PartSet, UnrollOptions, flatten_contour, load_parts, unroll_network
 from fabline.unroll.edges import BoundaryCurve, boundary_chains, boundary_curves, curve_parts, edge_strips
-from fabline.mechanics.materials import get_material
 
 H, T = 100.0, 1.5
 LAYER_OFFSET = {"T": (H + T) / 2.0, "B": -(H + T) / 2.0}  # along the surface normal

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from shapely.geometry import LineString, Polygon
 
-from fabline.unroll import UnrollOptions, flatten_contour, unroll_network
 from fabline.mechanics.materials import Profile
+from fabline.unroll import UnrollOptions, flatten_contour, unroll_network
 from fabline.unroll.strokes import layout
 
 

@@ -6,14 +6,14 @@ import threading
 from collections import deque
 from pathlib import Path
 
-from fabline.machine.build import STOCK_BUILD, BuildInfo
-from fabline.machine.gcode import ModalState
 from fabline.link.simulator.clock import Clock, check_time_scale
 from fabline.link.simulator.faults import Faults
 from fabline.link.simulator.firmware import BANNER, DEFAULT_SETTINGS, Firmware
 from fabline.link.simulator.planner import Pending, Planned, Planner
 from fabline.link.simulator.protocol import LineProtocol
 from fabline.link.simulator.status import StatusReport
+from fabline.machine.build import STOCK_BUILD, BuildInfo
+from fabline.machine.gcode import ModalState
 
 
 class GrblSimulator(LineProtocol, StatusReport, Firmware, Planner, Clock):

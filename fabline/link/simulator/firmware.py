@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from fabline.machine.gcode import GcodeError, execute
 from fabline.link.simulator.planner import Pending
+from fabline.machine.gcode import GcodeError, execute
 
 VERSION = "1.1h"
 BANNER = f"Grbl {VERSION} ['$' for help]"

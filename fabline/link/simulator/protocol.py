@@ -6,9 +6,9 @@ from __future__ import annotations
 import time
 from collections import deque
 
-from fabline.machine.gcode import GcodeError, execute
 from fabline.link.simulator.faults import ConnectionDropped
 from fabline.link.simulator.planner import Pending
+from fabline.machine.gcode import GcodeError, execute
 
 LINE_BUFFER_SIZE = 80
 _REALTIME_BYTES = (b"?", b"!", b"~", b"\x18")
