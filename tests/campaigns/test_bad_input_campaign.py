@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import without_usage
+from conftest import without_usage
 from fabline.cli import STAGE_COMMANDS, build_parser, main
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -18,7 +18,7 @@ from typing import Callable
 
 import pytest
 
-from tests.campaigns.test_bad_input_campaign import _digest, _png_claiming, world_folder
+from .test_bad_input_campaign import _digest, _png_claiming, world_folder
 
 MEMORY_CAP = 6 * 2**30
 TIME_CAP_S = 60

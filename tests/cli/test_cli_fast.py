@@ -68,7 +68,7 @@ for commands in STAGE_COMMANDS.values():
                 main([command, "--help"] if command else ["--help"])
             except SystemExit:
                 pass
-from tests.cli.test_cli_fast import PARSERS
+from cli.test_cli_fast import PARSERS
 for parser in PARSERS.values():
     parser.format_help()
 print(" ".join(sorted(m for m in sys.modules if m.split(".")[0] in ("fabline",) + {HEAVY!r})))

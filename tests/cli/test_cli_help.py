@@ -9,12 +9,12 @@ import re
 
 import pytest
 
-from tests.conftest import without_usage
+from conftest import without_usage
 from fabline.cli import STAGE_COMMANDS, build_parser, main
 from fabline.cli.units import length_m, length_mm
 from fabline.jobs.jobfile import job_from_dict
 from fabline.units import parse_length, parse_size
-from tests.jobs.test_jobs_jobfile import GOOD
+from jobfiles import GOOD
 
 try:
     import tomllib

@@ -12,7 +12,7 @@ import pytest
 from fabline.nest.layout import CommonCut, Placement, Sheet, save_nesting
 from fabline.unroll.parts import Part, PartSet, save_parts
 
-from tests.export.test_export_helpers import every_kind_nesting, every_kind_partset
+from export_helpers import every_kind_nesting, every_kind_partset
 
 
 def _files(folder):

@@ -17,7 +17,7 @@ import pytest
 from fabline.errors import FablineError
 from fabline.fileio import INPUT_LIMITS, open_input, read_text
 
-from tests.cli.test_cli_outputs import chain  # noqa: F401 (the fixture: a small catenoid's model, parts and nesting)
+from .test_cli_outputs import chain  # noqa: F401 (the fixture: a small catenoid's model, parts and nesting)
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 REPO = EXAMPLES.parent

@@ -12,7 +12,7 @@ import pytest
 
 from fabline.model import save_network
 from fabline.naming import MAX_STEM, file_stem
-from tests.unroll.test_unroll_geometry import network_of
+from networks import network_of
 
 HOSTILE = ["../../../outside/TRAV", "/etc/passwd", "/", "..", ".", "", "a/b", "a\\b", "a b", "a:b", "a\0b", "C:\\x",
            "..\\..\\up", "~/home", "-rf", ".hidden", "trailing.", "CON", "nul", "Com1", "LPT9.txt", "aux.svg",

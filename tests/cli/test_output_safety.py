@@ -16,7 +16,7 @@ from fabline import fileio
 from fabline.errors import FablineError
 from fabline.fileio import OutputSet, atomic_output, check_outputs, sweep_orphans, write_json
 
-from tests.cli.test_cli_outputs import chain  # noqa: F401 (the fixture: a small catenoid's model, parts and nesting)
+from .test_cli_outputs import chain  # noqa: F401 (the fixture: a small catenoid's model, parts and nesting)
 
 
 def _snapshot(folder):

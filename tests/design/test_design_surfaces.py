@@ -21,6 +21,7 @@ from fabline.design.samples import closed_form_cases, ellipse, irregular_mesh, r
 from fabline.errors import FablineError
 from fabline.model import load_network
 from fabline.model.designs import enneper_network, enneper_surface
+from meshes import saddle, write_mesh
 
 COARSE_TRIANGLES = 8000  # the suite's meshes; the benchmark runs the pavilion's 20,000 and more
 
@@ -180,19 +181,6 @@ def test_hypar_rulings_are_traced_straight(tmp_path):
     for lam in network.lamellas:  # the asymptotic lines of z = c x y are the lines x = const and y = const
         spread = np.ptp(lam.curve[:, :2], axis=0).min()
         assert spread < 0.001, lam.id
-
-
-def saddle(count=25, half=1.0):
-    x, y = np.meshgrid(np.linspace(-half, half, count), np.linspace(-half, half, count), indexing="ij")
-    vertices = np.c_[x.ravel(), y.ravel(), 0.3 * (x.ravel() ** 2 - y.ravel() ** 2)]
-    index = np.arange(count * count).reshape(count, count)
-    a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
-    return vertices, np.r_[np.c_[a, b, c], np.c_[a, c, d]]
-
-
-def write_mesh(path, vertices, faces):
-    trimesh.Trimesh(vertices, faces, process=False).export(path)
-    return path
 
 
 def bad_mesh(kind, tmp_path):

@@ -13,7 +13,7 @@ from fabline.machine.profile import BUILTIN_DIR
 from fabline.nest.layout import Placement, Sheet, save_nesting
 from fabline.unroll.parts import save_parts
 
-from tests.export.test_export_helpers import every_kind_nesting, every_kind_partset, placed_contours, truth_ring
+from export_helpers import every_kind_nesting, every_kind_partset, placed_contours, truth_ring
 
 
 @pytest.fixture

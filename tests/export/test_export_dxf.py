@@ -14,7 +14,7 @@ from fabline.export.dxf import LAYERS, _part_shapes, block_name, drawing_text, l
 from fabline.machine import load_machine
 from fabline.nest.layout import place
 
-from tests.export.test_export_helpers import every_kind_nesting, every_kind_partset
+from export_helpers import every_kind_nesting, every_kind_partset
 
 
 @pytest.fixture(scope="module")

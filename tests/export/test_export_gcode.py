@@ -14,7 +14,7 @@ from fabline.export import samplejob
 from fabline.export.gcode import round_half_even
 from fabline.machine import MoveLog, estimate_time, load_machine
 
-from tests.export.test_export_helpers import every_kind_nesting, every_kind_partset, gcodeparser, read_toolpaths
+from export_helpers import every_kind_nesting, every_kind_partset, gcodeparser, read_toolpaths
 
 NUMBER = re.compile(r"[XYIJ](-?\d+\.\d+)")
 

@@ -13,7 +13,7 @@ from fabline.machine import load_machine
 from fabline.nest.layout import CommonCut, Nesting, Placement, Sheet
 from fabline.unroll.parts import Part, PartSet
 
-from tests.export.test_export_helpers import every_kind_nesting, every_kind_partset, placed_contours, read_toolpaths, truth_ring
+from export_helpers import every_kind_nesting, every_kind_partset, placed_contours, read_toolpaths, truth_ring
 
 
 def _program(nesting, partset, kerf, machine="grbl-laser", **options):

@@ -140,7 +140,7 @@ def test_cut_order_preview_draws_the_programs_moves_in_order(cli, tmp_path):
 
     import svgelements
 
-    from tests.export.test_export_helpers import every_kind_nesting, every_kind_partset
+    from export_helpers import every_kind_nesting, every_kind_partset
 
     save_parts(every_kind_partset(), tmp_path / "parts.json")
     save_nesting(every_kind_nesting(), tmp_path / "nesting.json")

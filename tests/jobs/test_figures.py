@@ -117,7 +117,7 @@ def test_waiting_for_the_operator_is_not_remaining_work(tmp_path, monkeypatch):
     from fabline.jobs.queue import JobQueue
     from fabline.jobs.streaming import program_timeline
     from fabline.jobs.web import Timelines, job_eta
-    from tests.runner_support import square_program
+    from runner_support import square_program
 
     clock = [1_000_000.0]
     monkeypatch.setattr(time, "time", lambda: clock[0])

@@ -9,26 +9,9 @@ import pytest
 from fabline.errors import FablineError
 from fabline.fileio import TOML_DEPTH, parse_toml
 from fabline.jobs.jobfile import DEFAULT_STAGES, load_job_file
+from jobfiles import GOOD, write
 
 REPO = Path(__file__).resolve().parents[2]
-
-GOOD = """
-name = "small"
-[model]
-design = "enneper"
-[model.options]
-size = [2.0, 2.5]
-spacing = 0.5
-[output]
-folder = "out"
-"""
-
-
-def write(tmp_path: Path, text: str, name: str = "job.toml") -> Path:
-    path = tmp_path / name
-    path.write_text(text, encoding="utf-8")
-    return path
-
 
 def test_example_job_parses_with_defaults_filled_in():
     spec = load_job_file(REPO / "jobs" / "pavilion.toml")

@@ -21,7 +21,7 @@ from fabline.mechanics import get_material, parse_profile
 from fabline.model import load_network
 from fabline.nest import load_nesting
 from fabline.unroll import load_parts
-from tests.runner_support import executed_program_lines, headless_chromium
+from runner_support import executed_program_lines, headless_chromium
 
 JOB = """
 name = "tiny"

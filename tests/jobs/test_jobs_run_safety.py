@@ -12,7 +12,7 @@ from fabline.link import SimulatorServer
 from fabline.link.journal import Journal
 from fabline.locks import exclusive_lock, lock_path
 from fabline.machine import load_program
-from tests.runner_support import executed_program_lines
+from runner_support import executed_program_lines
 
 JOB = """
 name = "safety"

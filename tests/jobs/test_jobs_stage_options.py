@@ -13,7 +13,7 @@ import pytest
 from fabline.cli import export as export_cli, nest as nest_cli, unroll as unroll_cli
 from fabline.errors import FablineError
 from fabline.jobs.jobfile import SCHEMA, load_job_file
-from tests.jobs.test_jobs_jobfile import GOOD
+from jobfiles import GOOD
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -8,8 +8,8 @@ import time
 
 import pytest
 
-from tests.design.test_design_surfaces import saddle, write_mesh
-from tests.jobs.test_jobs_jobfile import GOOD, write
+from meshes import saddle, write_mesh
+from jobfiles import GOOD, write
 
 
 @pytest.fixture(scope="module")

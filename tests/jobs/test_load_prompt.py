@@ -16,8 +16,8 @@ import pytest
 from fabline.jobs.queue import JobQueue, describe_load
 from fabline.jobs.runner import MachineConfig, Runner
 from fabline.link import SimulatorServer
-from tests.runner_support import TOKEN, headless_chromium, page_server, square_program
-from tests.jobs.test_jobs_run_safety import write_job
+from runner_support import TOKEN, headless_chromium, page_server, square_program
+from .test_jobs_run_safety import write_job
 
 
 def test_run_at_a_real_machine_names_each_sheet_to_load_with_its_size_material_thickness_parts_and_picture(tmp_path):

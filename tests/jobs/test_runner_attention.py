@@ -13,7 +13,7 @@ from fabline.errors import FablineError
 from fabline.jobs.queue import JobQueue
 from fabline.jobs.runner import MachineConfig, Runner
 from fabline.link import Streamer
-from tests.runner_support import TOKEN, executed_program_lines, headless_chromium, page_server, square_program, wire_lines
+from runner_support import TOKEN, executed_program_lines, headless_chromium, page_server, square_program, wire_lines
 
 
 def wait(condition, timeout: float = 60.0) -> None:

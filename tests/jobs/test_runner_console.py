@@ -15,7 +15,7 @@ from fabline.jobs.queue import JobQueue
 from fabline.jobs.runner import MachineConfig, Runner
 from fabline.jobs.web import TOKEN_HEADER
 from fabline.link.protocol_sim import close_simulator, get_simulator
-from tests.runner_support import TOKEN, executed_program_lines, page_server, square_program, wire_lines
+from runner_support import TOKEN, executed_program_lines, page_server, square_program, wire_lines
 
 TINY = """
 name = "tiny"
@@ -168,7 +168,7 @@ def test_a_job_file_uploaded_from_the_page_is_queued_once(shop, tmp_path):
 
 
 def test_the_page_console_sends_a_setting_after_its_dialog_uploads_a_job_and_shows_what_a_cancelled_job_cut(shop):
-    from tests.runner_support import headless_chromium
+    from runner_support import headless_chromium
 
     client, queue = shop["client"], shop["queue"]
     program = laser_program(shop["tmp"] / "plate.gcode")

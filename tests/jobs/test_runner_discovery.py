@@ -14,7 +14,7 @@ from pathlib import Path
 
 from fabline.jobs.discovery import RemoteRunner, Search, find_runner, record_beside, token_file, user_record
 from fabline.jobs.queue import JobQueue
-from tests.runner_support import free_port, square_program
+from runner_support import free_port, square_program
 
 
 def _wait_for_server(state: Path, server: subprocess.Popen) -> RemoteRunner:

@@ -13,7 +13,7 @@ import time
 
 import httpx
 
-from tests.runner_support import free_port
+from runner_support import free_port
 
 SMALL_JOB = """
 name = "first-contact"

@@ -9,7 +9,7 @@ import time
 from fabline.jobs.queue import JobQueue
 from fabline.jobs.runner import MachineConfig, Runner
 from fabline.machine import load_program
-from tests.runner_support import executed_program_lines
+from runner_support import executed_program_lines
 
 GOOD = """
 name = "tiny"

@@ -12,7 +12,7 @@ import pytest
 from fabline.errors import FablineError
 from fabline.jobs.queue import JobQueue
 from fabline.jobs.runner import MachineConfig, Runner, parse_machine
-from tests.runner_support import executed_program_lines, square_program, wire_lines
+from runner_support import executed_program_lines, square_program, wire_lines
 
 
 @pytest.fixture

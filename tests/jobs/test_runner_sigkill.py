@@ -14,7 +14,7 @@ from pathlib import Path
 
 from fabline.jobs.queue import JobQueue
 from fabline.link import SimulatorServer
-from tests.runner_support import JOBS_CLI, executed_program_lines, square_program, wire_lines
+from runner_support import JOBS_CLI, executed_program_lines, square_program, wire_lines
 
 REPO = Path(__file__).resolve().parents[2]
 KILLS = 20

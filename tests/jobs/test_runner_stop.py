@@ -21,7 +21,7 @@ import pytest
 
 from fabline.jobs.queue import JobQueue
 from fabline.link import SimulatorServer
-from tests.runner_support import JOBS_CLI, executed_program_lines, free_port, square_program, wire_lines
+from runner_support import JOBS_CLI, executed_program_lines, free_port, square_program, wire_lines
 
 REPO = Path(__file__).resolve().parents[2]
 TOKEN = "stop-token"

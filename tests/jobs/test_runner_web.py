@@ -10,11 +10,11 @@ import time
 import httpx
 import pytest
 
-from tests.conftest import without_usage
+from conftest import without_usage
 from fabline.jobs.queue import JobQueue
 from fabline.jobs.runner import MachineConfig, Runner
 from fabline.jobs.web import TOKEN_HEADER
-from tests.runner_support import (TOKEN, executed_program_lines, free_port, headless_chromium, page_server, square_program,
+from runner_support import (TOKEN, executed_program_lines, free_port, headless_chromium, page_server, square_program,
                             wire_lines)
 
 
@@ -152,7 +152,7 @@ def test_serve_prints_a_fresh_token_and_binds_to_localhost(tmp_path):
     import signal
     import subprocess
 
-    from tests.runner_support import JOBS_CLI
+    from runner_support import JOBS_CLI
 
     (tmp_path / "jobs").mkdir()
     port = free_port()

@@ -21,7 +21,7 @@ import pytest
 
 from fabline.jobs.queue import JobQueue
 from fabline.jobs.web import BODY_LIMIT, JSON_DEPTH, TOKEN_HEADER, create_app
-from tests.runner_support import JOBS_CLI, TOKEN, free_port, headless_chromium, page_server, square_program
+from runner_support import JOBS_CLI, TOKEN, free_port, headless_chromium, page_server, square_program
 
 MIB = 1 << 20
 

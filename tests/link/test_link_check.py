@@ -17,7 +17,7 @@ from fabline.machine.program import load_program
 from fabline.nest.layout import save_nesting
 from fabline.unroll.parts import save_parts
 
-from tests.export.test_export_helpers import every_kind_nesting, every_kind_partset
+from export_helpers import every_kind_nesting, every_kind_partset
 
 ARCS = "G21\nG90\nG0 X10 Y0\nG2 X0 Y10 I-10 J0 F1000\nG3 X10 Y0 I0 J-10\nG2 X0 Y10 R10\nG0 X0 Y0\n"
 

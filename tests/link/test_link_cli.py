@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import serial
 
-from tests.conftest import without_usage
+from conftest import without_usage
 from fabline.cli import main
 from fabline.link import executed_file_lines
 from fabline.link.protocol_sim import close_simulator

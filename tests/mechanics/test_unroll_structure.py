@@ -91,7 +91,7 @@ def test_per_interval_check_of_a_circular_lamella(s235):
     from pathlib import Path
     from fabline.geometry import analyse
     from fabline.mechanics import check_lamella
-    from tests.unroll.test_unroll_geometry import polar_grid
+    from networks import polar_grid
 
     radius = 1200.0
     geometry = analyse(polar_grid(radius + 350.0 * np.arange(2), 0.25 * np.arange(5)))

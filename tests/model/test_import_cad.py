@@ -19,7 +19,7 @@ from fabline.model.importers import import_model
 from fabline.model.importers.curves import family_and_id
 from fabline.model.importers.dxf import _bulk_3d_polylines, read_dxf
 from fabline.model.writers import write_dxf
-from tests.model.test_import_roundtrip import assert_same_network, hypar_mesh, hypar_network
+from .test_import_roundtrip import assert_same_network, hypar_mesh, hypar_network
 
 RADIUS, HEIGHTS = 0.5, (0.1, 0.2)
 

@@ -10,7 +10,7 @@ import pytest
 
 from fabline.model import load_network, network_to_dict, save_network
 from fabline.model.writers import write_dxf, write_obj
-from tests.model.test_import_roundtrip import hypar_mesh, hypar_network
+from .test_import_roundtrip import hypar_mesh, hypar_network
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ from fabline.errors import FablineError
 from fabline.model.designs import enneper_network
 from fabline.model.importers import import_model
 from fabline.model.writers import write_dxf, write_obj
-from tests.model.test_import_roundtrip import assert_same_network, enneper_mesh, hypar_mesh, hypar_network
+from .test_import_roundtrip import assert_same_network, enneper_mesh, hypar_mesh, hypar_network
 
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,8 @@ import trimesh
 
 from fabline.errors import FablineError
 from fabline.model.importers import import_model
-from tests.model.test_import_cad import HEIGHTS, RADIUS, assert_semicircle_nodes, plane_mesh
-from tests.model.test_import_roundtrip import assert_same_crossings, hypar_mesh, hypar_network
+from .test_import_cad import HEIGHTS, RADIUS, assert_semicircle_nodes, plane_mesh
+from .test_import_roundtrip import assert_same_crossings, hypar_mesh, hypar_network
 
 import rhino3dm  # in the test extra: a fresh `pip install -e '.[test]'` has it, so a missing one fails
 

@@ -11,7 +11,7 @@ from fabline.geometry import analyse
 from fabline.geometry.offsets import OffsetCurve, OffsetCurves, SplineTable, offset_arc_lengths
 from fabline.unroll.batch import label_spots
 from fabline.unroll.pieces import label_spot
-from tests.unroll.test_unroll_geometry import polar_grid
+from networks import polar_grid
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import pytest
 
 from fabline.model import save_network
 from fabline.unroll import load_parts
-from tests.unroll.test_unroll_geometry import network_of, polar_grid
+from networks import network_of, polar_grid
 
 
 def square_grid(spacing: float, count: int, angle_deg: float = 90.0):

@@ -12,7 +12,8 @@ from shapely import union_all
 from shapely.geometry import MultiLineString, Polygon
 
 from fabline.unroll import UnrollOptions, flatten_contour, load_parts, save_parts, unroll_network
-from tests.unroll.test_unroll_geometry import network_of, options, polar_grid
+from networks import network_of, polar_grid
+from .test_unroll_geometry import options
 
 STRIP_KINDS = ("strip", "curved-strip")
 
