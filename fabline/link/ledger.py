@@ -181,6 +181,8 @@ class Ledger:
             segment = self.blocks[index].segment
             if math.dist(position, segment.end) <= POSITION_TOLERANCE:
                 counts.add(min(max(self.acked, index + 1), following[number + 1]))
+                if following[number + 1] < len(self.blocks) and _turns_back(segment, self.blocks[following[number + 1]].segment):
+                    counts.add(index)  # the machine comes to rest at a reversal: its last microns may be still to run
             elif (math.dist(position, segment.start) > POSITION_TOLERANCE
                   and segment.contains(position, POSITION_TOLERANCE)):
                 counts.add(index)
@@ -210,3 +212,14 @@ class Ledger:
         if strict:
             raise FablineError(f"{self.program.name}:{file_line}: no G-code command on that line to restart from")
         return None
+
+
+def _turns_back(segment, following) -> bool:
+    """Whether the straight move `following` runs back along the straight `segment` (a retraced path): Grbl plans a
+    full stop at that junction, so a stop within POSITION_TOLERANCE of the end can as well be short of it."""
+    if segment.center is not None or following.center is not None:
+        return False
+    ahead = [e - s for s, e in zip(segment.start, segment.end)]
+    back = [e - s for s, e in zip(following.start, following.end)]
+    return sum(a * b for a, b in zip(ahead, back)) < -0.99 * math.hypot(*ahead) * math.hypot(*back)
+

@@ -98,3 +98,22 @@ def test_connection_and_grbl_against_the_simulator(tmp_path):
     finally:
         connection.close()
         close_simulator(name)
+
+
+def test_a_stop_at_a_reversal_names_the_line_still_short_of_its_end():
+    """Out and back (X10, then X0): Grbl plans a full stop where the path turns back, so a stop 0.007 mm short of X10
+    (within the position tolerance of its end) may be the first line's last microns as well as its end: both are
+    named, never the end alone (the fault campaign's case 127: resuming after line 2 left line 2 unfinished). At a
+    plain corner the end is still taken."""
+    ledger = ledger_of(b"G21 G90\nG1 X10 F600\nG1 X0\nG1 Y10\n")
+    send_all(ledger)
+    ledger.heard(classify("ok"))
+    ledger.heard(classify("ok"))
+    with pytest.raises(Undecided, match=r"one of 2, 3\)"):
+        ledger.executed_from_position(classify("<Hold:0|WPos:9.993,0.000,0.000>").status, None, planner_empty=False)
+    corner = ledger_of(SQUARE)
+    send_all(corner)
+    corner.heard(classify("ok"))
+    corner.heard(classify("ok"))
+    assert corner.executed_from_position(classify("<Hold:0|WPos:9.993,0.000,0.000>").status, None,
+                                         planner_empty=False) == 2
