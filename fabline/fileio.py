@@ -262,12 +262,13 @@ def atomic_output(path: str | os.PathLike, mode: str = "w") -> Iterator[Any]:
     try:
         _make_folder(target.parent)
         sweep_orphans(target.parent)
-        with _signals_deferred(swallow=True) as pending:  # the temp file is made, and removed below if a signal came
-            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.fabline{os.getpid()}-", suffix=".tmp",
-                                       dir=target.parent)
     except OSError as exc:
         raise FablineError(f"{path}: cannot write: {exc.strerror}") from None
+    tmp = None  # set with the temp file, before any signal can be raised: whatever stops us then removes it
     try:
+        with _signals_deferred(swallow=True) as pending:
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.fabline{os.getpid()}-", suffix=".tmp",
+                                       dir=target.parent)
         with os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8", "newline": "\n"})) as handle:
             _deliver(pending)  # a signal that came as the temp file was made: raised here, where it is removed
             umask = os.umask(0)
@@ -281,10 +282,12 @@ def atomic_output(path: str | os.PathLike, mode: str = "w") -> Iterator[Any]:
                 outputs.record(target)
             os.replace(tmp, target)
     except OSError as exc:
-        _unlink(Path(tmp))
+        if tmp is not None:
+            _unlink(Path(tmp))
         raise FablineError(f"{path}: cannot write: {exc.strerror}") from None
     except BaseException:
-        _unlink(Path(tmp))
+        if tmp is not None:
+            _unlink(Path(tmp))
         raise
 
 
