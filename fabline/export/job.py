@@ -145,8 +145,11 @@ def export_job(nesting: Nesting, parts: dict[str, Part], profile: MachineProfile
         folder = gcode_dir if gcode_dir is not None else dxf_dir
         if cutlist is not None or folder is not None:
             outputs[Path(cutlist if cutlist is not None else Path(folder) / CUTLIST_NAME)] = cutlist_csv(nesting, parts)
+        # every sheet is in: wait for the idle workers to exit, so that no pool thread is still tearing down (and
+        # printing a feeder thread's EBADF traceback) when a signal ends the process while the outputs are renamed
+        pool.shutdown(wait=True)
     finally:
-        pool.shutdown(wait=False, cancel_futures=True)
+        pool.shutdown(wait=False, cancel_futures=True)  # a failure or an interrupt: do not wait for running sheets
     for path, text in outputs.items():
         with atomic_output(path) as handle:
             handle.write(text)
