@@ -200,10 +200,10 @@ class Block:
         return modal.feed * MM_PER_INCH if modal.units == "G20" else modal.feed
 
 
-def compact_line(text: str) -> str:
+def compact_line(text: str, buffer: int = LINE_BUFFER_SIZE) -> str:
     """What Grbl's protocol loop keeps of a received line (protocol.c): real-time characters, whitespace and
-    control characters, `/`, `( )` and `;` comments removed, letters uppercased; error:11 when more than 79
-    characters remain."""
+    control characters, `/`, `( )` and `;` comments removed, letters uppercased; error:11 when more than
+    `buffer` - 1 characters remain (79 in Grbl's 80-byte line buffer)."""
     out, comment = [], None
     for char in text:
         if char in REALTIME_COMMANDS or char >= "\x80":
@@ -214,7 +214,7 @@ def compact_line(text: str) -> str:
         elif char == "(" or char == ";":
             comment = char
         elif char > " " and char != "/":
-            if len(out) >= LINE_BUFFER_SIZE - 1:
+            if len(out) >= buffer - 1:
                 raise GcodeError(11)
             out.append(char)
     return "".join(out).upper()
