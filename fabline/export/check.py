@@ -86,12 +86,12 @@ def check_program(text: str, profile: MachineProfile, source: str = "program",
         if marker:
             state.operation = marker.group(1)
             state.positioned = False
-        line = firmware.accepts(raw, where, report.problems)
-        if line is None:
+        codes = firmware.accepts(raw, where, report.problems)
+        if codes is None:
             continue
         if firmware.block is not None:
-            unexpected.add(line.codes, number)
-            state.follow(firmware.block, line.codes, where, report.problems)
+            unexpected.add(codes, number)
+            state.follow(firmware.block, codes, where, report.problems)
         else:
             _read_with_pygcode(raw, state, where, report.problems)
     state.finish()
@@ -112,14 +112,6 @@ def _read_with_pygcode(raw: str, state: "_State", where: str, problems: list[str
     state.apply(block, where, problems)
 
 
-@dataclass(frozen=True)
-class _Line:
-    """A line the controller takes: its compacted text and its G and M codes (canonical, as `words` lists them)."""
-
-    text: str
-    codes: tuple[str, ...] = ()
-
-
 class _Firmware:
     """What the controller does with each raw line: real-time characters, `$` commands, NUL bytes and F0 feeds
     are problems for any controller; a Grbl build's parser (None: not a Grbl profile) also checks the G-code,
@@ -131,9 +123,10 @@ class _Firmware:
         self.modal, self.position = ModalState(), (0.0, 0.0, 0.0)
         self.block: Block | None = None
 
-    def accepts(self, raw: str, where: str, problems: list[str]) -> _Line | None:
-        """Report what is wrong with `raw`; None when the line must not be read further (the controller would
-        refuse it, or it is not G-code)."""
+    def accepts(self, raw: str, where: str, problems: list[str]) -> tuple[str, ...] | None:
+        """Report what is wrong with `raw` and return its G and M codes (canonical; none read for another
+        controller); None when the line must not be read further (the controller would refuse it, or it is not
+        G-code)."""
         self.block = None
         for char in sorted({c for c in raw if c in REALTIME_COMMANDS}):
             problems.append(f"{where}: {char!r} is the Grbl real-time command {REALTIME_COMMANDS[char]}, which the "
@@ -159,16 +152,16 @@ class _Firmware:
                 problems.append(f"{where}: F0 feed on a motion line: no feed move can run at F0 (error:22): "
                                 f"{raw.strip()}")
             if self.build is None:
-                return _Line(line)
+                return ()
             codes = tuple(parse_block(line, self.build).commands.values())
             self.block = execute(line, self.modal, self.position, build=self.build)
         except GcodeError as exc:
             if self.build is None:
-                return _Line(line)   # another controller: the profile's words are checked by _State
+                return ()   # another controller: the profile's words are checked by _State
             problems.append(f"{where}: {explain_error(exc.code)}: {raw.strip()}")
             return None
         self.modal, self.position = self.block.modal, self.block.position
-        return _Line(line, codes)
+        return codes
 
 
 class _Unexpected:
@@ -182,6 +175,7 @@ class _Unexpected:
         self.counts: dict[str, int] = {}
 
     def add(self, codes: tuple[str, ...], number: int) -> None:
+        """Count the codes of line `number` that are not among the profile's words."""
         for code in codes:
             if canonical_word(code) not in self.profile.words:
                 self.counts[code] = self.counts.get(code, 0) + 1
@@ -364,6 +358,7 @@ class _State:
         self._report_extent(xs, ys, where, problems)
 
     def _report_extent(self, xs, ys, where: str, problems: list[str]) -> None:
+        """Report the extent of a move's points (machine mm) when it leaves the bed."""
         if (min(xs) < -BED_TOLERANCE or min(ys) < -BED_TOLERANCE or max(xs) > self.profile.bed_width + BED_TOLERANCE
                 or max(ys) > self.profile.bed_height + BED_TOLERANCE):
             problems.append(f"{where}: move reaches x {min(xs):.3f}..{max(xs):.3f}, y {min(ys):.3f}..{max(ys):.3f} mm, "

@@ -128,6 +128,15 @@ def test_an_88_character_comment_passes_and_a_90_character_line_of_words_is_erro
     assert check_program(START + at_limit + "0\n", LASER).problems[0].startswith("line 4: error:11")
 
 
+def test_a_tighter_max_line_length_of_the_profile_applies_to_the_same_count():
+    import dataclasses
+    tight = dataclasses.replace(LASER, max_line_length=40)
+    line = "G1 X1." + "0" * 20 + " Y1." + "0" * 20 + " F600 ; a comment that does not count"
+    assert check_program(START + line + "\n", tight).problems == [
+        "line 4: 52 characters once spaces and comments are removed, over the profile's max_line_length of 40"]
+    assert check_program(START + line + "\n", LASER).problems == []
+
+
 def test_simulator_and_checker_agree_with_the_firmware_on_comments_and_the_line_buffer():
     """The simulator's line buffer drops `;` comments and `/` as Grbl's protocol loop does: the 88-character
     comment line is ok, 80 characters of words are error:11 (transcript: `G1 X111...` over 80)."""
