@@ -147,17 +147,18 @@ class _Firmware:
                             f"profile's max_line_length of {self.max_line_length}")
         try:
             words = split_words(line)
-            if ("F", 0.0) in words and any(letter in "XYZ" or (letter == "G" and value in (0, 1, 2, 3))
-                                           for letter, value in words):
-                problems.append(f"{where}: F0 feed on a motion line: no feed move can run at F0 (error:22): "
-                                f"{raw.strip()}")
-            if self.build is None:
-                return ()
+        except GcodeError:
+            words = []   # malformed: the parser below says where, with the firmware's code
+        if ("F", 0.0) in words and any(letter in "XYZ" or (letter == "G" and value in (0, 1, 2, 3))
+                                       for letter, value in words):
+            problems.append(f"{where}: F0 feed on a motion line: no feed move can run at F0 (error:22): "
+                            f"{raw.strip()}")
+        if self.build is None:
+            return ()
+        try:
             codes = tuple(parse_block(line, self.build).commands.values())
             self.block = execute(line, self.modal, self.position, build=self.build)
         except GcodeError as exc:
-            if self.build is None:
-                return ()   # another controller: the profile's words are checked by _State
             problems.append(f"{where}: {explain_error(exc.code)}: {raw.strip()}")
             return None
         self.modal, self.position = self.block.modal, self.block.position

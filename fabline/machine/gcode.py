@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 from fabline.machine.build import STOCK_BUILD, BuildInfo
@@ -222,9 +223,16 @@ def compact_line(text: str, buffer: int = LINE_BUFFER_SIZE) -> str:
 
 def split_words(line: str) -> list[tuple[str, float]]:
     """Split a compact uppercase line into (letter, value) words, failing like the firmware (error 1, 2)."""
+    return list(iter_words(line))
+
+
+def iter_words(line: str) -> Iterator[tuple[str, float]]:
+    """The (letter, value) words of a compact line one at a time, as gc_execute_line imports them: a malformed
+    word fails (error 1, 2) only when reached, after the words before it were checked."""
     if _WELL_FORMED.fullmatch(line):
-        return [(letter, float(value)) for letter, value in _WORD.findall(line)]
-    words, position = [], 0
+        yield from ((letter, float(value)) for letter, value in _WORD.findall(line))
+        return
+    position = 0
     while position < len(line):
         letter = line[position]
         if not "A" <= letter <= "Z":
@@ -232,9 +240,8 @@ def split_words(line: str) -> list[tuple[str, float]]:
         match = _NUMBER.match(line, position + 1)
         if not match:
             raise GcodeError(2)
-        words.append((letter, float(match.group())))
+        yield letter, float(match.group())
         position = match.end()
-    return words
 
 
 @dataclass
@@ -253,7 +260,7 @@ def parse_block(line: str, build: BuildInfo = STOCK_BUILD) -> _Parsed:
     commands: dict[str, str] = {}
     values: dict[str, float] = {}
     axis_command = None
-    for letter, value in split_words(line):
+    for letter, value in iter_words(line):   # word by word, as the firmware: `E1 X` is error:20, not error:2
         if letter == "G" or letter == "M":
             integer = math.trunc(value)
             mantissa = round(100 * (value - integer))

@@ -101,6 +101,8 @@ REFUSED = [  # (line, Grbl's error, where gcode.c (or the transcript) says so)
     ("G1 X10 Q5", 20, "transcript: unsupported word Q"),
     ("G99", 20, "transcript: unsupported command"),
     ("FOO", 2, "transcript: bad letter (O without a value)"),
+    ("E1 NONSENSE", 20, "word by word: E is unsupported before the malformed O is reached"),
+    ("G1 X10 $1", 1, "'$' where a word letter is expected"),
     ("G1 X10 Y10 Z", 2, "transcript: value missing"),
     ("G1 X" + "1" * 80, 11, "transcript: line over 80 characters"),
 ]

@@ -231,7 +231,7 @@ def test_gcode_check_lists_every_problem_with_its_line(cli, tmp_path):
     path.write_text("G21\n" + "E1 nonsense\n" * 500)
     code, out, _ = cli("gcode-check", path, "--machine", "grbl-laser")
     assert code == 1 and f"{path}: 500 problem(s)" in out
-    listed = re.findall(r"line (\d+): error:2 \(numeric value format is not valid", out)
+    listed = re.findall(r"line (\d+): error:20 \(unsupported or invalid g-code command", out)   # E, before the O
     assert [int(n) for n in listed] == list(range(2, 502))
 
 
