@@ -329,8 +329,9 @@ class _State:
         cutting = self.tool_on() and not laser_off
         if rapid:
             self.positioned = True
-            if cutting and np.hypot(end[0] - start[0], end[1] - start[1]) > 0:
-                problems.append(f"{where}: travel move ({label}) with the tool on")
+            message = f"{where}: travel move ({label}) with the tool on"
+            if cutting and np.hypot(end[0] - start[0], end[1] - start[1]) > 0 and message not in problems[-1:]:
+                problems.append(message)   # once for a G28/G30's two legs
         elif cutting and not self.positioned and self.profile.laser_mode:
             problems.append(f"{where}: travel with the laser on ({label} before the G0 to the start of "
                             f"the {self.operation} path; in laser mode only G0 travels with the laser off)")

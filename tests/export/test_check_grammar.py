@@ -104,7 +104,7 @@ REFUSED = [  # (line, Grbl's error, where gcode.c (or the transcript) says so)
     ("E1 NONSENSE", 20, "word by word: E is unsupported before the malformed O is reached"),
     ("G1 X10 $1", 1, "'$' where a word letter is expected"),
     ("G1 X10 Y10 Z", 2, "transcript: value missing"),
-    ("G1 X" + "1" * 80, 11, "transcript: line over 80 characters"),
+    ("G1 X" + "1" * 80, 11, "transcript: line over 80 characters (there X and 80 ones)"),
 ]
 
 
@@ -213,8 +213,10 @@ def test_g28_and_g30_go_to_the_stored_position_through_the_intermediate_point():
 
 def test_g28_with_the_laser_on_in_feed_mode_is_travel_with_the_tool_on():
     """Grbl's laser mode disables the laser only when the motion mode is not G1-G3; G28 keeps the mode."""
-    problems, _, _, _ = _lengths("G21\nG90\nM4 S500\nG1 X100 Y100 F600\nG28\nM5\n")
-    assert problems == ["line 5: travel move (G28) with the tool on"]
+    problems, _, _, _ = _lengths("G21\nG90\nM4 S500\nG1 X100 Y100 F600\nG28\nG1 X50 Y50\nG30 X20\nM5\n")
+    assert problems == ["line 5: travel move (G28) with the tool on", "line 7: travel move (G30) with the tool on"]
+    problems, _, _, _ = _lengths("G21\nG90\nM4 S500\nG1 X100 Y100 F600\nG0 X50\nG28\nM5\n")
+    assert problems == []                                        # in G0 mode the laser is off, G28 too
 
 
 def test_g93_inverse_time_feed_takes_1_over_f_minutes_per_move():
