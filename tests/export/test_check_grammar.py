@@ -11,7 +11,9 @@ exchange tests/data/grbl-1.1h-transcript.txt where it covers a case; lengths and
 from __future__ import annotations
 
 import math
+import re
 import time
+from pathlib import Path
 
 import pytest
 
@@ -21,6 +23,7 @@ from fabline.machine import load_machine
 from fabline.machine.build import BuildInfo
 
 LASER = load_machine("grbl-laser")
+TRANSCRIPT = Path(__file__).parents[1] / "data" / "grbl-1.1h-transcript.txt"
 START = "G21\nG90\nG0 X10 Y10\n"   # every case starts at machine (10, 10, 0), feed not yet set
 
 DOCUMENTED = [  # (code, a minimal line using it, the build options it needs)
@@ -113,6 +116,23 @@ def test_codes_grbl_refuses_are_problems_with_its_error_code(line, error, why):
     report = check_program(START + line + "\n", LASER)
     number = 3 + line.count("\n") + 1
     assert [p.split(" (")[0] for p in report.problems] == [f"line {number}: error:{error}"], why
+
+
+def test_the_checker_answers_the_transcripts_gcode_lines_as_the_real_firmware_did():
+    """Every G-code line sent to the real Grbl 1.1h, in order, and its answer (`ok` or `error:N`; error:9, the
+    alarm lock, is the machine's state, not the line's): the checker reads the same lines as one program."""
+    sent, answers = [], []
+    for raw in TRANSCRIPT.read_text(encoding="ascii").splitlines():
+        if raw.startswith(">>> ") and not raw.startswith(">>> realtime"):
+            sent.append(raw[4:].split("    #")[0])
+        elif re.fullmatch(r"<<< (ok|error:\d+)", raw):
+            answers.append(raw[4:])
+    assert len(sent) == len(answers)
+    lines = [(line, answer) for line, answer in zip(sent, answers) if not line.startswith("$") and answer != "error:9"]
+    assert len(lines) == 15 and sum(answer != "ok" for _, answer in lines) == 8
+    report = check_program("\n".join(line for line, _ in lines) + "\n", LASER)
+    verdicts = [(int(p.split(":")[0][5:]), p.split(": ")[1].split(" (")[0]) for p in report.problems]
+    assert verdicts == [(number, answer) for number, (_, answer) in enumerate(lines, start=1) if answer != "ok"]
 
 
 def test_an_88_character_comment_passes_and_a_90_character_line_of_words_is_error_11():
