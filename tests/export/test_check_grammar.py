@@ -10,6 +10,7 @@ exchange tests/data/grbl-1.1h-transcript.txt where it covers a case; lengths and
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import time
@@ -151,7 +152,6 @@ def test_an_88_character_comment_passes_and_a_90_character_line_of_words_is_erro
 
 
 def test_a_tighter_max_line_length_of_the_profile_applies_to_the_same_count():
-    import dataclasses
     tight = dataclasses.replace(LASER, max_line_length=40)
     line = "G1 X1." + "0" * 20 + " Y1." + "0" * 20 + " F600 ; a comment that does not count"
     assert check_program(START + line + "\n", tight).problems == [
@@ -265,7 +265,6 @@ def test_g91_1_arcs_and_an_arc_in_the_zx_plane():
 
 def test_g43_1_tool_length_offset_moves_z_for_a_mill():
     """A Grbl mill cuts below work Z 0: with G43.1 Z10, machine Z 5 (G53) is work Z -5."""
-    import dataclasses
     mill = dataclasses.replace(LASER, mode="mill", laser_mode=False)
     _, cut, travel, _ = _lengths("G21\nG90\nG0 Z5\nG43.1 Z10\nG53 G1 X50 Z5 F600\nG49\nG1 X100\n", mill)
     assert cut == pytest.approx(50, abs=1e-3)     # G49 clears the offset: Z 5 is above the work again
