@@ -127,13 +127,16 @@ def test_same_input_gives_the_same_bytes(tmp_path):
 
 
 def test_estimated_time_matches_the_trapezoid_closed_form():
-    """One 1000 mm move at 6000 mm/min, 800 mm/s^2 from rest to rest: L/v + v/a."""
+    """One 1000 mm move at 6000 mm/min, 800 mm/s^2 from rest to rest: L/v + v/a, and Grbl's $1 = 25 ms stepper
+    lock each time the machine comes to rest."""
+    lock = 0.025
     log = MoveLog()
     log.add((0.0, 0.0), (1000.0, 0.0), 6000.0, False, True, stop_before=True)
-    assert estimate_time(log.table(), 800.0, 0.01) == pytest.approx(1000 / 100 + 100 / 800)
+    assert estimate_time(log.table(), 800.0, 0.01) == pytest.approx(1000 / 100 + 100 / 800 + lock)
+    assert estimate_time(log.table(), 800.0, 0.01, idle_lock=0.0) == pytest.approx(1000 / 100 + 100 / 800)
     short = MoveLog()                                   # too short to reach speed: a triangle profile
     short.add((0.0, 0.0), (4.0, 0.0), 6000.0, False, True)
-    assert estimate_time(short.table(), 800.0, 0.01) == pytest.approx(2 * np.sqrt(4.0 / 800))
+    assert estimate_time(short.table(), 800.0, 0.01) == pytest.approx(2 * np.sqrt(4.0 / 800) + lock)
     corner = MoveLog()                                  # a 90 degree corner: the machine stops only where the rule says
     corner.add((0.0, 0.0), (500.0, 0.0), 6000.0, False, True)
     corner.add((500.0, 0.0), (500.0, 500.0), 6000.0, False, True)
@@ -141,7 +144,7 @@ def test_estimated_time_matches_the_trapezoid_closed_form():
     stop.add((0.0, 0.0), (500.0, 0.0), 6000.0, False, True)
     stop.add((500.0, 0.0), (500.0, 500.0), 6000.0, False, True, stop_before=True)
     assert estimate_time(corner.table(), 800.0, 0.01) < estimate_time(stop.table(), 800.0, 0.01)
-    assert estimate_time(stop.table(), 800.0, 0.01) == pytest.approx(2 * (5 + 100 / 800))
+    assert estimate_time(stop.table(), 800.0, 0.01) == pytest.approx(2 * (5 + 100 / 800 + lock))
 
 
 def test_marks_and_cuts_are_summarised_apart():

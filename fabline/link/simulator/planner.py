@@ -8,6 +8,11 @@ from dataclasses import dataclass
 
 from fabline.machine.gcode import Block, Segment
 
+N_ARC_CORRECTION = 12
+"""config.h: mc_arc's approximate rotations between two exact ones."""
+ARC_ANGULAR_TRAVEL_EPSILON = 5e-7
+"""config.h (radians): an arc ending this close to its start, on the side it turns to, is a full circle."""
+
 
 @dataclass(slots=True)
 class Pending:
@@ -63,7 +68,7 @@ class Planner:
         if pending.pieces is None:
             segment = block.segment if block.segment is not None and block.segment.length > 0 else None
             pending.pieces = self._chords(segment)[::-1] if segment is not None else []  # next chord last
-            if segment is None:
+            if not pending.pieces:
                 planned = Planned(text=pending.line, line_number=block.line_number, jog=jog, pause=pending.pause,
                                    spindle=block.modal.spindle, speed=block.modal.speed, dwell=block.dwell)
                 self.planner.append(planned)
@@ -82,19 +87,46 @@ class Planner:
         return not pending.pieces
 
     def _chords(self, segment: Segment) -> list[Segment]:
-        """The planner blocks of a motion: a line is one; an arc is split into chords that stray at most $12 from
-        it (motion_control.c, mc_arc: floor(length / sqrt(tol (2 r - tol))) chords, the last ending on target)."""
+        """The planner blocks of a motion as motion_control.c makes them: a line is one (mc_line); an arc (mc_arc)
+        is floor(|travel| r / 2 / sqrt(tol (2 r - tol))) chords ($12 = tol, travel the angle it turns through), the
+        radius vector turned by a small-angle rotation from chord to chord and recomputed exactly after every
+        N_ARC_CORRECTION of them, the linear axis rising evenly, the last chord ending on the target. Chords of no
+        length are dropped, as plan_buffer_line drops blocks of no steps."""
         if segment.center is None:
             return [segment]
-        a, b, _ = segment.plane
-        radius = math.hypot(segment.start[a] - segment.center[a], segment.start[b] - segment.center[b])
-        tolerance = self.settings[12]
-        chord = math.sqrt(tolerance * (2 * radius - tolerance)) if 2 * radius > tolerance > 0 else 0.0
-        count = int(segment.length / chord) if chord > 0 else 1
-        if count <= 1:
-            return [Segment(segment.start, segment.end, segment.rapid)]
-        points = [segment.start, *segment.points(count)[:-1], segment.end]
-        return [Segment(p, q, False) for p, q in zip(points, points[1:])]
+        a, b, linear = segment.plane
+        start, target, centre = segment.start, segment.end, segment.center
+        offset_a, offset_b = centre[a] - start[a], centre[b] - start[b]
+        r_a, r_b = -offset_a, -offset_b
+        rt_a, rt_b = target[a] - centre[a], target[b] - centre[b]
+        travel = math.atan2(r_a * rt_b - r_b * rt_a, r_a * rt_a + r_b * rt_b)
+        if segment.clockwise and travel >= -ARC_ANGULAR_TRAVEL_EPSILON:
+            travel -= 2 * math.pi
+        elif not segment.clockwise and travel <= ARC_ANGULAR_TRAVEL_EPSILON:
+            travel += 2 * math.pi
+        radius, tolerance = math.hypot(offset_a, offset_b), self.settings[12]
+        bound = tolerance * (2 * radius - tolerance)
+        segments = math.floor(abs(0.5 * travel * radius) / math.sqrt(bound)) if bound > 0 else 0
+        points = [start]
+        if segments > 1:
+            theta, rise = travel / segments, (target[linear] - start[linear]) / segments
+            cos_t = 2.0 - theta * theta
+            sin_t = theta * (cos_t + 4.0) / 6.0
+            cos_t *= 0.5
+            position, count = list(start), 0
+            for i in range(1, segments):
+                if count < N_ARC_CORRECTION:
+                    r_a, r_b = r_a * cos_t - r_b * sin_t, r_a * sin_t + r_b * cos_t
+                    count += 1
+                else:
+                    cos_i, sin_i = math.cos(i * theta), math.sin(i * theta)
+                    r_a, r_b = -offset_a * cos_i + offset_b * sin_i, -offset_a * sin_i - offset_b * cos_i
+                    count = 0
+                position[a], position[b] = centre[a] + r_a, centre[b] + r_b
+                position[linear] += rise
+                points.append(tuple(position))
+        points.append(target)
+        return [Segment(p, q, False) for p, q in zip(points, points[1:]) if p != q]
 
     def _axis_limit(self, first_setting: int, unit: tuple[float, float, float]) -> float:
         """Grbl's limit_value_by_axis_maximum: the largest value along `unit` with no axis over its own setting."""
