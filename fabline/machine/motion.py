@@ -189,9 +189,7 @@ def _chords(table: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray
         centre = table[arc][:, [CX, CY]]
         travel[arc] = arc_travel(table[arc][:, [X0, Y0]] - centre, table[arc][:, [X1, Y1]] - centre,
                                  table[arc, CLOCKWISE] > 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        segments = np.floor(np.abs(0.5 * travel * radius) / np.sqrt(tolerance * (2 * radius - tolerance)))
-    pieces = np.where(arc & np.isfinite(segments) & (segments >= 1), segments, 1).astype(np.int64)
+    pieces = np.maximum(arc_segments(travel, radius, tolerance), 1)
     owner = np.repeat(np.arange(len(table)), pieces)
     first = np.concatenate([[0], np.cumsum(pieces)[:-1]])
     index = np.arange(len(owner)) - first[owner]           # chord number within its row
@@ -205,6 +203,14 @@ def _chords(table: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray
     stop = (table[owner, STOP] > 0) & (index == 0)
     stop[0] = True
     return start, end, owner, stop
+
+
+def arc_segments(travel, radius, tolerance: float) -> np.ndarray:
+    """mc_arc's segment count for arcs turning `travel` radians at `radius`: floor(|0.5 travel r| /
+    sqrt(tol (2 r - tol))), 0 where that is no number (a radius under tol / 2; lines, whose radius is inf)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        segments = np.floor(np.abs(0.5 * np.asarray(travel) * radius) / np.sqrt(tolerance * (2 * radius - tolerance)))
+    return np.where(np.isfinite(segments), segments, 0).astype(np.int64)
 
 
 def _arc_points(rows: np.ndarray, theta: np.ndarray, point: np.ndarray) -> np.ndarray:
@@ -263,6 +269,8 @@ def line_timeline(blocks, settings: dict[int, float], planner_blocks: int = PLAN
                 continue
             centre = segment.center if segment.center is not None else (math.nan, math.nan)
             feed = settings[110] if segment.rapid else block.feed_rate
+            if segment.center is not None and block.modal.feed_mode == "G93":
+                feed = _inverse_time_arc_feed(segment, block.modal.feed, settings.get(12, ARC_TOLERANCE)) or feed
             rows.append((segment.start[0], segment.start[1], segment.end[0], segment.end[1], centre[0], centre[1],
                          segment.clockwise, feed, segment.rapid, 0, 0, 0, 0.0))
             owners.append(index)
@@ -278,3 +286,12 @@ def line_timeline(blocks, settings: dict[int, float], planner_blocks: int = PLAN
                            planner_blocks=planner_blocks, idle_lock=lock)
         np.add.at(per_line, np.array(owners), times[:-1])
     return np.cumsum(per_line)
+
+
+def _inverse_time_arc_feed(segment, feed: float, tolerance: float) -> float:
+    """The mm/min a G93 arc's chords run at in Grbl 1.1h: mc_arc multiplies F by its segment count and clears the
+    inverse-time flag (so not F times the arc's length); 0 when it makes no segments (one block, F times its length)."""
+    r0 = np.array([[segment.start[0] - segment.center[0], segment.start[1] - segment.center[1]]])
+    r1 = np.array([[segment.end[0] - segment.center[0], segment.end[1] - segment.center[1]]])
+    travel = arc_travel(r0, r1, np.array([segment.clockwise]))
+    return feed * float(arc_segments(travel, float(np.hypot(*r0[0])), tolerance)[0])

@@ -28,7 +28,7 @@ def mc_arc_segments(radius: float, travel: float) -> int:
 def simulator_chords(start, end, clockwise: bool) -> list[Segment]:
     simulator = GrblSimulator(settings=SETTINGS, threaded=False)
     try:
-        return simulator._chords(Segment(start, end, False, center=(0.0, 0.0, 0.0), clockwise=clockwise))
+        return simulator._chords(Segment(start, end, False, center=(0.0, 0.0, 0.0), clockwise=clockwise))[0]
     finally:
         simulator.close()
 
@@ -214,3 +214,21 @@ def test_a_feed_hold_is_complete_once_the_lock_is_over():
         assert simulator.read(1 << 16, None).decode().startswith("<Hold:0|")
     finally:
         simulator.close()
+
+
+def test_inverse_time_arcs_run_as_mc_arc_rates_them():
+    """G93: plan_buffer_line makes a block's rate F times its length (G1 X7 from X5 at F60: 2 mm in 1/60 min, so
+    120 mm/min), but mc_arc multiplies F by its segment count and clears the inverse-time flag first, so a full
+    circle of r = 5 mm at F1 (111 chords) runs at 111 mm/min and takes 31.41 mm / 1.85 mm/s = 17.0 s, not the
+    minute G93 asks for (the chords' length and the ramps by hand: within 1e-5)."""
+    chords = mc_arc_segments(5.0, 2 * math.pi)
+    length = chords * 2 * 5.0 * math.sin(math.pi / chords)
+    v = chords / 60
+    cases = [(["G0X5Y0", "G4P0.1", "G93G1X7F60"], 2 / 2 + 2 / A),       # 2 mm at 2 mm/s: L / v + v / a
+             (["G0X5Y0", "G4P0.1", "G93G2X5Y0I-5J0F1"], length / v + v / A)]
+    for lines, by_hand in cases:
+        program = parse_program(("\n".join(lines) + "\n").encode("ascii"), "g93.gcode")
+        timeline = line_timeline(program.plan(ModalState(), (0.0, 0.0, 0.0)), {**DEFAULT_SETTINGS, **SETTINGS})
+        completed = timed_run(lines, settings=SETTINGS)
+        assert timeline[-1] - timeline[1] == pytest.approx(by_hand, rel=1e-5)
+        assert completed[-1][1] - completed[1][1] == pytest.approx(by_hand, rel=1e-5)
