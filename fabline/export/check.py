@@ -29,7 +29,7 @@ from fabline.fileio import read_bytes
 from fabline.machine.build import STOCK_BUILD, BuildInfo
 from fabline.machine.codes import explain_error
 from fabline.machine.gcode import REALTIME_COMMANDS, GcodeError, ModalState, compact_line, execute, split_words
-from fabline.machine.motion import MotionSummary, MoveLog, summarise
+from fabline.machine.motion import IDLE_LOCK, MotionSummary, MoveLog, summarise
 from fabline.machine.profile import MOTION_PARAMETERS, MachineProfile, canonical_word
 
 OPERATION_COMMENT = re.compile(r"^\s*;\s*((?:engrave|cut)-[a-z]+)\b")
@@ -87,7 +87,8 @@ def check_program(text: str, profile: MachineProfile, source: str = "program",
             continue
         state.apply(block, where, report.problems)
     state.finish()
-    report.summary = summarise(state.moves, profile.acceleration, profile.junction_deviation, profile.rapid_rate)
+    report.summary = summarise(state.moves, profile.acceleration, profile.junction_deviation, profile.rapid_rate,
+                               idle_lock=IDLE_LOCK if profile.grbl else 0.0)
     return report
 
 

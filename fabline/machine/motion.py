@@ -100,15 +100,18 @@ def arc_travel(r0: np.ndarray, r1: np.ndarray, clockwise: np.ndarray) -> np.ndar
                     np.where(travel <= ARC_ANGULAR_TRAVEL_EPSILON, travel + 2 * np.pi, travel))
 
 
-def summarise(log: MoveLog, acceleration: float, junction_deviation: float, max_rate: float = math.inf) -> MotionSummary:
+def summarise(log: MoveLog, acceleration: float, junction_deviation: float, max_rate: float = math.inf, *,
+              idle_lock: float = IDLE_LOCK) -> MotionSummary:
     """Cut, mark and travel lengths and the run time; tool-on engrave moves count as marks, other tool-on moves as cuts.
-    `max_rate` (mm/min) is every axis's maximum rate ($110, $111)."""
+    `max_rate` (mm/min) is every axis's maximum rate ($110, $111); `idle_lock` the seconds the controller holds at
+    every stop (Grbl's $1; 0 for a controller that does not)."""
     table = log.table()
     length, _, _, _ = move_geometry(table)
     on, mark = table[:, TOOL_ON] > 0, table[:, MARK] > 0
     return MotionSummary(
         cut_length=float(length[on & ~mark].sum()), mark_length=float(length[on & mark].sum()),
-        travel=float(length[~on].sum()), time=estimate_time(table, acceleration, junction_deviation, max_rate=max_rate),
+        travel=float(length[~on].sum()),
+        time=estimate_time(table, acceleration, junction_deviation, max_rate=max_rate, idle_lock=idle_lock),
         moves=len(table))
 
 
