@@ -147,6 +147,17 @@ def test_estimated_time_matches_the_trapezoid_closed_form():
     assert estimate_time(stop.table(), 800.0, 0.01) == pytest.approx(2 * (5 + 100 / 800 + lock))
 
 
+def test_the_stepper_lock_is_in_a_grbl_profiles_time_only():
+    """gcode-check's time: Grbl holds its steppers $1 = 25 ms each time the machine comes to rest (before the M5's
+    sync and at the end: 2 rests here); an RS-274/NGC controller has no such setting."""
+    mill = load_machine("rs274-mill")
+    text = "G21\nG90\nG1 X10 F600\nM5\nG1 X20\nM2\n"
+    plain = check_program(text, mill).summary.time
+    grbl = check_program(text, dataclasses.replace(mill, controller="Grbl 1.1")).summary.time
+    assert grbl - plain == pytest.approx(2 * 0.025)
+    assert plain == pytest.approx(2 * (10 / 10 + 10 / 500.0))
+
+
 def test_marks_and_cuts_are_summarised_apart():
     result, _ = _export(kerf=0.0)
     summary = result.sheets[0].summary
