@@ -4,8 +4,8 @@
 
 For each program, `fabline.machine.motion.line_timeline` (the estimate the stream bar, `fabline run`, the report
 and the runner page start from) is compared with the machine time the Grbl 1.1h simulator
-(`fabline.link.simulator.timed_run`: acceleration, junction deviation, $12 arc chords, a 15-block planner the
-host keeps full) takes, both for the grbl-laser profile's settings. Programs: the first N sheets (default 2) of
+(`fabline.link.simulator.timed_run`: acceleration, junction deviation, $12 arc chords as mc_arc makes them, the
+$1 stepper lock at every stop, a 15-block planner the host keeps full) takes, both for the grbl-laser profile's settings. Programs: the first N sheets (default 2) of
 the synthetic pavilion job exported with grbl-laser (or every .gcode in DIR, e.g. a `fabline run` output's
 gcode folder), and synthetic programs: many short segments, arcs, long straight cuts. The goal is |error| < 5 %.
 Simulated machine time is deterministic: the table does not depend on the computer.

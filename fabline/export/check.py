@@ -35,7 +35,7 @@ from fabline.machine.build import STOCK_BUILD, BuildInfo
 from fabline.machine.codes import explain_error
 from fabline.machine.gcode import (LINE_BUFFER_SIZE, REALTIME_COMMANDS, Block, GcodeError, ModalState, Segment,
                                    compact_line, execute, parse_block, split_words)
-from fabline.machine.motion import MotionSummary, MoveLog, summarise
+from fabline.machine.motion import IDLE_LOCK, MotionSummary, MoveLog, summarise
 from fabline.machine.profile import MOTION_PARAMETERS, MachineProfile, canonical_word
 
 OPERATION_COMMENT = re.compile(r"^\s*;\s*((?:engrave|cut)-[a-z]+)\b")
@@ -96,7 +96,8 @@ def check_program(text: str, profile: MachineProfile, source: str = "program",
             _read_with_pygcode(raw, state, where, report.problems)
     state.finish()
     report.warnings = unexpected.warnings()
-    report.summary = summarise(state.moves, profile.acceleration, profile.junction_deviation, profile.rapid_rate)
+    report.summary = summarise(state.moves, profile.acceleration, profile.junction_deviation, profile.rapid_rate,
+                               idle_lock=IDLE_LOCK if profile.grbl else 0.0)
     return report
 
 

@@ -26,7 +26,7 @@ from fabline.export.gcode import header_block, sheet_program
 from fabline.export.preview import PREVIEW_SUFFIX, cut_order_svg
 from fabline.export.toolpath import Toolpath, ToolpathOptions, check_placements, sheet_toolpaths
 from fabline.fileio import atomic_output
-from fabline.machine.motion import MotionSummary, summarise
+from fabline.machine.motion import IDLE_LOCK, MotionSummary, summarise
 from fabline.machine.profile import MachineProfile
 from fabline.naming import file_stem
 from fabline.nest.layout import Nesting, Sheet, load_nesting, parts_path
@@ -180,7 +180,8 @@ def _export_sheet(sheet: Sheet, number: int, count: int, profile: MachineProfile
     paths = sheet_toolpaths(sheet, parts, options, source)
     _check_bed(paths, profile, f"{source}: sheet {sheet.id}")
     body, moves = sheet_program(paths, profile)
-    summary = summarise(moves, profile.acceleration, profile.junction_deviation, profile.rapid_rate)
+    summary = summarise(moves, profile.acceleration, profile.junction_deviation, profile.rapid_rate,
+                        idle_lock=IDLE_LOCK if profile.grbl else 0.0)
     header = _header(name, sheet, number, count, profile, options, summary)
     program = header_block(header, profile) + body
     order = (cut_order_svg(program.encode("ascii"), f"{name}_{file_stem(sheet.id)}.gcode", sheet.width, sheet.height,

@@ -143,7 +143,7 @@ class Segment:
 
     def points(self, count: int) -> list[Vector]:
         """The points 1/count, 2/count, ... 1 of the way along the path (as `point_at` gives them, an arc evaluated
-        once: the simulator splits arcs into chords with them)."""
+        once)."""
         if self.center is None:
             return [self.point_at(i / count) for i in range(1, count + 1)]
         a, b, c = self.plane

@@ -127,13 +127,16 @@ def test_same_input_gives_the_same_bytes(tmp_path):
 
 
 def test_estimated_time_matches_the_trapezoid_closed_form():
-    """One 1000 mm move at 6000 mm/min, 800 mm/s^2 from rest to rest: L/v + v/a."""
+    """One 1000 mm move at 6000 mm/min, 800 mm/s^2 from rest to rest: L/v + v/a, and Grbl's $1 = 25 ms stepper
+    lock each time the machine comes to rest."""
+    lock = 0.025
     log = MoveLog()
     log.add((0.0, 0.0), (1000.0, 0.0), 6000.0, False, True, stop_before=True)
-    assert estimate_time(log.table(), 800.0, 0.01) == pytest.approx(1000 / 100 + 100 / 800)
+    assert estimate_time(log.table(), 800.0, 0.01) == pytest.approx(1000 / 100 + 100 / 800 + lock)
+    assert estimate_time(log.table(), 800.0, 0.01, idle_lock=0.0) == pytest.approx(1000 / 100 + 100 / 800)
     short = MoveLog()                                   # too short to reach speed: a triangle profile
     short.add((0.0, 0.0), (4.0, 0.0), 6000.0, False, True)
-    assert estimate_time(short.table(), 800.0, 0.01) == pytest.approx(2 * np.sqrt(4.0 / 800))
+    assert estimate_time(short.table(), 800.0, 0.01) == pytest.approx(2 * np.sqrt(4.0 / 800) + lock)
     corner = MoveLog()                                  # a 90 degree corner: the machine stops only where the rule says
     corner.add((0.0, 0.0), (500.0, 0.0), 6000.0, False, True)
     corner.add((500.0, 0.0), (500.0, 500.0), 6000.0, False, True)
@@ -141,7 +144,18 @@ def test_estimated_time_matches_the_trapezoid_closed_form():
     stop.add((0.0, 0.0), (500.0, 0.0), 6000.0, False, True)
     stop.add((500.0, 0.0), (500.0, 500.0), 6000.0, False, True, stop_before=True)
     assert estimate_time(corner.table(), 800.0, 0.01) < estimate_time(stop.table(), 800.0, 0.01)
-    assert estimate_time(stop.table(), 800.0, 0.01) == pytest.approx(2 * (5 + 100 / 800))
+    assert estimate_time(stop.table(), 800.0, 0.01) == pytest.approx(2 * (5 + 100 / 800 + lock))
+
+
+def test_the_stepper_lock_is_in_a_grbl_profiles_time_only():
+    """gcode-check's time: Grbl holds its steppers $1 = 25 ms each time the machine comes to rest (before the M5's
+    sync and at the end: 2 rests here); an RS-274/NGC controller has no such setting."""
+    mill = load_machine("rs274-mill")
+    text = "G21\nG90\nG1 X10 F600\nM5\nG1 X20\nM2\n"
+    plain = check_program(text, mill).summary.time
+    grbl = check_program(text, dataclasses.replace(mill, controller="Grbl 1.1")).summary.time
+    assert grbl - plain == pytest.approx(2 * 0.025)
+    assert plain == pytest.approx(2 * (10 / 10 + 10 / 500.0))
 
 
 def test_marks_and_cuts_are_summarised_apart():

@@ -27,8 +27,8 @@ A = 800.0  # mm/s^2 on X and Y ($120, $121); the max rates ($110, $111) 6000 mm/
 def test_the_simulators_machine_clock_is_its_planners_time_not_wall_time_times_scale(tmp_path):
     """A firmware that takes 20 ms of wall time to parse each line at time scale 20 000 (400 machine seconds per
     line) runs its planner dry between lines: each 100 mm move at 10 mm/s runs alone from rest to rest, 100/10 + 10/a
-    by hand. The simulator's clock, and the streamer's machine time read from it through the sim:// port, are that;
-    the wall time x time scale is many times more."""
+    by hand, and the steppers hold $1 = 25 ms after each. The simulator's clock, and the streamer's machine time read
+    from it through the sim:// port, are that; the wall time x time scale is many times more."""
     path = tmp_path / "three.gcode"
     path.write_text("G21\nG90\nG1 X100 F600\nG1 X0\nG1 X100\n", encoding="ascii")
     url = "sim://machine-clock?time_scale=20000&line_time=0.02&settings=120:800,121:800,110:6000,111:6000"
@@ -37,7 +37,7 @@ def test_the_simulators_machine_clock_is_its_planners_time_not_wall_time_times_s
         clock = get_simulator("machine-clock").machine_time
     finally:
         close_simulator("machine-clock")
-    by_hand = 3 * (100 / 10 + 10 / A)
+    by_hand = 3 * (100 / 10 + 10 / A + 0.025)
     assert result.completed
     assert clock == pytest.approx(by_hand, rel=1e-6)
     assert result.machine == pytest.approx(by_hand, rel=1e-6)
@@ -277,7 +277,7 @@ def test_the_deviation_map_title_prints_mm_to_a_tenth(tmp_path, monkeypatch):
 def test_a_program_paused_for_the_operator_keeps_its_remaining_time_and_takes_no_machine_time(tmp_path):
     """An M0 halfway: while the machine stands held for the operator, every progress report keeps the elapsed and
     remaining time it had (waiting is not work); the run's machine time by the simulator's clock is the motion's
-    alone, and the time held is told apart."""
+    alone (with the $1 = 25 ms stepper lock after each move), and the time held is told apart."""
     import threading
 
     path = tmp_path / "pause.gcode"
@@ -304,7 +304,7 @@ def test_a_program_paused_for_the_operator_keeps_its_remaining_time_and_takes_no
     assert max(r.remaining for r in held) - min(r.remaining for r in held) < 0.05
     result = results[0]
     assert result.completed and result.held >= 1.8
-    assert result.machine == pytest.approx(2 * (100 / 10 + 10 / A), rel=1e-6)
+    assert result.machine == pytest.approx(2 * (100 / 10 + 10 / A + 0.025), rel=1e-6)
 
 
 def test_the_report_does_not_call_a_survey_with_uncertain_nodes_all_within_tolerance():

@@ -81,10 +81,11 @@ def test_a_planner_of_15_blocks_limits_the_speed_of_short_moves():
 
 
 def test_arcs_run_as_chords_of_the_arc_tolerance():
-    """A full circle of r = 5 mm at F600: floor(2 pi r / sqrt(tol (2 r - tol))) chords (Grbl's mc_arc); the junction
-    rule lets them run at 10 mm/s, so the time is the circumference at 10 mm/s plus the ramps."""
+    """A full circle of r = 5 mm at F600: floor(0.5 * 2 pi r / sqrt(tol (2 r - tol))) = 111 chords (Grbl's mc_arc);
+    the junction rule lets them run at 10 mm/s, so the time is the chords' length at 10 mm/s plus the ramps."""
     lines = ["G0X10Y5", "G4P1", "G2X10Y5I-5J0F600"]  # the dwell stops the machine before the circle
-    chords = math.floor(2 * math.pi * 5 / math.sqrt(0.002 * (10 - 0.002)))
+    chords = math.floor(0.5 * 2 * math.pi * 5 / math.sqrt(0.002 * (10 - 0.002)))
+    assert chords == 111
     chord = 2 * 5 * math.sin(math.pi / chords)
     simulated_circle = simulated(lines) - simulated(lines[:2])
     assert simulated_circle == pytest.approx(chords * chord / 10 + 10 / A, rel=1e-3)
@@ -95,15 +96,16 @@ def test_the_move_table_estimate_agrees_with_the_program_timeline():
     log = MoveLog()
     log.add((0.0, 0.0), (50.0, 0.0), 600.0, False, True)
     log.add((50.0, 0.0), (50.0, 50.0), 600.0, False, True)
-    assert estimate_time(log.table(), A, DEVIATION, max_rate=RATE) == pytest.approx(corner_time(), rel=1e-9)
+    lock = 0.025  # Grbl's $1: the steppers hold 25 ms when the machine comes to rest at the end
+    assert estimate_time(log.table(), A, DEVIATION, max_rate=RATE) == pytest.approx(corner_time() + lock, rel=1e-9)
 
 
 def test_the_timeline_maps_lines_to_planned_time():
     lines = ["G21", "G1X100F600", "G4P2", "G1X0"]
     program = parse_program(("\n".join(lines) + "\n").encode("ascii"), "t.gcode")
     timeline = line_timeline(program.plan(ModalState(), (0.0, 0.0, 0.0)), {**DEFAULT_SETTINGS, **SETTINGS})
-    leg = 100 / 10 + 10 / A
-    assert timeline == pytest.approx([0.0, leg, leg + 2, 2 * leg + 2])
+    leg, lock = 100 / 10 + 10 / A, 0.025  # the dwell waits for the $1 stepper lock after the first leg
+    assert timeline == pytest.approx([0.0, leg, leg + lock + 2, 2 * leg + lock + 2])
     completed = [seconds for _, seconds in timed_run(lines, settings=SETTINGS)]
     assert completed == pytest.approx(timeline.tolist())
 

@@ -35,20 +35,31 @@ class Clock:
                     last = now
                     continue
                 self._advance((now - last) * self.time_scale)
-                self._process_input()
+                if not self._idle_lock:
+                    self._process_input()
             last = now
 
     def _advance(self, dt: float, single: bool = False) -> float:
         """Run the planner for `dt` seconds of machine time (with `single`, stop once a block completes: `dt` may
         then be infinite); returns the machine time used."""
         spent, clock = 0.0, self.machine_time
-        while self.planner and not self._critical:
-            block = self.planner[0]
-            if block.segment is None and block.dwell <= 0:
+        while not self._critical:
+            block = self.planner[0] if self.planner else None
+            if block is not None and block.segment is None and block.dwell <= 0:
                 self.machine_time = clock + spent
                 self._complete()
                 continue
-            if self._hold == "complete" or dt - spent <= 0:
+            if self._idle_lock:
+                used = min(dt - spent, self._idle_lock)
+                spent += used
+                self._idle_lock -= used
+                if self._idle_lock > 0:
+                    break
+                self._idle_lock = 0.0
+                if self._hold == "decelerating":  # the hold is complete once the steppers are idle
+                    self._hold = "complete"
+                continue
+            if block is None or self._hold == "complete" or dt - spent <= 0:
                 break
             if block.segment is None:
                 used = min(dt - spent, block.dwell)
@@ -71,7 +82,7 @@ class Clock:
                     speed -= accel * step
                 self._speed = speed if speed > 1e-9 else 0.0
                 if self._speed == 0.0:
-                    self._hold = "complete"
+                    self._go_idle()
                 block.progress += travel
                 spent += step
             else:
@@ -86,20 +97,29 @@ class Clock:
             if block.progress >= block.length - 1e-9:
                 self.machine_time = clock + spent
                 self._complete()
-                if self._pending is not None or self._rx:
+                if not self._moves:
+                    self._go_idle()
+                elif self._pending is not None or self._rx:
                     self._process_input()  # the main loop refills the planner while the steppers run
                 if single:
                     break
             else:
                 self.position = block.segment.point_at(block.progress / block.length)
-        if not self.planner and self.state in ("Run", "Jog"):
+        if not self.planner and not self._idle_lock and self.state in ("Run", "Jog"):
             self.state = "Idle"
-            self._speed = 0.0
-        elif not self.planner and self._hold == "decelerating":  # the last block ended while slowing: stopped
-            self._hold = "complete"
             self._speed = 0.0
         self.machine_time = clock + spent
         return spent
+
+    def _go_idle(self) -> None:
+        """The steppers have nothing left to run (stepper.c, st_go_idle): the stepper interrupt waits $1 ms to let
+        the axes settle before the cycle ends (255: it keeps them enabled and does not wait). The main loop is
+        stopped meanwhile, so no line is read and nothing that waits for the planner to empty goes on."""
+        self._speed = 0.0
+        lock = self.settings[1]
+        self._idle_lock = 0.0 if lock == 255 else lock / 1000.0
+        if not self._idle_lock and self._hold == "decelerating":
+            self._hold = "complete"
 
     def _profile(self, block: Planned, dt: float) -> float:
         """Move along `block` for up to `dt` seconds on its trapezoid from the current speed: accelerate to the
@@ -168,7 +188,9 @@ class Clock:
         """One turn of the main loop of a controller made with `threaded=False`: take input, then run `seconds` of
         machine time (None: until the next planner block or dwell completes). Returns the machine time used."""
         with self._lock:
-            self._process_input()
+            if not self._idle_lock:
+                self._process_input()
             used = self._advance(math.inf if seconds is None else seconds, single=seconds is None)
-            self._process_input()
+            if not self._idle_lock:
+                self._process_input()
             return used

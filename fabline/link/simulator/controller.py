@@ -90,6 +90,7 @@ class GrblSimulator(LineProtocol, StatusReport, Firmware, Planner, Clock):
         self._hold = None
         self._hold_stopped_motion = False  # a reset aborts a cycle (ALARM:3) only if the hold stopped a motion
         self._speed = 0.0
+        self._idle_lock = 0.0  # machine seconds of the $1 stepper lock still to wait (see Clock._go_idle)
         self._wco_counter = 0
         self._ovr_counter = 0
 
