@@ -52,6 +52,30 @@ class Operation:
     depth: float = 0.0
 
 
+@dataclass(frozen=True)
+class Cutting:
+    """How closed cuts are made as a laser shop makes them ([cutting]; mm): a lead-in of `lead_in` from a pierce
+    point at least `pierce_clearance` off every part on the sheet, and tabs `tab_width` wide (the uncut length of the
+    toolpath) on each part whose bounding box's longer side is under `tabs_below`, one per `tab_every` of its
+    perimeter, at least MIN_TABS (fabline.export.toolpath). Zeros: no lead-ins, no tabs."""
+
+    lead_in: float = 0.0
+    pierce_clearance: float = 0.0
+    tab_width: float = 1.0
+    tabs_below: float = 0.0
+    tab_every: float = 250.0
+
+
+CUTTING_RANGES = {"lead_in": (0.0, 100.0), "pierce_clearance": (0.0, 100.0), "tab_width": (0.01, 100.0),
+                  "tabs_below": (0.0, 1e5), "tab_every": (1.0, 1e5)}
+"""The range (mm) of each [cutting] key."""
+MAIN_OUTPUTS = ("gcode", "dxf")
+TOOLPATH_MINIMA = {"kerf": 0.0, "lead_in": 0.0, "pierce_clearance": 0.0, "tabs": 0, "tab_width": 1e-9,
+                   "tabs_below": 0.0, "tab_every": 1e-9}
+"""The least value of each toolpath option a command line or a job's [export] gives (`tab_width = 0` would leave
+no bridge), by ToolpathOptions' names."""
+
+
 @dataclass(frozen=True, eq=False)
 class MachineProfile:
     """A machine and its controller: bed, motion limits, supported words, command templates, operations."""
@@ -82,6 +106,8 @@ class MachineProfile:
     operations: dict[str, Operation]
     variables: dict[str, float]
     required_settings: tuple["SettingRequirement", ...] = ()  # [requires]: what the controller's `$$` must say
+    cutting: Cutting = Cutting()  # [cutting]: lead-ins, pierce clearance and tabs by part size
+    main_output: str = "gcode"    # what the machine is run from: "gcode", or "dxf" (its own CAM; G-code for reference)
 
     def render(self, field_name: str, **values: float) -> tuple[str, ...]:
         """The command templates of `field_name` (program_start, tool_on ...) with the values TEMPLATE_VALUES
@@ -311,8 +337,11 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
         rapid_rate=fields.number("motion.rapid_rate", 0, 1e6, low_inclusive=False),
         acceleration=fields.number("motion.acceleration", 0, 1e5, low_inclusive=False),
         junction_deviation=fields.number("motion.junction_deviation", 0, 10),
-        s_min=s_min, s_max=s_max, operations=operations, variables=variables,
+        s_min=s_min, s_max=s_max, operations=operations, variables=variables, cutting=_cutting(table, fields),
+        main_output=fields.text("main_output", "gcode"),
     )
+    if profile.main_output not in MAIN_OUTPUTS:
+        raise FablineError(f"{source}: main_output: {profile.main_output!r} is not one of {', '.join(MAIN_OUTPUTS)}")
     fields.read.add("requires")
     requires = table.get("requires", {})
     if isinstance(requires, str):  # the free text of older profiles: shown in the program header, not checked
@@ -337,6 +366,15 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
     for field_name in TEMPLATE_VALUES:
         _check_templates(profile, field_name)
     return profile
+
+
+def _cutting(table: dict, fields: _Fields) -> Cutting:
+    """The [cutting] table; a key left out takes Cutting's default."""
+    given = table.get("cutting", {})
+    if not isinstance(given, dict):
+        raise FablineError(f"{fields.source}: cutting: must be a table ([cutting] lead_in = 2.0 ...)")
+    return Cutting(**{key: fields.number(f"cutting.{key}", *CUTTING_RANGES[key])
+                      for key in CUTTING_RANGES if key in given})
 
 
 def _controller_accepts(profile: MachineProfile, word: str) -> bool:

@@ -32,7 +32,7 @@ def _outputs(folder):
 def test_export_then_check_agrees_with_independent_truth(cli, job):
     folder, nesting, partset = job
     code, out, err = cli("export", folder / "nesting.json", "--dxf", folder / "out", "--gcode", folder / "out",
-                         "--machine", "grbl-laser", "--kerf", "0")
+                         "--machine", "grbl-laser", "--kerf", "0", "--lead-in", "0", "--tabs", "0")
     assert code == 0, err
     assert _outputs(folder / "out") == ["cutlist.csv", "nesting_S1.dxf", "nesting_S1.gcode", "nesting_S1.order.svg",
                                         "nesting_all-sheets.dxf"]
