@@ -96,7 +96,8 @@ def run_export(args: argparse.Namespace) -> int:
               "fabline's plan of the same cuts")
     for sheet in result.sheets:
         if sheet.no_lead_in:
-            print(f"sheet {sheet.sheet}: {len(sheet.no_lead_in)} cuts without a lead-in (no room for one "
+            count = len(sheet.no_lead_in)
+            print(f"sheet {sheet.sheet}: {count} cut{'s' * (count != 1)} without a lead-in (no room for one "
                   f"{options.pierce_clearance:g} mm clear of every part), first on part {sheet.no_lead_in[0]}")
     print(f"{'sheet':<12}{'parts':>6}{'cut m':>11}{'mark m':>10}{'travel m':>10}{'time':>10}")
     for sheet in result.sheets + [None]:

@@ -240,7 +240,7 @@ def cutting_summary(options: ToolpathOptions) -> list[str]:
             else "no lead-ins")
     if options.tabs is None:
         tabs = (f"tabs {options.tab_width:g} mm on parts under {options.tabs_below:g} mm, one per "
-                f"{options.tab_every:g} mm of perimeter (at least {MIN_TABS})" if options.tabs_below > 0 else "no tabs")
+                f"{options.tab_every:g} mm of perimeter, at least {MIN_TABS}" if options.tabs_below > 0 else "no tabs")
     else:
         tabs = f"{options.tabs} tabs of {options.tab_width:g} mm per outer contour" if options.tabs else "no tabs"
     return [lead, tabs]
@@ -256,7 +256,7 @@ def _header(name, sheet, number, count, profile, options, summary, no_lead_in) -
     if profile.main_output == "dxf":
         lines.append(f"for reference: machine {profile.name} cuts from the DXF, in its own CAM")
     lead, tabs = cutting_summary(options)
-    lines += [lead + (f"; {no_lead_in} cuts without (no room)" if no_lead_in else ""), tabs]
+    lines += [lead + (f"; {no_lead_in} cut{'s' * (no_lead_in != 1)} without (no room)" if no_lead_in else ""), tabs]
     if profile.requires:
         lines.append(f"requires {profile.requires}")
     lines.append(f"cut {summary.cut_length:.1f} mm, mark {summary.mark_length:.1f} mm, "

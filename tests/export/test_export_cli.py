@@ -190,7 +190,7 @@ def test_a_failing_later_sheet_leaves_no_file_of_the_sheets_made_before_it(cli, 
     assert "part A: placed 2 times (on sheets " in err and "(and 1 more problems)" in err
 
 
-@pytest.mark.parametrize("machine", ["grbl-laser", "grbl-plotter", "rs274-mill"])
+@pytest.mark.parametrize("machine", ["grbl-laser", "fibre-laser", "grbl-plotter", "rs274-mill"])
 def test_every_builtin_profile_exports_programs_that_check_clean(cli, job, machine):
     folder, _, _ = job
     code, out, err = cli("export", folder / "nesting.json", "--gcode", folder / machine, "--machine", machine,
