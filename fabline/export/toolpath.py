@@ -248,7 +248,8 @@ def _with_tabs(path: Toolpath, parts: dict[str, Part], options: ToolpathOptions)
 
 
 def lead_ins(paths: list[Toolpath], sheet: Sheet, parts: dict[str, Part], options: ToolpathOptions) -> list[Toolpath]:
-    """The paths with a lead-in on every closed cut: from a pierce point on the scrap side at least
+    """The paths with a lead-in on every closed cut: from a pierce point on the scrap side (right of a
+    counter-clockwise outer cut, left of a counter-clockwise inner one) at least
     `pierce_clearance` from every part on the sheet (and inside the sheet by as much), reached by a straight move
     that crosses no part. The lead-in starts at the path's first vertex, `lead_in` mm long or, where that does not
     fit, shorter (LEAD_IN_FRACTIONS); failing that at the nearest vertex where one fits (the path restarted there);
@@ -262,37 +263,43 @@ def lead_ins(paths: list[Toolpath], sheet: Sheet, parts: dict[str, Part], option
                         sheet.height - options.pierce_clearance)
     result = list(paths)
     todo = wanted
+    flip = dict(zip(wanted, (_counter_clockwise([paths[k].contour for k in wanted])
+                             == np.array([paths[k].operation == "cut-inner" for k in wanted])).tolist()))
+    fractions = np.array(LEAD_IN_FRACTIONS)
     for first_only in (True, False):
-        points, segments, owner, vertex = [], [], [], []
-        for k in todo:
-            contour = paths[k].contour
-            directions = _scrap_directions(contour, paths[k].operation == "cut-inner")
-            vertices = [0] if first_only else np.argsort(np.hypot(*(contour[:-1, :2] - contour[0, :2]).T))[1:].tolist()
-            for v in vertices:
-                if np.isnan(directions[v, 0]):
-                    continue
-                for fraction in LEAD_IN_FRACTIONS:
-                    point = contour[v, :2] + directions[v] * options.lead_in * fraction
-                    points.append(point)
-                    segments.append((point, contour[v, :2]))
-                    owner.append(k)
-                    vertex.append(v)
-        if not points:
-            break
-        points_arr = np.array(points)
-        fits = shapely.contains_xy(inner, points_arr[:, 0], points_arr[:, 1])
-        near = tree.query(shapely.points(points_arr), predicate="dwithin", distance=options.pierce_clearance)[0]
-        fits[near] = False
-        lines = shapely.linestrings(np.array(segments))
-        crossing = tree.query(lines, predicate="crosses")[0]
-        fits[crossing] = False
+        if first_only:                      # every path's first vertex, gathered at once
+            owner, vertex = np.array(todo), np.zeros(len(todo), dtype=int)
+            rows = [np.array([paths[k].contour[i] for k in todo]) for i in (0, 1, -2)]
+        else:                               # every other vertex of the paths left, nearest the first vertex first
+            owner, vertex, rows = [], [], [[], [], []]
+            for k in todo:
+                contour = paths[k].contour
+                order = np.argsort(np.hypot(*(contour[:-1, :2] - contour[0, :2]).T))[1:]
+                owner.append(np.full(len(order), k))
+                vertex.append(order)
+                for bucket, index in zip(rows, (order, order + 1, (order - 1) % (len(contour) - 1))):
+                    bucket.append(contour[index])
+            owner, vertex = np.concatenate(owner), np.concatenate(vertex)
+            rows = [np.vstack(bucket) for bucket in rows]
+        directions = _scrap_directions(*rows, np.array([flip[k] for k in owner.tolist()]))
+        # each vertex's lead-in at every fraction, longest first: candidates in order of preference per path
+        starts = np.repeat(rows[0][:, :2], len(fractions), axis=0)
+        points = starts + np.repeat(directions, len(fractions), axis=0) * np.tile(fractions, len(owner))[:, None] \
+            * options.lead_in
+        owner, vertex = np.repeat(owner, len(fractions)), np.repeat(vertex, len(fractions))
+        fits = ~np.isnan(points[:, 0]) & shapely.contains_xy(inner, points[:, 0], points[:, 1])
+        near = tree.query(shapely.points(points[fits]), predicate="dwithin", distance=options.pierce_clearance)[0]
+        fits[np.flatnonzero(fits)[near]] = False
+        candidates = np.flatnonzero(fits)
+        lines = shapely.linestrings(np.stack([points[candidates], starts[candidates]], axis=1))
+        fits[candidates[tree.query(lines, predicate="crosses")[0]]] = False
         chosen: dict[int, int] = {}
-        for index in np.flatnonzero(fits).tolist():      # candidates come in order of preference per path
-            chosen.setdefault(owner[index], index)
+        for index in np.flatnonzero(fits).tolist():
+            chosen.setdefault(int(owner[index]), index)
         for k, index in chosen.items():
-            path, v = paths[k], vertex[index]
+            path, v = paths[k], int(vertex[index])
             contour = rotate_start(path.contour, v) if v else path.contour
-            result[k] = Toolpath(path.operation, path.part, contour, True, points_arr[index].copy())
+            result[k] = Toolpath(path.operation, path.part, contour, True, points[index].copy())
         todo = [k for k in todo if k not in chosen]
         if not todo:
             break
@@ -308,29 +315,52 @@ def _material(sheet: Sheet, parts: dict[str, Part], cache: dict) -> list[shapely
     polygons = []
     for placement in sheet.placements:
         part = parts[placement.part]
-        key = ("material", part.id)
+        key = ("material", *((c.shape, c.tobytes()) for c in [part.outline, *part.holes]),
+               *((slot.edge, slot.outline.shape, slot.outline.tobytes()) for slot in part.slots))   # by shape
         if key not in cache:
-            cache[key] = (flatten_contour(with_bulges(part.outline), FLATTEN_TOLERANCE),
-                          [flatten_contour(with_bulges(c), FLATTEN_TOLERANCE) for c in part.inner_contours()])
+            cache[key] = (_cached_flat(part.outline, cache), [_cached_flat(c, cache) for c in part.inner_contours()])
         shell, holes = cache[key]
         polygons.append(shapely.Polygon(place(shell, placement), [place(h, placement) for h in holes]))
     return polygons
 
 
-def _scrap_directions(contour: np.ndarray, inside: bool) -> np.ndarray:
-    """Unit vector at every vertex of a closed contour (but the repeated last) pointing into the scrap: away from
-    the enclosed area for an outer cut, into it for an inner one, along the bisector of the tangents that arrive
-    and leave (arcs through their bulges); NaN where the path turns back on itself."""
-    chords = np.diff(contour[:, :2], axis=0)
-    half = 2.0 * np.arctan(contour[:-1, 2])                  # half the sweep of each segment
-    leaving = _rotate_all(chords, -half)
-    arriving = np.roll(_rotate_all(chords, half), 1, axis=0)  # into vertex i along segment i - 1
+def _cached_flat(contour: np.ndarray, cache: dict) -> np.ndarray:
+    """A contour flattened within FLATTEN_TOLERANCE, reusing the result for congruent-by-translation contours."""
+    contour = with_bulges(contour)
+    origin = contour[0, :2].copy()
+    local = contour - [*origin, 0.0]
+    key = ("flat", np.round(local, 9).tobytes(), len(local))
+    if key not in cache:
+        cache[key] = flatten_contour(local, FLATTEN_TOLERANCE)
+    return cache[key] + origin
+
+
+def _scrap_directions(at: np.ndarray, after: np.ndarray, before: np.ndarray, flip: np.ndarray) -> np.ndarray:
+    """Unit vectors at vertices `at` ([x, y, bulge] rows; `after` the next vertex, `before` the one before with the
+    bulge of the segment from it) pointing to the right of the path, or its left where `flip`: the scrap side,
+    along the bisector of the tangents that arrive and leave (arcs through their bulges); NaN where the path turns
+    back on itself."""
+    leaving = _rotate_all(after[:, :2] - at[:, :2], -2.0 * np.arctan(at[:, 2]))
+    arriving = _rotate_all(at[:, :2] - before[:, :2], 2.0 * np.arctan(before[:, 2]))
     tangent = _unit(leaving) + _unit(arriving)
     length = np.hypot(*tangent.T)
     tangent = np.where(length[:, None] > 1e-9, tangent / np.maximum(length, 1e-12)[:, None], np.nan)
-    right = np.column_stack([tangent[:, 1], -tangent[:, 0]])  # outside of a counter-clockwise contour
-    ccw = signed_area(contour) > 0
-    return right if ccw != inside else -right
+    right = np.column_stack([tangent[:, 1], -tangent[:, 0]])
+    return np.where(flip[:, None], -right, right)
+
+
+def _counter_clockwise(contours: list[np.ndarray]) -> np.ndarray:
+    """Whether each closed contour runs counter-clockwise: by the polygon of its vertices, all at once, and by its
+    arcs too (signed_area) where that polygon is flat."""
+    stacked = np.vstack(contours)
+    ends = np.cumsum([len(c) for c in contours])
+    cross = stacked[:-1, 0] * stacked[1:, 1] - stacked[1:, 0] * stacked[:-1, 1]
+    cross = np.append(cross, 0.0)
+    cross[ends - 1] = 0.0                                       # no segment from one contour's end to the next
+    area = np.add.reduceat(cross, np.concatenate([[0], ends[:-1]]))
+    flat = np.flatnonzero(np.abs(area) <= 1e-6)
+    area[flat] = [signed_area(contours[i]) for i in flat.tolist()]
+    return area > 0
 
 
 def _rotate_all(vectors: np.ndarray, angles: np.ndarray) -> np.ndarray:
