@@ -43,13 +43,15 @@ ANY_GRBL_BUILD = BuildInfo(options="VMR")
 
 @dataclass(frozen=True)
 class Operation:
-    """How one operation runs: feed (mm/min), tool power or pen position (S), passes, total depth (mill)."""
+    """How one operation runs: feed (mm/min), tool power or pen position (S), passes, total depth (mill), and the
+    dwell (s) after the tool goes on before it moves: a laser's pierce through the sheet (`G4 P` in the program)."""
 
     name: str
     feed: float
     power: float
     passes: int
     depth: float = 0.0
+    pierce: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -317,6 +319,7 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
             power=fields.number(f"{key}.power", s_min, s_max),
             passes=fields.integer(f"{key}.passes", 1, 100),
             depth=fields.number(f"{key}.depth", 0, 1000, low_inclusive=False) if mode == "mill" else 0.0,
+            pierce=fields.number(f"{key}.pierce", 0, 60) if "pierce" in _table_at(table, key) else 0.0,
         )
     variables = {}
     if not isinstance(table.get("vars", {}), dict):
@@ -352,6 +355,12 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
     else:
         raise FablineError(f"{source}: requires: must be a table of controller settings, such as {{ 32 = 1 }}")
     fields.check_unknown()
+    pierced = [op.name for op in operations.values() if op.pierce > 0]
+    if pierced and profile.laser_mode:
+        raise FablineError(f"{source}: operations.{pierced[0]}.pierce: a dwell in laser mode ($32=1, M4) runs at no "
+                           "power; a pierce needs a profile without laser_mode (M3)")
+    if pierced and "G4" not in profile.words:
+        raise FablineError(f"{source}: operations.{pierced[0]}.pierce: needs G4 (dwell) in the profile's words")
     if profile.laser_mode and mode != "laser":
         raise FablineError(f"{source}: laser_mode: only a laser profile (mode = \"laser\") can use laser mode")
     needed = {"G0", "G1"} | ({"G2", "G3"} if profile.arcs else set())
@@ -366,6 +375,13 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
     for field_name in TEMPLATE_VALUES:
         _check_templates(profile, field_name)
     return profile
+
+
+def _table_at(table: dict, dotted: str) -> dict:
+    """The sub-table at a dotted path, or {} where there is none."""
+    for key in dotted.split("."):
+        table = table.get(key, {}) if isinstance(table, dict) else {}
+    return table if isinstance(table, dict) else {}
 
 
 def _cutting(table: dict, fields: _Fields) -> Cutting:
