@@ -28,19 +28,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              ".toml path")
     export.add_argument("--kerf", type=length_mm, metavar="MM", help="cut width, mm (default: the machine profile's)")
     export.add_argument("--lead-in", type=length_mm, metavar="MM",
-                        help="lead-in length for closed cuts, from a pierce point off every part; 0: none "
+                        help="lead-in length for closed cuts, mm, from a pierce point off every part; 0: none "
                              "(default: the profile's [cutting] lead_in)")
     export.add_argument("--pierce-clearance", type=length_mm, metavar="MM",
-                        help="least distance from a pierce point to any part on the sheet (default: the profile's)")
+                        help="least distance from a pierce point to any part on the sheet, mm (default: the profile's)")
     export.add_argument("--tabs", type=int,
                         help="uncut bridges (micro-joints) on every outer contour; 0: none (default: the profile's "
                              "rule, on parts smaller than --tabs-below)")
     export.add_argument("--tab-width", type=length_mm, metavar="MM",
-                        help="uncut length of toolpath per tab (default: the profile's)")
+                        help="uncut length of toolpath per tab, mm (default: the profile's)")
     export.add_argument("--tabs-below", type=length_mm, metavar="MM",
-                        help="the profile's tab rule: parts whose bounding box's longer side is under this get tabs, one "
+                        help="the profile's tab rule: parts whose bounding box's longer side is under this (mm) get tabs, one "
                              "per --tab-every of perimeter, at least 2; 0: none (default: the profile's)")
-    export.add_argument("--tab-every", type=length_mm, metavar="MM", help="perimeter per tab in the rule (default: "
+    export.add_argument("--tab-every", type=length_mm, metavar="MM", help="perimeter per tab in the rule, mm (default: "
                         "the profile's)")
     export.add_argument("--no-preview", action="store_true",
                         help="skip the cut-order preview SVG beside each G-code program (about 1 s of CPU per sheet)")

@@ -240,6 +240,7 @@ def test_the_fibre_laser_exports_the_pavilion_like_job_and_prints_its_machine_ti
         cut_in = sum(sg["length"] for sg in cut_segments(text) if sg["comment"].startswith("cut-inner"))
         cut_out = sum(sg["length"] for sg in cut_segments(text) if sg["comment"].startswith("cut-outer"))
         pierces = text.count("G4 P0.300")
+        assert pierces == sum(1 for sg in cut_segments(text) if sg["first"] and sg["comment"].startswith("cut"))
         floor = cut_in / 6000 * 60 + cut_out / 18000 * 60 + float(travel_m) * 1000 / 100000 * 60 + 0.3 * pierces
         assert floor <= printed + 0.5 <= 3 * floor
     doc = ezdxf.readfile(folder / "out" / f"nesting_{rows[0][0]}.dxf")
@@ -275,6 +276,7 @@ def test_cutting_settings_come_from_the_job_file_with_units(tmp_path):
     ("[cutting]\nlead_in = -1\n", "cutting.lead_in: -1 is out of range [0.0, 100.0]"),
     ("[cutting]\ntab_widht = 1\n", "cutting.tab_widht: unknown setting"),
     ('main_output = "svg"\n', "main_output: 'svg' is not one of gcode, dxf"),
+    ("[operations.cut-outer]\npierce = 0.3\n", "operations.cut-outer.pierce: a dwell in laser mode"),
 ])
 def test_bad_cutting_settings_name_the_file_and_the_key(tmp_path, edit, message):
     from fabline.errors import FablineError
