@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 from fabline.cli.choices import STOCK_BUILD_OPTIONS
@@ -50,8 +51,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     check = subparsers.add_parser("gcode-check", help="read a G-code program back and check it against a machine",
                                   description="Report every line the controller would refuse (for a Grbl profile: "
                                               "its error code in words), $ commands, real-time characters, NUL bytes, "
-                                              "F0 feeds, unsupported words, long lines, out-of-bed moves and travel "
-                                              "with the tool on; recompute cut length, travel and run time.")
+                                              "F0 feeds, long lines, out-of-bed moves and travel with the tool on; "
+                                              "warn of codes the controller accepts but the profile's exporter never "
+                                              "writes; recompute cut length, travel and run time.")
     check.add_argument("file", help="G-code program")
     check.add_argument("--machine", default="grbl-laser", help="machine profile name or .toml path")
     check.add_argument("--build-options", default=STOCK_BUILD_OPTIONS, metavar="LETTERS",
@@ -115,13 +117,15 @@ def default_export_folder(nesting: str | Path) -> Path:
 
 
 def run_check(args: argparse.Namespace) -> int:
-    """Check one program; exit 1 when problems were found."""
+    """Check one program; exit 1 when problems were found (warnings, on stderr, leave the exit code 0)."""
     from fabline.export import check_gcode
     from fabline.machine import load_machine
     from fabline.machine.build import BuildInfo
 
     build = BuildInfo(options=args.build_options)
     report = check_gcode(args.file, load_machine(args.machine), build)
+    for warning in report.warnings:
+        print(f"fabline gcode-check: warning: {args.file}: {warning}", file=sys.stderr)
     for problem in report.problems:
         print(f"{args.file}: {problem}")
     s = report.summary

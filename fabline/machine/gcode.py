@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 from fabline.machine.build import STOCK_BUILD, BuildInfo
@@ -200,10 +201,10 @@ class Block:
         return modal.feed * MM_PER_INCH if modal.units == "G20" else modal.feed
 
 
-def compact_line(text: str) -> str:
+def compact_line(text: str, buffer: int = LINE_BUFFER_SIZE) -> str:
     """What Grbl's protocol loop keeps of a received line (protocol.c): real-time characters, whitespace and
-    control characters, `/`, `( )` and `;` comments removed, letters uppercased; error:11 when more than 79
-    characters remain."""
+    control characters, `/`, `( )` and `;` comments removed, letters uppercased; error:11 when more than
+    `buffer` - 1 characters remain (79 in Grbl's 80-byte line buffer)."""
     out, comment = [], None
     for char in text:
         if char in REALTIME_COMMANDS or char >= "\x80":
@@ -214,7 +215,7 @@ def compact_line(text: str) -> str:
         elif char == "(" or char == ";":
             comment = char
         elif char > " " and char != "/":
-            if len(out) >= LINE_BUFFER_SIZE - 1:
+            if len(out) >= buffer - 1:
                 raise GcodeError(11)
             out.append(char)
     return "".join(out).upper()
@@ -222,9 +223,16 @@ def compact_line(text: str) -> str:
 
 def split_words(line: str) -> list[tuple[str, float]]:
     """Split a compact uppercase line into (letter, value) words, failing like the firmware (error 1, 2)."""
+    return list(iter_words(line))
+
+
+def iter_words(line: str) -> Iterator[tuple[str, float]]:
+    """The (letter, value) words of a compact line one at a time, as gc_execute_line imports them: a malformed
+    word fails (error 1, 2) only when reached, after the words before it were checked."""
     if _WELL_FORMED.fullmatch(line):
-        return [(letter, float(value)) for letter, value in _WORD.findall(line)]
-    words, position = [], 0
+        yield from ((letter, float(value)) for letter, value in _WORD.findall(line))
+        return
+    position = 0
     while position < len(line):
         letter = line[position]
         if not "A" <= letter <= "Z":
@@ -232,9 +240,8 @@ def split_words(line: str) -> list[tuple[str, float]]:
         match = _NUMBER.match(line, position + 1)
         if not match:
             raise GcodeError(2)
-        words.append((letter, float(match.group())))
+        yield letter, float(match.group())
         position = match.end()
-    return words
 
 
 @dataclass
@@ -253,7 +260,7 @@ def parse_block(line: str, build: BuildInfo = STOCK_BUILD) -> _Parsed:
     commands: dict[str, str] = {}
     values: dict[str, float] = {}
     axis_command = None
-    for letter, value in split_words(line):
+    for letter, value in iter_words(line):   # word by word, as the firmware: `E1 X` is error:20, not error:2
         if letter == "G" or letter == "M":
             integer = math.trunc(value)
             mantissa = round(100 * (value - integer))

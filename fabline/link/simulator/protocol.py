@@ -12,7 +12,7 @@ from fabline.machine.gcode import GcodeError, execute
 
 LINE_BUFFER_SIZE = 80
 _REALTIME_BYTES = (b"?", b"!", b"~", b"\x18")
-_BLANK = bytes(range(33))  # what the protocol loop drops from a line: control characters and space
+_BLANK = bytes(range(33)) + b"/"  # what the protocol loop drops from a line: control characters, space, block delete
 
 
 class LineProtocol:
@@ -152,11 +152,11 @@ class LineProtocol:
                 else:
                     self._finish_line(line, overflow)
             elif self._comment:
-                if char == ")":
+                if char == ")" and self._comment == "(":
                     self._comment = False
-            elif char == "(":
-                self._comment = True
-            elif char <= " ":
+            elif char in "(;":
+                self._comment = char  # "(" until ")", ";" to the line end
+            elif char <= " " or char == "/":
                 continue
             elif len(self._line) >= LINE_BUFFER_SIZE - 1:
                 self._line_overflow = True
@@ -165,12 +165,12 @@ class LineProtocol:
 
     def _take_plain_text(self) -> bool:
         """Move the received characters before the next line end into the line buffer at once, as the loop below
-        would one by one (whitespace and control characters dropped, letters uppercased, overflow past 79), when
+        would one by one (whitespace, control characters and `/` dropped, letters uppercased, overflow past 79), when
         they hold no comment; False (nothing taken) when they do or a line end comes first."""
         rx = self._rx
         ends = [index for index in (rx.find(b"\n"), rx.find(b"\r")) if index >= 0]
         end = min(ends) if ends else len(rx)
-        if end == 0 or rx.find(b"(", 0, end) >= 0:
+        if end == 0 or rx.find(b"(", 0, end) >= 0 or rx.find(b";", 0, end) >= 0:
             return False
         text = bytes(rx[:end]).translate(None, _BLANK).upper()
         del rx[:end]
@@ -188,8 +188,6 @@ class LineProtocol:
             self._execute_line(line)
 
     def _execute_line(self, line: str) -> None:
-        if ";" in line:
-            line = line[: line.index(";")]
         if not line:
             self._say("ok")
         elif line.startswith("$"):
