@@ -94,8 +94,8 @@ def run_export(args: argparse.Namespace) -> int:
     print(f"{len(result.files)} files in {' and '.join(folders)}")
     print(f"\nmachine {result.machine}, kerf {result.kerf:g} mm; " + "; ".join(cutting_summary(options)))
     if profile.main_output == "dxf":
-        print(f"machine {profile.name} cuts from the DXF in its own CAM; the G-code and the times below are "
-              "fabline's plan of the same cuts")
+        print(f"machine {profile.name} cuts from the DXF in its own CAM (with its own lead-ins and micro-joints); the "
+              "G-code and the times below are fabline's plan of the cuts with the settings above")
     for sheet in result.sheets:
         if sheet.no_lead_in:
             count = len(sheet.no_lead_in)
