@@ -165,6 +165,23 @@ def test_a_lead_in_without_room_is_shortened_rather_than_landing_on_a_neighbour(
     assert sheet.no_lead_in == []
 
 
+@pytest.mark.parametrize("crowded", [False, True])
+def test_a_lead_in_with_no_room_at_any_length_moves_to_another_vertex(crowded):
+    """Unoptimised, Q's cut starts at its first corner (the lower left, 100, 100). With a small part R whose corner
+    stands 0.9 mm off in x and y (1.27 mm away along the corner's bisector, less than twice the 1 mm clearance) no
+    lead-in fits along that bisector at any length: the cut starts at another corner, where one fits."""
+    parts = [Part("Q", "clamp", _square(100.0)), Part("R", "clamp", _square(20.0))]
+    placements = [Placement("Q", 100, 100)] + ([Placement("R", 100 - 0.9 - 20, 100 - 0.9 - 20)] if crowded else [])
+    nesting = Nesting([Sheet("S1", 500.0, 500.0, placements)], "parts.json")
+    sheet = _export(nesting, PartSet(parts), tabs=0, optimise=False)
+    material = _material(placed_contours(nesting, PartSet(parts)))
+    [lead_in] = [s for s in cut_segments(sheet.gcode) if s["comment"] == "cut-outer Q" and s["first"]]
+    assert material.distance(shapely.Point(lead_in["start"])) >= CLEARANCE - ROUNDING
+    at_first_corner = math.dist(lead_in["end"], (99.9, 99.9)) < ROUNDING
+    assert at_first_corner != crowded
+    assert sheet.no_lead_in == []
+
+
 def _uncut(sheet, nesting, partset, kerf) -> dict[str, float]:
     """Per outer contour: its ring's length less the feed moves that run along it (lead-ins do not)."""
     segments = cut_segments(sheet.gcode)
