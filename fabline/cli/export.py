@@ -25,11 +25,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     export.add_argument("--dxf", metavar="DIR", help="folder for the DXF files instead (with --gcode alone: none)")
     export.add_argument("--gcode", metavar="DIR", help="folder for the G-code programs instead (with --dxf alone: none)")
     export.add_argument("--machine", default="grbl-laser",
-                        help="machine profile: a built-in name (grbl-laser, grbl-plotter, rs274-mill) or a .toml path")
+                        help="machine profile: a built-in name (grbl-laser, fibre-laser, grbl-plotter, rs274-mill) or a "
+                             ".toml path")
     export.add_argument("--kerf", type=length_mm, metavar="MM", help="cut width, mm (default: the machine profile's)")
-    export.add_argument("--lead-in", type=length_mm, default=0.0, metavar="MM", help="lead-in length for closed cuts")
-    export.add_argument("--tabs", type=int, default=0, help="uncut bridges per outer contour (micro-joints)")
-    export.add_argument("--tab-width", type=length_mm, default=1.0, metavar="MM", help="width of each tab")
+    export.add_argument("--lead-in", type=length_mm, metavar="MM",
+                        help="lead-in length for closed cuts, mm, from a pierce point off every part; 0: none "
+                             "(default: the profile's [cutting] lead_in)")
+    export.add_argument("--pierce-clearance", type=length_mm, metavar="MM",
+                        help="least distance from a pierce point to any part on the sheet, mm (default: the profile's)")
+    export.add_argument("--tabs", type=int,
+                        help="uncut bridges (micro-joints) on every outer contour; 0: none (default: the profile's "
+                             "rule, on parts smaller than --tabs-below)")
+    export.add_argument("--tab-width", type=length_mm, metavar="MM",
+                        help="uncut length of toolpath per tab, mm (default: the profile's)")
+    export.add_argument("--tabs-below", type=length_mm, metavar="MM",
+                        help="the profile's tab rule: parts whose bounding box's longer side is under this (mm) get tabs, one "
+                             "per --tab-every of perimeter, at least 2; 0: none (default: the profile's)")
+    export.add_argument("--tab-every", type=length_mm, metavar="MM", help="perimeter per tab in the rule, mm (default: "
+                        "the profile's)")
     export.add_argument("--no-preview", action="store_true",
                         help="skip the cut-order preview SVG beside each G-code program (about 1 s of CPU per sheet)")
     export.add_argument("--no-optimise", action="store_true", help="keep the nesting's part order (no travel optimisation)")
@@ -52,18 +65,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_export(args: argparse.Namespace) -> int:
     """Export and print a per-sheet summary table."""
     from fabline.export import ToolpathOptions, export_nesting
-    from fabline.export.job import export_outputs
+    from fabline.export.job import cutting_summary, export_outputs
     from fabline.machine import load_machine
+    from fabline.machine.profile import TOOLPATH_MINIMA
     from fabline.nest.layout import load_nesting, parts_path
 
     profile = load_machine(args.machine)
-    kerf = profile.kerf if args.kerf is None else args.kerf
-    for name, value, low in (("--kerf", kerf, 0.0), ("--lead-in", args.lead_in, 0.0), ("--tabs", args.tabs, 0),
-                             ("--tab-width", args.tab_width, 1e-9)):
-        if not low <= value < math.inf:
-            raise FablineError(f"{name}: must be a finite number, at least {low:g}, got {value}")
-    options = ToolpathOptions(kerf=kerf, lead_in=args.lead_in, tabs=args.tabs, tab_width=args.tab_width,
-                              optimise=not args.no_optimise)
+    given = {"kerf": args.kerf, "lead_in": args.lead_in, "pierce_clearance": args.pierce_clearance, "tabs": args.tabs,
+             "tab_width": args.tab_width, "tabs_below": args.tabs_below, "tab_every": args.tab_every}
+    for key, value in given.items():
+        low = TOOLPATH_MINIMA[key]
+        if value is not None and not low <= value < math.inf:
+            raise FablineError(f"--{key.replace('_', '-')}: must be a finite number, at least {low:g}, got {value}")
+    options = ToolpathOptions.for_profile(profile, optimise=not args.no_optimise, **given)
     dxf_dir, gcode_dir = args.dxf, args.gcode
     if dxf_dir is None and gcode_dir is None:
         dxf_dir = gcode_dir = args.output or default_export_folder(args.nesting)
@@ -78,7 +92,15 @@ def run_export(args: argparse.Namespace) -> int:
         print(f"wrote {path}")
     folders = dict.fromkeys(str(f) for f in (dxf_dir, gcode_dir) if f is not None)
     print(f"{len(result.files)} files in {' and '.join(folders)}")
-    print(f"\nmachine {result.machine}, kerf {result.kerf:g} mm")
+    print(f"\nmachine {result.machine}, kerf {result.kerf:g} mm; " + "; ".join(cutting_summary(options)))
+    if profile.main_output == "dxf":
+        print(f"machine {profile.name} cuts from the DXF in its own CAM (with its own lead-ins and micro-joints); the "
+              "G-code and the times below are fabline's plan of the cuts with the settings above")
+    for sheet in result.sheets:
+        if sheet.no_lead_in:
+            count = len(sheet.no_lead_in)
+            print(f"sheet {sheet.sheet}: {count} cut{'s' * (count != 1)} without a lead-in (no room for one "
+                  f"{options.pierce_clearance:g} mm clear of every part), first on part {sheet.no_lead_in[0]}")
     print(f"{'sheet':<12}{'parts':>6}{'cut m':>11}{'mark m':>10}{'travel m':>10}{'time':>10}")
     for sheet in result.sheets + [None]:
         summary = sheet.summary if sheet else result.totals()

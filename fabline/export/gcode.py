@@ -242,6 +242,8 @@ def sheet_program(paths: list[Toolpath], profile: MachineProfile) -> tuple[str, 
                     writer.power = operation.power
                 else:
                     writer.template(profile.render("tool_on", power=operation.power, depth=depth))
+                    if operation.pierce and k == 0:
+                        writer.template([f"G4 P{profile.number(operation.pierce)}"])
                 writer.tool_on = True
             if k == 0 and path.lead_in is not None:
                 writer.line_to(contour[0, :2], operation.feed)

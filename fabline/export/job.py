@@ -24,7 +24,7 @@ from fabline.export.contours import arc_centres
 from fabline.export.cutlist import CUTLIST_NAME, cutlist_csv
 from fabline.export.gcode import header_block, sheet_program
 from fabline.export.preview import PREVIEW_SUFFIX, cut_order_svg
-from fabline.export.toolpath import Toolpath, ToolpathOptions, check_placements, sheet_toolpaths
+from fabline.export.toolpath import MIN_TABS, Toolpath, ToolpathOptions, check_placements, sheet_toolpaths
 from fabline.fileio import atomic_output
 from fabline.machine.motion import IDLE_LOCK, MotionSummary, summarise
 from fabline.machine.profile import MachineProfile
@@ -47,6 +47,7 @@ class SheetExport:
     summary: MotionSummary
     gcode: str = ""
     files: list[str] = field(default_factory=list)
+    no_lead_in: list[str] = field(default_factory=list)   # the part of every closed cut with no room for a lead-in
 
 
 @dataclass
@@ -182,11 +183,12 @@ def _export_sheet(sheet: Sheet, number: int, count: int, profile: MachineProfile
     body, moves = sheet_program(paths, profile)
     summary = summarise(moves, profile.acceleration, profile.junction_deviation, profile.rapid_rate,
                         idle_lock=IDLE_LOCK if profile.grbl else 0.0)
-    header = _header(name, sheet, number, count, profile, options, summary)
+    no_lead_in = [path.part for path in paths if path.no_room]
+    header = _header(name, sheet, number, count, profile, options, summary, len(no_lead_in))
     program = header_block(header, profile) + body
     order = (cut_order_svg(program.encode("ascii"), f"{name}_{file_stem(sheet.id)}.gcode", sheet.width, sheet.height,
                            f"{name} sheet {sheet.id}") if preview else None)
-    return (SheetExport(sheet.id, len(sheet.placements), summary, program),
+    return (SheetExport(sheet.id, len(sheet.placements), summary, program, no_lead_in=no_lead_in),
             dxf.drawing_text([sheet], parts) if drawing else None, order)
 
 
@@ -233,13 +235,29 @@ def _check_bed(paths: list[Toolpath], profile: MachineProfile, where: str) -> No
                        f"(0..{profile.bed_width:g} x 0..{profile.bed_height:g} mm)")
 
 
-def _header(name, sheet, number, count, profile, options, summary) -> list[str]:
+def cutting_summary(options: ToolpathOptions) -> list[str]:
+    """Lead-ins, then tabs, a line each, as the program header and the command's summary say them."""
+    lead = (f"lead-in {options.lead_in:g} mm, pierce clearance {options.pierce_clearance:g} mm" if options.lead_in > 0
+            else "no lead-ins")
+    if options.tabs is None:
+        tabs = (f"tabs {options.tab_width:g} mm on parts under {options.tabs_below:g} mm, one per "
+                f"{options.tab_every:g} mm of perimeter, at least {MIN_TABS}" if options.tabs_below > 0 else "no tabs")
+    else:
+        tabs = f"{options.tabs} tabs of {options.tab_width:g} mm per outer contour" if options.tabs else "no tabs"
+    return [lead, tabs]
+
+
+def _header(name, sheet, number, count, profile, options, summary, no_lead_in) -> list[str]:
     minutes, seconds = divmod(round(summary.time), 60)
     lines = [
         f"fabline export: job {name}, sheet {sheet.id} ({number} of {count}), {sheet.width:g} x {sheet.height:g} mm"
         + (f", stock {sheet.stock}" if sheet.stock else ""),
         f"machine {profile.name} ({profile.controller}), mode {profile.mode}, kerf {options.kerf:.3f} mm",
     ]
+    if profile.main_output == "dxf":
+        lines.append(f"for reference: machine {profile.name} cuts from the DXF, in its own CAM")
+    lead, tabs = cutting_summary(options)
+    lines += [lead + (f"; {no_lead_in} cut{'s' * (no_lead_in != 1)} without (no room)" if no_lead_in else ""), tabs]
     if profile.requires:
         lines.append(f"requires {profile.requires}")
     lines.append(f"cut {summary.cut_length:.1f} mm, mark {summary.mark_length:.1f} mm, "

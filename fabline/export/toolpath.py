@@ -7,6 +7,7 @@ tour improved by 2-opt, and every closed contour starts at the vertex nearest it
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -14,12 +15,14 @@ import shapely
 from scipy.spatial import cKDTree
 
 from fabline.errors import FablineError
-from fabline.export.contours import (arc_centres, offset, remove_intervals, reverse, rotate_start, segment_lengths,
-                                     stack_contours, to_polygon, with_bulges)
-from fabline.machine.profile import OPERATIONS
+from fabline.export.contours import (FLATTEN_TOLERANCE, offset, remove_intervals, reverse, rotate_start,
+                                     segment_lengths, signed_area, stack_contours, with_bulges)
+from fabline.machine.profile import OPERATIONS, MachineProfile
 from fabline.nest.layout import CommonCut, Placement, Sheet, place
-from fabline.unroll.parts import Part
+from fabline.unroll.parts import Part, flatten_contour
 
+MIN_TABS = 2              # a part held by one tab swings on it and can still tip up into the head
+LEAD_IN_FRACTIONS = (1.0, 0.75, 0.5, 0.35, 0.25)   # a lead-in with no room is tried shorter, then at other vertices
 NN_CANDIDATES = 16         # nearest points looked at per greedy step before widening the search
 TWO_OPT_NEIGHBOURS = 16    # nearest path ends looked at per path end in 2-opt (about half are usable)
 TWO_OPT_PASSES = 30
@@ -34,6 +37,7 @@ class Toolpath:
     contour: np.ndarray
     closed: bool
     lead_in: np.ndarray | None = None    # (2,) point where cutting starts before the contour, or None
+    no_room: bool = False                # a lead-in was wanted, but none fits: the cut pierces on its contour
 
     @property
     def entry(self) -> np.ndarray:
@@ -48,17 +52,45 @@ class Toolpath:
 
 @dataclass
 class ToolpathOptions:
-    """Choices that shape the toolpaths: kerf (mm), lead-in length (mm), tabs per outer contour and their width.
+    """Choices that shape the toolpaths (lengths in mm): kerf; lead-in length and the pierce point's clearance from
+    every part on the sheet; tabs per outer contour (None: by part size, tabs_below and tab_every) and their width.
 
     One options object serves one job: it remembers each part's offset contours by part id.
     """
 
     kerf: float = 0.0
     lead_in: float = 0.0
-    tabs: int = 0
+    tabs: int | None = 0
     tab_width: float = 1.0
+    pierce_clearance: float = 0.0
+    tabs_below: float = 0.0
+    tab_every: float = 250.0
     optimise: bool = True
     _cache: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def for_profile(cls, profile: MachineProfile, optimise: bool = True, **given: float | int | None) -> "ToolpathOptions":
+        """The options a machine profile's kerf and [cutting] rule give, with every value in `given` that is not
+        None (a command-line option, a job's [export] key) instead; an explicit `tabs` count replaces the rule."""
+        cutting = profile.cutting
+        values = {"kerf": profile.kerf, "lead_in": cutting.lead_in, "tabs": None, "tab_width": cutting.tab_width,
+                  "pierce_clearance": cutting.pierce_clearance, "tabs_below": cutting.tabs_below,
+                  "tab_every": cutting.tab_every}
+        unknown = set(given) - set(values)
+        if unknown:
+            raise TypeError(f"unknown toolpath options {sorted(unknown)}")
+        values.update((key, value) for key, value in given.items() if value is not None)
+        return cls(optimise=optimise, **values)
+
+    def tab_count(self, part: Part, perimeter: float) -> int:
+        """Tabs on this part's outer contour: the explicit count, else MIN_TABS or one per `tab_every` of perimeter
+        for a part whose bounding box's longer side is under `tabs_below`, else none."""
+        if self.tabs is not None:
+            return self.tabs
+        size = float(np.max(np.ptp(part.outline[:, :2], axis=0)))
+        if size >= self.tabs_below:
+            return 0
+        return max(MIN_TABS, math.ceil(perimeter / self.tab_every))
 
 
 def sheet_toolpaths(sheet: Sheet, parts: dict[str, Part], options: ToolpathOptions, source: str = "nesting") -> list[Toolpath]:
@@ -79,8 +111,6 @@ def sheet_toolpaths(sheet: Sheet, parts: dict[str, Part], options: ToolpathOptio
                                "which is not placed on this sheet")
     if cuts:
         groups["cut-outer"] = _apply_common_cuts(groups["cut-outer"], cuts, options.kerf)
-    if options.tabs > 0:
-        groups["cut-outer"] = [piece for path in groups["cut-outer"] for piece in _with_tabs(path, options)]
     ordered: list[Toolpath] = []
     position = np.zeros(2)
     for operation in OPERATIONS:
@@ -91,9 +121,9 @@ def sheet_toolpaths(sheet: Sheet, parts: dict[str, Part], options: ToolpathOptio
         if paths:
             position = paths[-1].exit
     if options.lead_in > 0:
-        for path in ordered:
-            if path.closed and path.operation.startswith("cut"):
-                path.lead_in = _lead_in(path, options.lead_in)
+        ordered = lead_ins(ordered, sheet, parts, options)
+    if options.tabs != 0:
+        ordered = [piece for path in ordered for piece in _with_tabs(path, parts, options)]
     return ordered
 
 
@@ -197,43 +227,149 @@ def _overlaps(contour: np.ndarray, a: np.ndarray, b: np.ndarray, tolerance: floa
     return intervals
 
 
-def _with_tabs(path: Toolpath, options: ToolpathOptions) -> list[Toolpath]:
-    """A closed outer contour split into open pieces that leave `tabs` uncut bridges of `tab_width` mm."""
-    if not path.closed:
+def _with_tabs(path: Toolpath, parts: dict[str, Part], options: ToolpathOptions) -> list[Toolpath]:
+    """A closed outer contour split into open pieces that leave its tabs uncut, `tab_width` mm of toolpath each.
+
+    The last tab ends where the cut began (after its lead-in), so the cut runs out into it as laser CAM's
+    micro-joints do, and the others are spread evenly along the perimeter: the beam goes off over each and the next
+    piece starts on the contour. The first piece keeps the lead-in.
+    """
+    if not path.closed or path.operation != "cut-outer":
         return [path]
     perimeter = float(np.sum(segment_lengths(path.contour)))
-    if perimeter <= options.tabs * options.tab_width * 2:
+    count = options.tab_count(parts[path.part], perimeter)
+    if count <= 0 or perimeter <= count * options.tab_width * 2:
         return [path]
-    centres = (np.arange(options.tabs) + 0.5) * perimeter / options.tabs
-    removed = [(c - options.tab_width / 2, c + options.tab_width / 2) for c in centres]
-    return [Toolpath(path.operation, path.part, piece, False) for piece in remove_intervals(path.contour, removed)]
+    ends = perimeter - np.arange(count) * perimeter / count
+    removed = [(end - options.tab_width, end) for end in ends.tolist()]
+    pieces = [Toolpath(path.operation, path.part, piece, False) for piece in remove_intervals(path.contour, removed)]
+    pieces[0].lead_in, pieces[0].no_room = path.lead_in, path.no_room
+    return pieces
 
 
-def _lead_in(path: Toolpath, length: float) -> np.ndarray | None:
-    """A point `length` mm off the start of a closed cut, on the scrap side (outside a part, inside a hole)."""
-    contour = path.contour
-    start = contour[0, :2]
-    _, _, first = arc_centres(contour[[0, 1]])
-    out_dir = _rotate(contour[1, :2] - start, -first[0] / 2)                   # tangent leaving the start
-    _, _, last = arc_centres(contour[[-2, -1]])
-    in_dir = _rotate(start - contour[-2, :2], last[0] / 2)                      # tangent arriving at the start
-    tangent = out_dir / max(np.hypot(*out_dir), 1e-12) + in_dir / max(np.hypot(*in_dir), 1e-12)
-    if np.hypot(*tangent) < 1e-9:
-        return None
-    tangent = tangent / np.hypot(*tangent)
-    polygon = to_polygon(contour)
-    outward = np.array([tangent[1], -tangent[0]]) if polygon.exterior.is_ccw else np.array([-tangent[1], tangent[0]])
-    inside_wanted = path.operation == "cut-inner"
-    for scale in (1.0, 0.5, 0.25):
-        candidate = start + (-outward if inside_wanted else outward) * length * scale
-        if shapely.contains_xy(polygon, *candidate) == inside_wanted:
-            return candidate
-    return None
+def lead_ins(paths: list[Toolpath], sheet: Sheet, parts: dict[str, Part], options: ToolpathOptions) -> list[Toolpath]:
+    """The paths with a lead-in on every closed cut: from a pierce point on the scrap side (right of a
+    counter-clockwise outer cut, left of a counter-clockwise inner one) at least
+    `pierce_clearance` from every part on the sheet (and inside the sheet by as much), reached by a straight move
+    that crosses no part. The lead-in starts at the path's first vertex, `lead_in` mm long or, where that does not
+    fit, shorter (LEAD_IN_FRACTIONS); failing that at the nearest vertex where one fits (the path restarted there);
+    failing that the path has none and is marked `no_room`."""
+    wanted = [k for k, path in enumerate(paths) if path.closed and path.operation.startswith("cut")]
+    if not wanted:
+        return paths
+    material = _material(sheet, parts, options._cache)
+    tree = shapely.STRtree(material)
+    inner = shapely.box(options.pierce_clearance, options.pierce_clearance, sheet.width - options.pierce_clearance,
+                        sheet.height - options.pierce_clearance)
+    result = list(paths)
+    todo = wanted
+    flip = dict(zip(wanted, (_counter_clockwise([paths[k].contour for k in wanted])
+                             == np.array([paths[k].operation == "cut-inner" for k in wanted])).tolist()))
+    fractions = np.array(LEAD_IN_FRACTIONS)
+    for first_only in (True, False):
+        if first_only:                      # every path's first vertex, gathered at once
+            owner, vertex = np.array(todo), np.zeros(len(todo), dtype=int)
+            rows = [np.array([paths[k].contour[i] for k in todo]) for i in (0, 1, -2)]
+        else:                               # every other vertex of the paths left, nearest the first vertex first
+            owner, vertex, rows = [], [], [[], [], []]
+            for k in todo:
+                contour = paths[k].contour
+                order = np.argsort(np.hypot(*(contour[:-1, :2] - contour[0, :2]).T))[1:]
+                owner.append(np.full(len(order), k))
+                vertex.append(order)
+                for bucket, index in zip(rows, (order, order + 1, (order - 1) % (len(contour) - 1))):
+                    bucket.append(contour[index])
+            owner, vertex = np.concatenate(owner), np.concatenate(vertex)
+            rows = [np.vstack(bucket) for bucket in rows]
+        directions = _scrap_directions(*rows, np.array([flip[k] for k in owner.tolist()]))
+        # each vertex's lead-in at every fraction, longest first: candidates in order of preference per path
+        starts = np.repeat(rows[0][:, :2], len(fractions), axis=0)
+        points = starts + np.repeat(directions, len(fractions), axis=0) * np.tile(fractions, len(owner))[:, None] \
+            * options.lead_in
+        owner, vertex = np.repeat(owner, len(fractions)), np.repeat(vertex, len(fractions))
+        fits = ~np.isnan(points[:, 0]) & shapely.contains_xy(inner, points[:, 0], points[:, 1])
+        near = tree.query(shapely.points(points[fits]), predicate="dwithin", distance=options.pierce_clearance)[0]
+        fits[np.flatnonzero(fits)[near]] = False
+        candidates = np.flatnonzero(fits)
+        lines = shapely.linestrings(np.stack([points[candidates], starts[candidates]], axis=1))
+        fits[candidates[tree.query(lines, predicate="crosses")[0]]] = False
+        chosen: dict[int, int] = {}
+        for index in np.flatnonzero(fits).tolist():
+            chosen.setdefault(int(owner[index]), index)
+        for k, index in chosen.items():
+            path, v = paths[k], int(vertex[index])
+            contour = rotate_start(path.contour, v) if v else path.contour
+            result[k] = Toolpath(path.operation, path.part, contour, True, points[index].copy())
+        todo = [k for k in todo if k not in chosen]
+        if not todo:
+            break
+    for k in todo:
+        path = paths[k]
+        result[k] = Toolpath(path.operation, path.part, path.contour, True, None, no_room=True)
+    return result
 
 
-def _rotate(vector: np.ndarray, angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([c * vector[0] - s * vector[1], s * vector[0] + c * vector[1]])
+def _material(sheet: Sheet, parts: dict[str, Part], cache: dict) -> list[shapely.Polygon]:
+    """Every placed part of the sheet as a shapely polygon with its holes and closed slots (the nested geometry,
+    not offset by the kerf): what a pierce must keep clear of."""
+    polygons = []
+    for placement in sheet.placements:
+        part = parts[placement.part]
+        key = ("material", *((c.shape, c.tobytes()) for c in [part.outline, *part.holes]),
+               *((slot.edge, slot.outline.shape, slot.outline.tobytes()) for slot in part.slots))   # by shape
+        if key not in cache:
+            cache[key] = (_cached_flat(part.outline, cache), [_cached_flat(c, cache) for c in part.inner_contours()])
+        shell, holes = cache[key]
+        polygons.append(shapely.Polygon(place(shell, placement), [place(h, placement) for h in holes]))
+    return polygons
+
+
+def _cached_flat(contour: np.ndarray, cache: dict) -> np.ndarray:
+    """A contour flattened within FLATTEN_TOLERANCE, reusing the result for congruent-by-translation contours."""
+    contour = with_bulges(contour)
+    origin = contour[0, :2].copy()
+    local = contour - [*origin, 0.0]
+    key = ("flat", np.round(local, 9).tobytes(), len(local))
+    if key not in cache:
+        cache[key] = flatten_contour(local, FLATTEN_TOLERANCE)
+    return cache[key] + origin
+
+
+def _scrap_directions(at: np.ndarray, after: np.ndarray, before: np.ndarray, flip: np.ndarray) -> np.ndarray:
+    """Unit vectors at vertices `at` ([x, y, bulge] rows; `after` the next vertex, `before` the one before with the
+    bulge of the segment from it) pointing to the right of the path, or its left where `flip`: the scrap side,
+    along the bisector of the tangents that arrive and leave (arcs through their bulges); NaN where the path turns
+    back on itself."""
+    leaving = _rotate_all(after[:, :2] - at[:, :2], -2.0 * np.arctan(at[:, 2]))
+    arriving = _rotate_all(at[:, :2] - before[:, :2], 2.0 * np.arctan(before[:, 2]))
+    tangent = _unit(leaving) + _unit(arriving)
+    length = np.hypot(*tangent.T)
+    tangent = np.where(length[:, None] > 1e-9, tangent / np.maximum(length, 1e-12)[:, None], np.nan)
+    right = np.column_stack([tangent[:, 1], -tangent[:, 0]])
+    return np.where(flip[:, None], -right, right)
+
+
+def _counter_clockwise(contours: list[np.ndarray]) -> np.ndarray:
+    """Whether each closed contour runs counter-clockwise: by the polygon of its vertices, all at once, and by its
+    arcs too (signed_area) where that polygon is flat."""
+    stacked = np.vstack(contours)
+    ends = np.cumsum([len(c) for c in contours])
+    cross = stacked[:-1, 0] * stacked[1:, 1] - stacked[1:, 0] * stacked[:-1, 1]
+    cross = np.append(cross, 0.0)
+    cross[ends - 1] = 0.0                                       # no segment from one contour's end to the next
+    area = np.add.reduceat(cross, np.concatenate([[0], ends[:-1]]))
+    flat = np.flatnonzero(np.abs(area) <= 1e-6)
+    area[flat] = [signed_area(contours[i]) for i in flat.tolist()]
+    return area > 0
+
+
+def _rotate_all(vectors: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    c, s = np.cos(angles), np.sin(angles)
+    return np.column_stack([c * vectors[:, 0] - s * vectors[:, 1], s * vectors[:, 0] + c * vectors[:, 1]])
+
+
+def _unit(vectors: np.ndarray) -> np.ndarray:
+    return vectors / np.maximum(np.hypot(*vectors.T), 1e-12)[:, None]
 
 
 def order_paths(paths: list[Toolpath], start: np.ndarray) -> list[Toolpath]:

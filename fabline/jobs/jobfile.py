@@ -21,6 +21,7 @@ from fabline.units import job_length
 
 if TYPE_CHECKING:  # the nesting stage pulls in shapely; a job file is read before any stage runs
     from fabline.export import ToolpathOptions
+    from fabline.machine.profile import MachineProfile
     from fabline.nest.nester import NestOptions
     from fabline.unroll.options import UnrollOptions
 
@@ -77,9 +78,9 @@ SCHEMA: dict[str, Any] = {
              "common_line": Key(bool, default=False), "fill_holes": Key(bool, default=False),
              "remnants_first": Key(bool, default=False), "remnant_min": Key(str, default="400x200"),
              "stock_out": Key(str), "svg": Key(bool, default=False)},
-    "export": {"kerf": Length(), "lead_in": Length(0.0), "tabs": Key(int, default=0),
-               "tab_width": Length(1.0), "optimise": Key(bool, default=True),
-               "previews": Key(bool, default=True)},
+    "export": {"kerf": Length(), "lead_in": Length(), "pierce_clearance": Length(), "tabs": Key(int),
+               "tab_width": Length(), "tabs_below": Length(), "tab_every": Length(),
+               "optimise": Key(bool, default=True), "previews": Key(bool, default=True)},
     "machine": {"profile": Key(str, default="grbl-laser"), "port": Key(str), "ports": Key(list),
                 "time_scale": Key(float, default=1.0)},
     "output": {"folder": Key(str, required=True), "report": Key(str, default="report.html")},
@@ -411,18 +412,19 @@ def _sheet_length(stock: dict[str, Any]) -> float:
     return max(parse_sheet_size(stock["sheet"]))
 
 
-def toolpath_options(export: dict[str, Any], machine_kerf: float) -> "ToolpathOptions":
-    """The export stage's options from a job's [export] table; the kerf defaults to the machine profile's."""
+def toolpath_options(export: dict[str, Any], profile: "MachineProfile") -> "ToolpathOptions":
+    """The export stage's options from a job's [export] table; a key left out takes the machine profile's (its kerf
+    and [cutting] rule), as the command's options do."""
     from fabline.export import ToolpathOptions
+    from fabline.machine.profile import TOOLPATH_MINIMA
 
-    kerf = machine_kerf if export["kerf"] is None else export["kerf"]
-    return ToolpathOptions(kerf=kerf, lead_in=export["lead_in"], tabs=export["tabs"], tab_width=export["tab_width"],
-                           optimise=export["optimise"])
+    return ToolpathOptions.for_profile(profile, optimise=export["optimise"],
+                                       **{key: export[key] for key in TOOLPATH_MINIMA})
 
 
 def _check_values(data: dict[str, Any], where: str) -> None:
     """Ranges and vocabularies: sheet size, profile, material, machine profile, positive numbers."""
-    from fabline.machine.profile import available_machines, load_machine
+    from fabline.machine.profile import TOOLPATH_MINIMA, available_machines, load_machine
     from fabline.mechanics.materials import load_materials, parse_profile
     from fabline.shop.stock import parse_sheet_size
 
@@ -457,12 +459,12 @@ def _check_values(data: dict[str, Any], where: str) -> None:
         unroll_options(data["lamella"], data["unroll"], data["stock"], data["nest"])
     except FablineError as exc:
         raise FablineError(f"{where}: {exc}") from None
-    for key, low in (("kerf", 0.0), ("lead_in", 0.0), ("tabs", 0), ("tab_width", 1e-9)):
+    for key, low in TOOLPATH_MINIMA.items():
         value = data["export"][key]
         if value is not None and not low <= value < math.inf:
             raise FablineError(f"{where}: export.{key}: must be a finite number, at least {low:g}, got {value}")
     sheet = _sheet_length(data["stock"])
-    for key in ("kerf", "lead_in", "tab_width"):  # a cut feature longer than the sheet cannot be on it
+    for key in ("kerf", "lead_in", "pierce_clearance", "tab_width"):  # a cut feature longer than the sheet cannot be on it
         value = data["export"][key]
         if value is not None and sheet and value > sheet:
             raise FablineError(f"{where}: export.{key}: {value:g} mm is longer than the sheet ({sheet:g} mm)")

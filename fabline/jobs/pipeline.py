@@ -217,7 +217,7 @@ def _export(result: JobResult) -> None:
     profile = load_machine(spec.machine["profile"])
     parts = {p.id: p for p in result.partset.parts}
     material, thickness = spec.lamella["material"], float(result.partset.profile.get("t", 0.0))
-    result.export = export_job(result.nesting, parts, profile, toolpath_options(spec.export, profile.kerf),
+    result.export = export_job(result.nesting, parts, profile, toolpath_options(spec.export, profile),
                                dxf_dir=spec.output("dxf"), gcode_dir=spec.output("gcode"), name=spec.name,
                                source=str(spec.output("nesting.json")), cutlist=spec.output("cutlist.csv"),
                                previews=spec.export["previews"])

@@ -43,13 +43,39 @@ ANY_GRBL_BUILD = BuildInfo(options="VMR")
 
 @dataclass(frozen=True)
 class Operation:
-    """How one operation runs: feed (mm/min), tool power or pen position (S), passes, total depth (mill)."""
+    """How one operation runs: feed (mm/min), tool power or pen position (S), passes, total depth (mill), and the
+    dwell (s) after the tool goes on before it moves: a laser's pierce through the sheet (`G4 P` in the program)."""
 
     name: str
     feed: float
     power: float
     passes: int
     depth: float = 0.0
+    pierce: float = 0.0
+
+
+@dataclass(frozen=True)
+class Cutting:
+    """How closed cuts are made as a laser shop makes them ([cutting]; mm): a lead-in of `lead_in` from a pierce
+    point at least `pierce_clearance` off every part on the sheet, and tabs `tab_width` wide (the uncut length of the
+    toolpath) on each part whose bounding box's longer side is under `tabs_below`, one per `tab_every` of its
+    perimeter, at least MIN_TABS (fabline.export.toolpath). Zeros: no lead-ins, no tabs."""
+
+    lead_in: float = 0.0
+    pierce_clearance: float = 0.0
+    tab_width: float = 1.0
+    tabs_below: float = 0.0
+    tab_every: float = 250.0
+
+
+CUTTING_RANGES = {"lead_in": (0.0, 100.0), "pierce_clearance": (0.0, 100.0), "tab_width": (0.01, 100.0),
+                  "tabs_below": (0.0, 1e5), "tab_every": (1.0, 1e5)}
+"""The range (mm) of each [cutting] key."""
+MAIN_OUTPUTS = ("gcode", "dxf")
+TOOLPATH_MINIMA = {"kerf": 0.0, "lead_in": 0.0, "pierce_clearance": 0.0, "tabs": 0, "tab_width": 1e-9,
+                   "tabs_below": 0.0, "tab_every": 1e-9}
+"""The least value of each toolpath option a command line or a job's [export] gives (`tab_width = 0` would leave
+no bridge), by ToolpathOptions' names."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,6 +108,8 @@ class MachineProfile:
     operations: dict[str, Operation]
     variables: dict[str, float]
     required_settings: tuple["SettingRequirement", ...] = ()  # [requires]: what the controller's `$$` must say
+    cutting: Cutting = Cutting()  # [cutting]: lead-ins, pierce clearance and tabs by part size
+    main_output: str = "gcode"    # what the machine is run from: "gcode", or "dxf" (its own CAM; G-code for reference)
 
     def render(self, field_name: str, **values: float) -> tuple[str, ...]:
         """The command templates of `field_name` (program_start, tool_on ...) with the values TEMPLATE_VALUES
@@ -291,6 +319,7 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
             power=fields.number(f"{key}.power", s_min, s_max),
             passes=fields.integer(f"{key}.passes", 1, 100),
             depth=fields.number(f"{key}.depth", 0, 1000, low_inclusive=False) if mode == "mill" else 0.0,
+            pierce=fields.number(f"{key}.pierce", 0, 60) if "pierce" in _table_at(table, key) else 0.0,
         )
     variables = {}
     if not isinstance(table.get("vars", {}), dict):
@@ -311,8 +340,11 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
         rapid_rate=fields.number("motion.rapid_rate", 0, 1e6, low_inclusive=False),
         acceleration=fields.number("motion.acceleration", 0, 1e5, low_inclusive=False),
         junction_deviation=fields.number("motion.junction_deviation", 0, 10),
-        s_min=s_min, s_max=s_max, operations=operations, variables=variables,
+        s_min=s_min, s_max=s_max, operations=operations, variables=variables, cutting=_cutting(table, fields),
+        main_output=fields.text("main_output", "gcode"),
     )
+    if profile.main_output not in MAIN_OUTPUTS:
+        raise FablineError(f"{source}: main_output: {profile.main_output!r} is not one of {', '.join(MAIN_OUTPUTS)}")
     fields.read.add("requires")
     requires = table.get("requires", {})
     if isinstance(requires, str):  # the free text of older profiles: shown in the program header, not checked
@@ -323,6 +355,12 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
     else:
         raise FablineError(f"{source}: requires: must be a table of controller settings, such as {{ 32 = 1 }}")
     fields.check_unknown()
+    pierced = [op.name for op in operations.values() if op.pierce > 0]
+    if pierced and profile.laser_mode:
+        raise FablineError(f"{source}: operations.{pierced[0]}.pierce: a dwell in laser mode ($32=1, M4) runs at no "
+                           "power; a pierce needs a profile without laser_mode (M3)")
+    if pierced and "G4" not in profile.words:
+        raise FablineError(f"{source}: operations.{pierced[0]}.pierce: needs G4 (dwell) in the profile's words")
     if profile.laser_mode and mode != "laser":
         raise FablineError(f"{source}: laser_mode: only a laser profile (mode = \"laser\") can use laser mode")
     needed = {"G0", "G1"} | ({"G2", "G3"} if profile.arcs else set())
@@ -337,6 +375,22 @@ def _profile_from_dict(table: dict, source: str) -> MachineProfile:
     for field_name in TEMPLATE_VALUES:
         _check_templates(profile, field_name)
     return profile
+
+
+def _table_at(table: dict, dotted: str) -> dict:
+    """The sub-table at a dotted path, or {} where there is none."""
+    for key in dotted.split("."):
+        table = table.get(key, {}) if isinstance(table, dict) else {}
+    return table if isinstance(table, dict) else {}
+
+
+def _cutting(table: dict, fields: _Fields) -> Cutting:
+    """The [cutting] table; a key left out takes Cutting's default."""
+    given = table.get("cutting", {})
+    if not isinstance(given, dict):
+        raise FablineError(f"{fields.source}: cutting: must be a table ([cutting] lead_in = 2.0 ...)")
+    return Cutting(**{key: fields.number(f"cutting.{key}", *CUTTING_RANGES[key])
+                      for key in CUTTING_RANGES if key in given})
 
 
 def _controller_accepts(profile: MachineProfile, word: str) -> bool:

@@ -32,7 +32,7 @@ def _outputs(folder):
 def test_export_then_check_agrees_with_independent_truth(cli, job):
     folder, nesting, partset = job
     code, out, err = cli("export", folder / "nesting.json", "--dxf", folder / "out", "--gcode", folder / "out",
-                         "--machine", "grbl-laser", "--kerf", "0")
+                         "--machine", "grbl-laser", "--kerf", "0", "--lead-in", "0", "--tabs", "0")
     assert code == 0, err
     assert _outputs(folder / "out") == ["cutlist.csv", "nesting_S1.dxf", "nesting_S1.gcode", "nesting_S1.order.svg",
                                         "nesting_all-sheets.dxf"]
@@ -192,7 +192,7 @@ def test_a_failing_later_sheet_leaves_no_file_of_the_sheets_made_before_it(cli, 
     assert "part A: placed 2 times (on sheets " in err and "(and 1 more problems)" in err
 
 
-@pytest.mark.parametrize("machine", ["grbl-laser", "grbl-plotter", "rs274-mill"])
+@pytest.mark.parametrize("machine", ["grbl-laser", "fibre-laser", "grbl-plotter", "rs274-mill"])
 def test_every_builtin_profile_exports_programs_that_check_clean(cli, job, machine):
     folder, _, _ = job
     code, out, err = cli("export", folder / "nesting.json", "--gcode", folder / machine, "--machine", machine,
