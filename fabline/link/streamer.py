@@ -348,7 +348,7 @@ class Streamer:
         if not controller.settings:  # not read when the controller was found in alarm or busy
             controller.read_build_info()
         problems = controller_problems(self.program, self.ledger.blocks, self.ledger.origin, controller.settings,
-                                       controller.build, self.profile, self.connection.wco)
+                                       controller.build, self.profile, self.connection.wco, controller.dialect)
         if problems and not self.force:
             more = f" (and {len(problems) - 1} more conflict{'s' if len(problems) > 2 else ''})" if len(problems) > 1 else ""
             raise FablineError(f"{problems[0]}{more}; nothing was sent (--force streams anyway)")
