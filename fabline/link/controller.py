@@ -15,7 +15,6 @@ from fabline.link.connection import Connection
 from fabline.link.dialects import DIALECTS, GRBL, recognise
 from fabline.link.protocol import CYCLE_START, FEED_HOLD, SOFT_RESET, STATUS_QUERY
 from fabline.machine.build import STOCK_BUILD, BuildInfo
-from fabline.machine.codes import explain_alarm
 
 _FLUSH_LINE = b"#\n"
 _TAG = re.compile(r"\bT(\d+)\b")
@@ -133,7 +132,7 @@ class Grbl:
         status = link.query_status()
         if status.state == "Alarm" and unlock:
             link.command(b"$X\n")
-            link.exchange("#", f"unlocked after {explain_alarm(alarm) if alarm else 'alarm'}")
+            link.exchange("#", f"unlocked after {self.dialect.explain_alarm(alarm) if alarm else 'alarm'}")
 
     def feed_hold(self) -> None:
         self.connection.write(FEED_HOLD)

@@ -21,6 +21,7 @@ import re
 from dataclasses import dataclass, field
 
 from fabline.machine.build import STOCK_BUILDS, BuildInfo
+from fabline.machine.codes import ALARM_CODES
 
 _AXES = "xyz"
 _FLUIDNC_AXIS_KEYS = {100: "steps_per_mm", 110: "max_rate_mm_per_min", 120: "acceleration_mm_per_sec2",
@@ -41,6 +42,8 @@ class Dialect:
     """The command that prints the YAML configuration the numbered settings stand for (FluidNC: `$CD`)."""
     changes: dict[int, str] = field(default_factory=dict)
     """How a numbered setting is changed where it is not by `$N=value`."""
+    alarms: dict[int, str] = field(default_factory=dict)
+    """Its alarm codes beyond Grbl 1.1's 1-9 (which all three share)."""
 
     @property
     def stock_build(self) -> BuildInfo:
@@ -54,6 +57,10 @@ class Dialect:
             return (f"set axes/{_AXES[number % 10]}/{_FLUIDNC_AXIS_KEYS[number // 10 * 10]}: {value:g} in the "
                     "FluidNC config (config.yaml; $CD shows it)")
         return f"send ${number}={value:g} to the controller"
+
+    def explain_alarm(self, code: int) -> str:
+        """`ALARM:N` in words, in this dialect's numbering."""
+        return f"ALARM:{code} ({ALARM_CODES.get(code) or self.alarms.get(code, f'unknown {self.label} alarm code')})"
 
     def read_settings(self, command) -> dict[int, float]:
         """The controller's settings in Grbl's numbers, read with `command(line, every_line)` (Connection.command)."""
@@ -103,11 +110,21 @@ def fluidnc_settings(config: dict[str, str]) -> dict[int, float]:
 
 GRBL = Dialect("grbl", "Grbl 1.1", re.compile(r"^Grbl (1\.\S+) \['\$' for help\]$"), "1.1")
 GRBLHAL = Dialect("grblhal", "grblHAL", re.compile(r"^GrblHAL (\S+) \['\$' or '\$HELP' for help\]$"), "1.1",
-                  changes={32: "send $32={value:g} to the controller (grblHAL's mode of operation: 1 is laser)"})
+                  changes={32: "send $32={value:g} to the controller (grblHAL's mode of operation: 1 is laser)"},
+                  alarms={10: "EStop asserted; clear and reset", 11: "homing required; home ($H) to continue",
+                          12: "limit switch engaged; clear before continuing",
+                          13: "probe protection triggered; clear before continuing",
+                          14: "spindle at speed timeout; clear before continuing",
+                          15: "homing fail: second limit switch of an auto-squared axis not found",
+                          16: "power on self test failed", 17: "motor fault", 18: "homing fail: bad configuration"})
+"""grblHAL/core alarms.c (alarm_detail) and its alarm_code_t numbering."""
 FLUIDNC = Dialect("fluidnc", "FluidNC", re.compile(r"^Grbl (\S+) \[FluidNC (\S+).*'\$' for help\]$"), "",
                   config_command=b"$CD\n",
                   changes={32: "make the spindle of the FluidNC config (config.yaml; $CD shows it) {kind} spindle",
-                           20: "set axes/x/soft_limits in the FluidNC config (config.yaml)"})
+                           20: "set axes/x/soft_limits in the FluidNC config (config.yaml)"},
+                  alarms={10: "spindle control", 11: "control pin initially on", 12: "ambiguous switch",
+                          13: "hard stop", 14: "unhomed", 15: "init"})
+"""bdring/FluidNC Protocol.h (ExecAlarm) and Protocol.cpp (AlarmNames)."""
 DIALECTS = {dialect.name: dialect for dialect in (GRBL, GRBLHAL, FLUIDNC)}
 """Every dialect by name (the names of fabline.machine.build.STOCK_BUILDS)."""
 

@@ -245,3 +245,13 @@ def test_a_job_killed_mid_stream_resumes_exactly_once_on_each_firmware(tmp_path,
         outcome: list[str] = []
         recover(server.url, program, executed, outcome)
     assert executed_file_lines(log) == [line.file_line for line in lines]
+
+
+def test_alarms_beyond_grbl_are_explained_in_each_dialects_numbering():
+    """grblHAL/core alarms.c: 11 is Alarm_HomingRequired "Homing required. Execute homing command ($H) to
+    continue."; bdring/FluidNC Protocol.h: ExecAlarm 11 is ControlPin, AlarmNames "Control Pin Initially On";
+    Grbl 1.1 has no alarm 11 (gnea/grbl report.c lists 1-9)."""
+    assert "homing required" in GRBLHAL.explain_alarm(11)
+    assert "control pin initially on" in FLUIDNC.explain_alarm(11)
+    assert GRBL.explain_alarm(11) == "ALARM:11 (unknown Grbl 1.1 alarm code)"
+    assert GRBL.explain_alarm(2) == GRBLHAL.explain_alarm(2) == FLUIDNC.explain_alarm(2)
