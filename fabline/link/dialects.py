@@ -4,7 +4,9 @@ All three speak Grbl 1.1's line protocol (ok/error:N, `<...>` status reports, re
 `$C`, `$X`), so one streamer drives them; a dialect says only what differs: how its banner reads, where its build
 and settings are reported, and how a setting the compatibility check asks for is changed. Compatibility is checked
 in Grbl's setting numbers (`$32` laser mode, `$110..` max rates, `$130..` travel): each dialect reads its controller
-into that common form.
+into that common form. A machine profile's `controller = "Grbl 1.1"` names the G-code its programs are written in;
+all three dialects run it, so a profile drives any of them whose settings meet its `[requires]` (a grbl-laser profile
+runs on Grbl, grblHAL or FluidNC with laser mode on).
 
 - Grbl 1.1 (gnea/grbl report.c): banner `Grbl 1.1h ['$' for help]`; `$I` `[OPT:V,15,128]`; `$$` every setting.
 - grblHAL (grblHAL/core report.c): banner `GrblHAL 1.1f ['$' or '$HELP' for help]` (`Grbl 1.1f ['$' for help]`
@@ -94,14 +96,17 @@ def read_config(lines: list[str]) -> dict[str, str]:
 
 
 def fluidnc_settings(config: dict[str, str]) -> dict[int, float]:
-    """Grbl's numbers from a FluidNC config: $32 = 1 with a `Laser:` spindle, else 0; $20 from soft limits;
-    travel, rate, acceleration and resolution per axis."""
+    """Grbl's numbers from a FluidNC config: $32 = 1 with a `Laser:` spindle, else 0; $20 from soft limits; $11
+    and $12 (junction deviation, arc tolerance); travel, rate, acceleration and resolution per axis."""
     settings: dict[int, float] = {32: 1.0 if "Laser" in config else 0.0}
     for index, axis in enumerate(_AXES):
         for number, key in _FLUIDNC_AXIS_KEYS.items():
             value = config.get(f"axes/{axis}/{key}")
             if value:
                 settings[number + index] = float(value)
+    for number, key in ((11, "junction_deviation_mm"), (12, "arc_tolerance_mm")):  # MachineConfig.cpp items
+        if config.get(key):
+            settings[number] = float(config[key])
     soft = config.get("axes/x/soft_limits")
     if soft is not None:
         settings[20] = 1.0 if soft.lower() == "true" else 0.0

@@ -21,7 +21,7 @@ from fabline.link.connection import Connection
 from fabline.link.controller import Grbl
 from fabline.link.dialects import FLUIDNC, GRBL, GRBLHAL, fluidnc_settings, read_config, recognise
 from fabline.link.protocol import LineSplitter, classify
-from fabline.link.protocol_sim import close_simulator
+from fabline.link.protocol_sim import close_simulator, get_simulator
 from fabline.machine import load_program
 from fabline.machine.build import BuildInfo
 
@@ -91,6 +91,8 @@ def test_fluidnc_build_info_has_no_buffer_sizes_so_its_stock_ones_are_kept():
 # ----- FluidNC's config ---------------------------------------------------------------------------------------
 FLUIDNC_DUMP = """name: K40
 board: 6 Pack
+junction_deviation_mm: 0.020
+arc_tolerance_mm: 0.002
 stepping:
   engine: RMT
   idle_ms: 250
@@ -128,6 +130,7 @@ def test_fluidnc_laser_mode_and_travel_come_from_its_config():
     settings = fluidnc_settings(config)
     assert (settings[32], settings[130], settings[131], settings[110], settings[120], settings[20]) == \
         (1.0, 320.0, 220.0, 24000.0, 2500.0, 1.0)
+    assert (settings[11], settings[12]) == (0.02, 0.002)
     plain = fluidnc_settings(read_config([line.replace("Laser:", "PWM:") for line in FLUIDNC_DUMP]))
     assert plain[32] == 0.0
 
@@ -255,3 +258,17 @@ def test_alarms_beyond_grbl_are_explained_in_each_dialects_numbering():
     assert "control pin initially on" in FLUIDNC.explain_alarm(11)
     assert GRBL.explain_alarm(11) == "ALARM:11 (unknown Grbl 1.1 alarm code)"
     assert GRBL.explain_alarm(2) == GRBLHAL.explain_alarm(2) == FLUIDNC.explain_alarm(2)
+
+
+def test_a_sim_url_named_after_a_firmware_is_a_stock_build_of_it_and_a_bad_firmware_is_refused():
+    for name in ("grblhal", "fluidnc"):
+        controller = Grbl(Connection(f"sim://{name}?time_scale=50"))
+        try:
+            controller.open()
+            assert controller.dialect.name == name and controller.build == BuildInfo.parse(
+                get_simulator(name).build.lines())
+        finally:
+            controller.connection.close()
+            close_simulator(name)
+    with pytest.raises(FablineError, match="firmware must be one of grbl, grblhal, fluidnc, not 'marlin'"):
+        Grbl(Connection("sim://m1?firmware=marlin")).open()
