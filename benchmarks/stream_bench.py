@@ -85,7 +85,8 @@ def main() -> None:
         print(f"{counting['link']}: character counting / send-response = {counting['rate'] / single['rate']:.2f}x")
     print(f"\ncharacter counting per firmware; link limit {limit:.0f} lines/s (every byte of the program at {BAUD} baud)")
     print(f"{'link':<18} {'firmware':<9} {'rx':>5} {'lines/s':>8} {'of limit':>9} {'link use':>9}")
-    for (link, firmware), row in dialects.items():
+    for link, firmware in ((link, firmware) for link in LINKS for firmware in FIRMWARES):
+        row = dialects[(link, firmware)]
         print(f"{link:<18} {firmware:<9} {row['rx']:>5} {row['rate']:>8.0f} {row['rate'] / limit:>8.1%} "
               f"{row['utilisation']:>8.1%}")
     print(f"(link {BAUD} baud = {BYTES_PER_SECOND:.0f} bytes/s each way; controller motion sped up 10^4 times)")
