@@ -105,8 +105,8 @@ def parse_status(text: str) -> StatusReport:
             values["planner_free"], values["rx_free"] = int(planner), int(rx)
         elif name == "Ln":
             values["line_number"] = int(value)
-        elif name == "FS":
-            feed, speed = value.split(",")
+        elif name == "FS":  # grblHAL adds the spindle's measured rpm as a third value
+            feed, speed, *_ = value.split(",")
             values["feed"], values["speed"] = float(feed), float(speed)
         elif name == "F":
             values["feed"] = float(value)

@@ -46,7 +46,7 @@ from fabline.link.sender import MODES, Sender, check_mode
 from fabline.link.stopping import Stopper
 from fabline.locks import exclusive_lock, lock_path
 from fabline.machine.build import ANY_BUILD
-from fabline.machine.codes import explain_alarm, explain_error
+from fabline.machine.codes import explain_error
 from fabline.machine.gcode import ModalState
 from fabline.machine.program import Program, load_program
 
@@ -155,7 +155,8 @@ class Streamer:
                 if response.kind == "error":
                     return answer + [explain_error(response.code)]
                 if response.kind != "status":
-                    answer.append(response.text if response.kind != "alarm" else explain_alarm(response.code))
+                    answer.append(response.text if response.kind != "alarm"
+                                  else self.controller.dialect.explain_alarm(response.code))
         raise FablineError(f"{self.url}: no answer to {line!r} within {wait:g} s")
 
     # ----- what the controller and the last run tell ---------------------------------------------------

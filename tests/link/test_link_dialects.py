@@ -272,3 +272,17 @@ def test_a_sim_url_named_after_a_firmware_is_a_stock_build_of_it_and_a_bad_firmw
             close_simulator(name)
     with pytest.raises(FablineError, match="firmware must be one of grbl, grblhal, fluidnc, not 'marlin'"):
         Grbl(Connection("sim://m1?firmware=marlin")).open()
+
+
+def test_status_reports_of_grblhal_and_fluidnc_are_read():
+    """grblHAL/core report.c report_realtime_status: `|FS:` rate `,` programmed rpm, and `,` the measured rpm when
+    the spindle reports it (get_data); `|Pn:`, `|WCO:`, `|A:`, `|H:`, `|FW:grblHAL` after. bdring/FluidNC
+    Report.cpp: `Hold:0`/`Hold:1`, `|FS:` always, `|Pn:` when a pin is active, a running job's progress."""
+    grblhal = classify("<Run|MPos:10.000,5.000,0.000,0.000|Bf:98,1012|Ln:42|FS:1500,12000,11985|Pn:P|WCO:0.000,0.000,"
+                       "0.000,0.000|A:S|H:1,7|FW:grblHAL>")
+    assert grblhal.kind == "status"
+    status = grblhal.status
+    assert (status.state, status.line_number, status.feed, status.speed, status.rx_free, status.pins) == \
+        ("Run", 42, 1500.0, 12000.0, 1012, "P")
+    fluidnc = classify("<Hold:0|MPos:1.000,2.000,0.000|FS:0,0|Pn:XY|SD:12.50,/sd/sheet.nc>")
+    assert fluidnc.kind == "status" and fluidnc.status.substate == 0 and fluidnc.status.pins == "XY"
