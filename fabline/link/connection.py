@@ -43,6 +43,8 @@ class Connection:
         self.status: StatusReport | None = None
         self.wco: tuple[float, ...] | None = None
         self.bytes_sent = 0
+        self.explain_error = explain_error
+        """`error:N` in words; the controller sets its dialect's once it knows it."""
         self.last_heard = time.monotonic()
         self._splitter = LineSplitter()
 
@@ -172,7 +174,7 @@ class Connection:
                     self.write(line)
                     deadline = time.monotonic() + self.answer_wait
                 elif response.kind == "error":
-                    raise FablineError(f"{self.url}: {line.decode().strip()!r} answered {explain_error(response.code)}")
+                    raise FablineError(f"{self.url}: {line.decode().strip()!r} answered {self.explain_error(response.code)}")
                 elif response.kind == "banner" and until_banner and answered:
                     return feedback
             if answered and not until_banner:

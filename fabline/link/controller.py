@@ -75,6 +75,7 @@ class Grbl:
         feedback = link.command(b"$I\n")
         self.build = BuildInfo.parse(feedback, self.dialect.name)
         self.dialect = DIALECTS[self.build.firmware]
+        link.explain_error = self.dialect.explain_error
         if not any(text.startswith("OPT:") for text in feedback):
             link.exchange("#", "no [OPT:...] in $I: assuming a stock build")
         if not self.build.version.startswith(self.dialect.version_prefix):

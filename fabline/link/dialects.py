@@ -23,7 +23,7 @@ import re
 from dataclasses import dataclass, field
 
 from fabline.machine.build import STOCK_BUILDS, BuildInfo
-from fabline.machine.codes import ALARM_CODES
+from fabline.machine.codes import ALARM_CODES, ERROR_CODES
 
 _AXES = "xyz"
 _FLUIDNC_AXIS_KEYS = {100: "steps_per_mm", 110: "max_rate_mm_per_min", 120: "acceleration_mm_per_sec2",
@@ -46,6 +46,8 @@ class Dialect:
     """How a numbered setting is changed where it is not by `$N=value`."""
     alarms: dict[int, str] = field(default_factory=dict)
     """Its alarm codes beyond Grbl 1.1's 1-9 (which all three share)."""
+    errors: dict[int, str] = field(default_factory=dict)
+    """Its error codes beyond Grbl 1.1's (1-38, which all three share)."""
 
     @property
     def stock_build(self) -> BuildInfo:
@@ -63,6 +65,10 @@ class Dialect:
     def explain_alarm(self, code: int) -> str:
         """`ALARM:N` in words, in this dialect's numbering."""
         return f"ALARM:{code} ({ALARM_CODES.get(code) or self.alarms.get(code, f'unknown {self.label} alarm code')})"
+
+    def explain_error(self, code: int) -> str:
+        """`error:N` in words, in this dialect's numbering."""
+        return f"error:{code} ({ERROR_CODES.get(code) or self.errors.get(code, f'unknown {self.label} error code')})"
 
     def read_settings(self, command) -> dict[int, float]:
         """The controller's settings in Grbl's numbers, read with `command(line, every_line)` (Connection.command)."""
@@ -121,8 +127,18 @@ GRBLHAL = Dialect("grblhal", "grblHAL", re.compile(r"^GrblHAL (\S+) \['\$' or '\
                           13: "probe protection triggered; clear before continuing",
                           14: "spindle at speed timeout; clear before continuing",
                           15: "homing fail: second limit switch of an auto-squared axis not found",
-                          16: "power on self test failed", 17: "motor fault", 18: "homing fail: bad configuration"})
-"""grblHAL/core alarms.c (alarm_detail) and its alarm_code_t numbering."""
+                          16: "power on self test failed", 17: "motor fault", 18: "homing fail: bad configuration"},
+                  errors={39: "value out of range", 40: "g-code command not allowed when tool change is pending",
+                          41: "spindle not running when motion commanded in CSS or spindle sync mode",
+                          42: "plane must be ZX for threading", 43: "max. feed rate exceeded", 44: "RPM out of range",
+                          45: "only homing is allowed when a limit switch is engaged", 46: "home machine to continue",
+                          47: "ATC: current tool is not set", 48: "value word conflict",
+                          49: "power on self test failed; a hard reset is required", 50: "emergency stop active",
+                          51: "motor fault", 52: "setting value is out of range", 53: "setting is not available",
+                          54: "retract position is less than drill depth",
+                          55: "attempt to home two auto squared axes at the same time",
+                          56: "coordinate system is locked"})
+"""grblHAL/core alarms.c (alarm_detail) and errors.c (status_detail), numbered by alarm_code_t and status_code_t."""
 FLUIDNC = Dialect("fluidnc", "FluidNC", re.compile(r"^Grbl (\S+) \[FluidNC (\S+).*'\$' for help\]$"), "",
                   config_command=b"$CD\n",
                   changes={32: "make the spindle of the FluidNC config (config.yaml; $CD shows it) {kind} spindle",

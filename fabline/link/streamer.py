@@ -46,7 +46,6 @@ from fabline.link.sender import MODES, Sender, check_mode
 from fabline.link.stopping import Stopper
 from fabline.locks import exclusive_lock, lock_path
 from fabline.machine.build import ANY_BUILD
-from fabline.machine.codes import explain_error
 from fabline.machine.gcode import ModalState
 from fabline.machine.program import Program, load_program
 
@@ -153,7 +152,7 @@ class Streamer:
                 if response.kind == "ok":
                     return answer + ["ok"]
                 if response.kind == "error":
-                    return answer + [explain_error(response.code)]
+                    return answer + [self.controller.dialect.explain_error(response.code)]
                 if response.kind != "status":
                     answer.append(response.text if response.kind != "alarm"
                                   else self.controller.dialect.explain_alarm(response.code))

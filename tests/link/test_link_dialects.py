@@ -260,6 +260,15 @@ def test_alarms_beyond_grbl_are_explained_in_each_dialects_numbering():
     assert GRBL.explain_alarm(2) == GRBLHAL.explain_alarm(2) == FLUIDNC.explain_alarm(2)
 
 
+def test_errors_beyond_grbl_are_explained_in_grblhals_numbering():
+    """grblHAL/core gcode.h status_code_t: Status_HomingRequired = 46, Status_EStop = 50; errors.c: "Home machine
+    to continue.", "Emergency stop active."; Grbl 1.1 stops at 38 (report.c)."""
+    assert GRBLHAL.explain_error(46) == "error:46 (home machine to continue)"
+    assert GRBLHAL.explain_error(50) == "error:50 (emergency stop active)"
+    assert GRBL.explain_error(46) == "error:46 (unknown Grbl 1.1 error code)"
+    assert GRBLHAL.explain_error(20) == GRBL.explain_error(20)
+
+
 def test_a_sim_url_named_after_a_firmware_is_a_stock_build_of_it_and_a_bad_firmware_is_refused():
     for name in ("grblhal", "fluidnc"):
         controller = Grbl(Connection(f"sim://{name}?time_scale=50"))
