@@ -83,7 +83,7 @@ def main() -> None:
               f"{row['bytes']:>9} {row['utilisation']:>8.1%}")
     for counting, single in zip(rows[::2], rows[1::2]):
         print(f"{counting['link']}: character counting / send-response = {counting['rate'] / single['rate']:.2f}x")
-    print(f"\ncharacter counting per firmware; link limit {limit:.0f} lines/s (every byte of the program at {BAUD} baud)")
+    print(f"\ncharacter counting per firmware; link limit {limit:.0f} lines/s (the program's bytes at {BAUD} baud)")
     print(f"{'link':<18} {'firmware':<9} {'rx':>5} {'lines/s':>8} {'of limit':>9} {'link use':>9}")
     for link, firmware in ((link, firmware) for link in LINKS for firmware in FIRMWARES):
         row = dialects[(link, firmware)]

@@ -61,7 +61,8 @@ def controller_problems(program: Program, blocks: Sequence[Block], origin: Vecto
             elif not requirement.met_by(actual):
                 why = f" ({_WHY[requirement.number]})" if requirement.number in _WHY else ""
                 problems.append(f"machine {profile.name} needs {requirement}{why}, but the controller has "
-                                f"${requirement.number}={actual:g}; {dialect.change(requirement.number, requirement.value)}"
+                                f"${requirement.number}={actual:g}; "
+                                f"{dialect.change(requirement.number, requirement.value)}"
                                 ", or give --machine with the profile of this machine")
     if not build.mist_coolant:
         mist = next((line for line in program.lines if _MIST.search(line.command)), None)

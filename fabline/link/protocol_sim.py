@@ -6,9 +6,9 @@ time_scale, line_time (firmware seconds per line), log (executed-line log path),
 a URL names no file to read, `check_port` refuses a path): the controller is set up as that machine, its `$N` settings as the profile assumes them, e.g. `$32=1` for
 a laser), settings (`$N` values as `110:12000,120:800`, over the machine's), drop_at, corrupt_at (comma-separated byte offsets),
 error_line, error_code, alarm_line, alarm_code, stall_at, stall_seconds; and the build: firmware (grbl, grblhal or
-fluidnc; by default the NAME if it is one of these, else grbl) sets a stock build of that firmware (fabline.machine.build
-STOCK_BUILDS: Grbl 1.1h, grblHAL with 1024 RX bytes, FluidNC), unless build_options (the `$I` option letters, e.g. `VN`
-for `Ln:` in status reports), planner_blocks or rx_buffer say otherwise.
+fluidnc; by default the NAME if it is one of these, else grbl) sets a stock build of that firmware
+(fabline.machine.build STOCK_BUILDS: Grbl 1.1h, grblHAL with 1024 RX bytes, FluidNC), unless build_options (the
+`$I` option letters, e.g. `VN` for `Ln:` in status reports), planner_blocks or rx_buffer say otherwise.
 """
 
 from __future__ import annotations

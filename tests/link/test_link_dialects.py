@@ -73,7 +73,8 @@ def test_grblhal_build_info_gives_its_buffers_axes_and_family():
         ("grblhal", "1.1f.20241222", "VNMSL", 100, 1024, 3)
     assert build.line_numbers and build.mist_coolant
     # a grblHAL reporting itself as Grbl (COMPATIBILITY_LEVEL 1) is still told by its FIRMWARE line
-    assert BuildInfo.parse(["[VER:1.1f.20241222:]", "[OPT:VNM,35,1024,3,0]", "[FIRMWARE:grblHAL]"]).firmware == "grblhal"
+    compatible = ["[VER:1.1f.20241222:]", "[OPT:VNM,35,1024,3,0]", "[FIRMWARE:grblHAL]"]
+    assert BuildInfo.parse(compatible).firmware == "grblhal"
 
 
 def test_fluidnc_build_info_has_no_buffer_sizes_so_its_stock_ones_are_kept():
