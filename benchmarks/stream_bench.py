@@ -6,7 +6,9 @@ a bare UART to an instant controller; an Arduino-Uno-like USB bridge (answers fl
 instant controller; and that bridge to a controller that needs 1 ms to parse and plan each line. An 8-bit
 Grbl needs more (2.4-3.6 ms per line with the steppers running, gnea/grbl#1144; about 5 ms by its author,
 grbl/grbl#492); 1 ms stays below a 22-byte line's 1.9 ms on the wire, so the controller is still not the
-bottleneck. Prints lines/s and the host-to-controller link utilisation (bytes sent / line capacity).
+bottleneck. Prints lines/s and the host-to-controller link utilisation (bytes sent / line capacity), then
+character counting per firmware (stock Grbl 1.1h, 128 RX bytes; grblHAL, 1024; FluidNC, 128) on each link against
+the link's limit (lines/s if every byte of the line went at the baud rate).
 Run: python benchmarks/stream_bench.py [--lines 20000]
 """
 
@@ -40,17 +42,23 @@ def write_program(path: Path, lines: int) -> None:
     path.write_text("\n".join(body) + "\n", encoding="ascii")
 
 
-def measure(program: Path, mode: str, link: str, workdir: Path) -> dict:
+FIRMWARES = ("grbl", "grblhal", "fluidnc")
+
+
+def measure(program: Path, mode: str, link: str, workdir: Path, firmware: str = "grbl") -> dict:
     latency, line_time = LINKS[link]
-    log = workdir / f"executed-{mode}-{latency}-{line_time}.log"
+    run = f"{firmware}-{mode}-{latency}-{line_time}"
+    log = workdir / f"executed-{run}.log"
     with SimulatorServer(log=log, time_scale=1e4, transport="pty", baud=BAUD, adapter_latency=latency,
-                         line_time=line_time, faults={"settings": "32:1,130:1000,131:1000"}) as server:  # stock build, laser
-        result = Streamer(server.url, mode=mode, status_interval=0.2).run(
-            program, journal=workdir / f"{mode}-{latency}-{line_time}.journal")
+                         line_time=line_time, faults={"settings": "32:1,130:1000,131:1000",  # stock build, laser
+                                                      "firmware": firmware}) as server:
+        streamer = Streamer(server.url, mode=mode, status_interval=0.2)
+        result = streamer.run(program, journal=workdir / f"{run}.journal")
     executed = executed_file_lines(log)
     expected = [line.file_line for line in load_program(program).lines]
     assert result.completed and executed == expected, f"{mode}: controller did not execute the program exactly"
-    return {"mode": mode, "link": link, "lines": result.total, "seconds": result.elapsed,
+    return {"mode": mode, "link": link, "firmware": firmware, "rx": streamer.rx_buffer, "lines": result.total,
+            "seconds": result.elapsed,
             "rate": result.total / result.elapsed, "bytes": result.bytes_sent,
             "utilisation": result.bytes_sent / (result.elapsed * BYTES_PER_SECOND)}
 
@@ -63,14 +71,26 @@ def main() -> None:
         workdir = Path(folder)
         program = workdir / "bench.gcode"
         write_program(program, args.lines)
+        lines = load_program(program).lines
         rows = [measure(program, mode, link, workdir) for link in LINKS for mode in ("counting", "send-response")]
+        dialects = {(row["link"], "grbl"): row for row in rows if row["mode"] == "counting"}
+        dialects.update({(link, firmware): measure(program, "counting", link, workdir, firmware)
+                         for link in LINKS for firmware in FIRMWARES if firmware != "grbl"})
+    limit = len(lines) / (sum(len(line.wire) for line in lines) / BYTES_PER_SECOND)
     print(f"{'link':<18} {'mode':<14} {'lines':>7} {'seconds':>8} {'lines/s':>8} {'bytes':>9} {'link use':>9}")
     for row in rows:
         print(f"{row['link']:<18} {row['mode']:<14} {row['lines']:>7} {row['seconds']:>8.1f} {row['rate']:>8.0f} "
               f"{row['bytes']:>9} {row['utilisation']:>8.1%}")
     for counting, single in zip(rows[::2], rows[1::2]):
         print(f"{counting['link']}: character counting / send-response = {counting['rate'] / single['rate']:.2f}x")
+    print(f"\ncharacter counting per firmware; link limit {limit:.0f} lines/s (the program's bytes at {BAUD} baud)")
+    print(f"{'link':<18} {'firmware':<9} {'rx':>5} {'lines/s':>8} {'of limit':>9} {'link use':>9}")
+    for link, firmware in ((link, firmware) for link in LINKS for firmware in FIRMWARES):
+        row = dialects[(link, firmware)]
+        print(f"{link:<18} {firmware:<9} {row['rx']:>5} {row['rate']:>8.0f} {row['rate'] / limit:>8.1%} "
+              f"{row['utilisation']:>8.1%}")
     print(f"(link {BAUD} baud = {BYTES_PER_SECOND:.0f} bytes/s each way; controller motion sped up 10^4 times)")
+
 
 if __name__ == "__main__":
     main()

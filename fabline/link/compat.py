@@ -3,7 +3,9 @@ suit the program and the machine profile that made it?
 
 A laser program on a controller with `$32=0` fires the beam on every G0 travel; a program wider than the
 travel (`$130..$132`) or outside the soft limits stops with an alarm mid-sheet; M7 on a build without mist
-coolant is refused mid-job (error:20). Each problem is one line naming the setting and the fix.
+coolant is refused mid-job (error:20). Each problem is one line naming the setting and the fix. Settings are in
+Grbl's numbers whatever the firmware (fabline.link.dialects reads grblHAL's and FluidNC's into them); the fix is said
+in the controller's dialect (FluidNC's laser mode is a `Laser:` spindle in its config, not `$32=1`).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from fabline.errors import FablineError
+from fabline.link.dialects import GRBL, Dialect
 from fabline.machine.build import BuildInfo
 from fabline.machine.gcode import Block, Vector
 from fabline.machine.program import Program
@@ -44,22 +47,23 @@ def program_machine(program: Program, machine: str | None) -> "MachineProfile | 
 
 def controller_problems(program: Program, blocks: Sequence[Block], origin: Vector, settings: dict[int, float],
                         build: BuildInfo, profile: "MachineProfile | None",
-                        wco: Vector | None) -> list[str]:
+                        wco: Vector | None, dialect: Dialect = GRBL) -> list[str]:
     """Every way the controller conflicts with the program (and its profile), each as a one-line message."""
     problems = []
     if profile is None:
-        problems += _laser_mode_problems(program, blocks, settings)
+        problems += _laser_mode_problems(program, blocks, settings, dialect)
     else:
         for requirement in profile.required_settings:
             actual = settings.get(requirement.number)
             if actual is None:
-                problems.append(f"machine {profile.name} needs {requirement}, but the controller did not report "
-                                f"${requirement.number} in $$ (is it a Grbl 1.1?)")
+                problems.append(f"machine {profile.name} needs {requirement}, but the controller ({dialect.label}) did "
+                                f"not report ${requirement.number} in $$ (is it a Grbl 1.1, grblHAL or FluidNC?)")
             elif not requirement.met_by(actual):
                 why = f" ({_WHY[requirement.number]})" if requirement.number in _WHY else ""
                 problems.append(f"machine {profile.name} needs {requirement}{why}, but the controller has "
-                                f"${requirement.number}={actual:g}; send ${requirement.number}={requirement.value:g} "
-                                f"to the controller, or give --machine with the profile of this machine")
+                                f"${requirement.number}={actual:g}; "
+                                f"{dialect.change(requirement.number, requirement.value)}"
+                                ", or give --machine with the profile of this machine")
     if not build.mist_coolant:
         mist = next((line for line in program.lines if _MIST.search(line.command)), None)
         if mist is not None:
@@ -69,7 +73,8 @@ def controller_problems(program: Program, blocks: Sequence[Block], origin: Vecto
     return problems
 
 
-def _laser_mode_problems(program: Program, blocks: Sequence[Block], settings: dict[int, float]) -> list[str]:
+def _laser_mode_problems(program: Program, blocks: Sequence[Block], settings: dict[int, float],
+                         dialect: Dialect) -> list[str]:
     """Without a profile, a program that switches a tool on with power (M3/M4 with S) is taken for a laser program."""
     if settings.get(32, 0.0) == 1:
         return []
@@ -77,7 +82,7 @@ def _laser_mode_problems(program: Program, blocks: Sequence[Block], settings: di
         if block.modal.spindle in ("M3", "M4") and block.modal.speed > 0:
             return [f"{program.name}:{line.file_line}: {line.source.strip()!r} switches a laser on, but the controller "
                     f"has $32={settings.get(32, 0.0):g} (laser mode off): every G0 travel would run with the beam on; "
-                    "send $32=1 to the controller, or give --machine with the (non-laser) profile that made the program"]
+                    f"{dialect.change(32, 1)}, or give --machine with the (non-laser) profile that made the program"]
     return []
 
 

@@ -43,6 +43,8 @@ class Connection:
         self.status: StatusReport | None = None
         self.wco: tuple[float, ...] | None = None
         self.bytes_sent = 0
+        self.explain_error = explain_error
+        """`error:N` in words; the controller sets its dialect's once it knows it."""
         self.last_heard = time.monotonic()
         self._splitter = LineSplitter()
 
@@ -151,9 +153,10 @@ class Connection:
             responses.append(response)
         return responses
 
-    def command(self, line: bytes, expect_error: bool = False, until_banner: bool = False) -> list[str]:
+    def command(self, line: bytes, expect_error: bool = False, until_banner: bool = False,
+                every_line: bool = False) -> list[str]:
         """Send one line with nothing else in flight; return the feedback lines before its ok
-        (or, with `expect_error`, before its error). A `$` query refused because the controller is running
+        (or, with `expect_error`, before its error; with `every_line`, plain lines too: FluidNC's `$CD` YAML). A `$` query refused because the controller is running
         (error:8: lines a lost connection left in its buffer, found idle a moment before) is asked again once
         the controller stands still."""
         self.write(line)
@@ -161,7 +164,7 @@ class Connection:
         deadline = time.monotonic() + self.answer_wait
         while time.monotonic() < deadline:
             for response in self.read(0.02):
-                if response.kind in ("feedback", "setting", "message"):
+                if response.kind in ("feedback", "setting", "message") or (every_line and response.kind == "other"):
                     feedback.append(response.text)
                 elif response.kind == ("error" if expect_error else "ok"):
                     answered = True
@@ -171,7 +174,7 @@ class Connection:
                     self.write(line)
                     deadline = time.monotonic() + self.answer_wait
                 elif response.kind == "error":
-                    raise FablineError(f"{self.url}: {line.decode().strip()!r} answered {explain_error(response.code)}")
+                    raise FablineError(f"{self.url}: {line.decode().strip()!r} answered {self.explain_error(response.code)}")
                 elif response.kind == "banner" and until_banner and answered:
                     return feedback
             if answered and not until_banner:

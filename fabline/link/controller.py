@@ -1,7 +1,8 @@
 """What is Grbl's own in talking to a controller: its banner, `$I` build and `$$` settings, soft reset, `$X`,
 check mode `$C`, the parser tag in `$G`, the half-line flush.
 
-A second firmware family (grblHAL, FluidNC) would be another class with these methods over the same `Connection`.
+grblHAL and FluidNC speak the same protocol; what differs (banner, where the build and settings are reported,
+how a setting is changed) is the controller's `dialect` (fabline.link.dialects), known once `$I` answered.
 """
 
 from __future__ import annotations
@@ -11,23 +12,26 @@ import time
 
 from fabline.errors import FablineError
 from fabline.link.connection import Connection
+from fabline.link.dialects import DIALECTS, GRBL, recognise
 from fabline.link.protocol import CYCLE_START, FEED_HOLD, SOFT_RESET, STATUS_QUERY
 from fabline.machine.build import STOCK_BUILD, BuildInfo
-from fabline.machine.codes import explain_alarm
 
 _FLUSH_LINE = b"#\n"
 _TAG = re.compile(r"\bT(\d+)\b")
 
 
 class Grbl:
-    """A GRBL 1.1 controller on `connection`: its build, settings and version once detected."""
+    """A controller speaking Grbl 1.1's protocol on `connection` (Grbl, grblHAL or FluidNC: its `dialect`): its
+    build, settings and banner once detected."""
 
     def __init__(self, connection: Connection):
         self.connection = connection
         self.build = STOCK_BUILD
+        self.dialect = GRBL
         self.rx_buffer = STOCK_BUILD.rx_buffer
         self.settings: dict[int, float] = {}
         self.version: str | None = None
+        """The banner, if the controller sent one."""
 
     @property
     def url(self) -> str:
@@ -37,7 +41,8 @@ class Grbl:
         """Open the port and make sure a GRBL 1.1 controller answers; only then start the exchange log."""
         self.connection.connect()
         self.detect()
-        self.connection.start_log(f"connected to {self.url}: Grbl {self.version or '1.1'}, rx buffer {self.rx_buffer}")
+        self.connection.start_log(f"connected to {self.url}: {self.dialect.label} {self.build.version}, "
+                                  f"rx buffer {self.rx_buffer}")
 
     def detect(self) -> None:
         """Wake the controller and wait for a banner or a status report; read its build options and settings."""
@@ -54,6 +59,7 @@ class Grbl:
                 for response in link.read(0.05):
                     if response.kind == "banner":
                         self.version = response.text
+                        self.dialect = recognise(response.text) or self.dialect
         if link.status.state == "Check":  # left by a host that died during --check: nothing ran, leave it
             self.flush_partial_line()
             self.leave_check()
@@ -63,20 +69,23 @@ class Grbl:
             self.read_build_info()
 
     def read_build_info(self) -> None:
-        """The build from `$I` (buffer sizes, `Ln:` or not, M7 or not) and the settings from `$$`."""
-        feedback = self.connection.command(b"$I\n")
-        self.build = BuildInfo.parse(feedback)
+        """The build from `$I` (its firmware, buffer sizes, `Ln:` or not, M7 or not) and the settings (`$$`, and
+        FluidNC's config) in Grbl's numbers."""
+        link = self.connection
+        feedback = link.command(b"$I\n")
+        self.build = BuildInfo.parse(feedback, self.dialect.name)
+        self.dialect = DIALECTS[self.build.firmware]
+        link.explain_error = self.dialect.explain_error
         if not any(text.startswith("OPT:") for text in feedback):
-            self.connection.exchange("#", "no [OPT:...] in $I: assuming a stock build")
-        if not self.build.version.startswith("1.1"):
-            raise FablineError(f"port {self.url}: GRBL {self.build.version} found; fabline streams to GRBL 1.1")
+            link.exchange("#", "no [OPT:...] in $I: assuming a stock build")
+        if not self.build.version.startswith(self.dialect.version_prefix):
+            raise FablineError(f"port {self.url}: {self.dialect.label.split()[0]} {self.build.version} found; fabline "
+                               f"streams to Grbl 1.1, grblHAL 1.1 and FluidNC")
         self.rx_buffer = self.build.rx_buffer
-        for text in self.connection.command(b"$$\n"):
-            key, _, value = text.partition("=")
-            try:
-                self.settings[int(key[1:])] = float(value)
-            except ValueError:
-                continue
+        if self.dialect.name == "fluidnc" and link.status is not None and link.status.rx_free is not None:
+            self.rx_buffer = link.status.rx_free  # not in its $I; an idle `Bf:` ($10 with 2) shows the empty buffer
+        self.settings = self.dialect.read_settings(
+            lambda line, every_line: link.command(line, every_line=every_line))
 
     def reconnect(self, timeout: float) -> bool:
         """Try to reopen the port for `timeout` seconds (a USB cable plugged back in)."""
@@ -124,7 +133,7 @@ class Grbl:
         status = link.query_status()
         if status.state == "Alarm" and unlock:
             link.command(b"$X\n")
-            link.exchange("#", f"unlocked after {explain_alarm(alarm) if alarm else 'alarm'}")
+            link.exchange("#", f"unlocked after {self.dialect.explain_alarm(alarm) if alarm else 'alarm'}")
 
     def feed_hold(self) -> None:
         self.connection.write(FEED_HOLD)

@@ -26,7 +26,8 @@ OVERRIDES: dict[str, bytes] = {
 """Grbl 1.1's real-time override commands (one byte each, acted on at once, even mid-program): feed rate, rapid
 rate, and spindle speed, which is the laser's power in laser mode."""
 
-_BANNER = re.compile(r"^Grbl (\S+) \['\$' for help\]$")
+_BANNER = re.compile(r"^(?:Grbl|GrblHAL) (\S+) \[.*'\$' (?:or '\$HELP' )?for help\]$")
+"""Grbl's, grblHAL's and FluidNC's banners (fabline.link.dialects tells them apart)."""
 
 
 @dataclass(frozen=True)
@@ -104,8 +105,8 @@ def parse_status(text: str) -> StatusReport:
             values["planner_free"], values["rx_free"] = int(planner), int(rx)
         elif name == "Ln":
             values["line_number"] = int(value)
-        elif name == "FS":
-            feed, speed = value.split(",")
+        elif name == "FS":  # grblHAL adds the spindle's measured rpm as a third value
+            feed, speed, *_ = value.split(",")
             values["feed"], values["speed"] = float(feed), float(speed)
         elif name == "F":
             values["feed"] = float(value)
@@ -133,7 +134,7 @@ def classify(line: str) -> Response:
             return Response("other", line)
     banner = _BANNER.match(line)
     if banner:
-        return Response("banner", banner.group(1))
+        return Response("banner", line)
     if line.startswith("[MSG:") and line.endswith("]"):
         return Response("message", line[5:-1])
     if line.startswith("[") and line.endswith("]"):
@@ -164,7 +165,7 @@ class LineSplitter:
             end = self._pending.find(b"\n")
             if end < 0:
                 break
-            raw = bytes(self._pending[:end]).strip(b"\r ")
+            raw = bytes(self._pending[:end]).rstrip(b"\r ").lstrip(b"\r")  # indents kept: FluidNC's $CD is YAML
             del self._pending[: end + 1]
             if raw:
                 lines.append(raw.decode("ascii", errors="replace"))

@@ -5,8 +5,10 @@ the same controller, as a real one outlives its USB cable. Options (used when NA
 time_scale, line_time (firmware seconds per line), log (executed-line log path), machine (a machine profile's name:
 a URL names no file to read, `check_port` refuses a path): the controller is set up as that machine, its `$N` settings as the profile assumes them, e.g. `$32=1` for
 a laser), settings (`$N` values as `110:12000,120:800`, over the machine's), drop_at, corrupt_at (comma-separated byte offsets),
-error_line, error_code, alarm_line, alarm_code, stall_at, stall_seconds; and the build, a stock Grbl 1.1h unless
-build_options (the `$I` option letters, e.g. `VN` for `Ln:` in status reports), planner_blocks or rx_buffer say otherwise.
+error_line, error_code, alarm_line, alarm_code, stall_at, stall_seconds; and the build: firmware (grbl, grblhal or
+fluidnc; by default the NAME if it is one of these, else grbl) sets a stock build of that firmware
+(fabline.machine.build STOCK_BUILDS: Grbl 1.1h, grblHAL with 1024 RX bytes, FluidNC), unless build_options (the
+`$I` option letters, e.g. `VN` for `Ln:` in status reports), planner_blocks or rx_buffer say otherwise.
 """
 
 from __future__ import annotations
@@ -18,11 +20,11 @@ import urllib.parse
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout
 
 from fabline.link.simulator import ConnectionDropped, Faults, GrblSimulator, check_time_scale
-from fabline.machine.build import STOCK_BUILD, BuildInfo
+from fabline.machine.build import STOCK_BUILDS, BuildInfo
 
 SIM_OPTIONS = ("time_scale", "line_time", "log", "machine", "settings", "drop_at", "corrupt_at", "error_line",
                "error_code", "alarm_line", "alarm_code", "stall_at", "stall_seconds", "build_options", "planner_blocks",
-               "rx_buffer")
+               "rx_buffer", "firmware")
 """The options a sim:// URL takes (the module's docstring says what each does)."""
 _SIMULATORS: dict[str, GrblSimulator] = {}
 _REGISTRY_LOCK = threading.Lock()
@@ -83,9 +85,13 @@ def simulator_from_options(query: str) -> GrblSimulator:
     time_scale = number("time_scale", float, 1.0)
     line_time = number("line_time", float, 0.0)
     log = options.pop("log", None)
-    build = BuildInfo(options=options.pop("build_options", STOCK_BUILD.options),
-                      planner_blocks=number("planner_blocks", int, STOCK_BUILD.planner_blocks),
-                      rx_buffer=number("rx_buffer", int, STOCK_BUILD.rx_buffer))
+    firmware = options.pop("firmware", "grbl")
+    if firmware not in STOCK_BUILDS:
+        raise ValueError(f"firmware must be one of {', '.join(STOCK_BUILDS)}, not {firmware!r}")
+    stock = STOCK_BUILDS[firmware]
+    build = BuildInfo(version=stock.version, firmware=firmware, options=options.pop("build_options", stock.options),
+                      planner_blocks=number("planner_blocks", int, stock.planner_blocks),
+                      rx_buffer=number("rx_buffer", int, stock.rx_buffer))
     if not re.fullmatch(r"[A-Z0-9*+]*", build.options):
         raise ValueError(f"build_options must be option letters such as VN, not {build.options!r}")
     settings = {}
@@ -111,7 +117,10 @@ def _simulator_from_url(url: str) -> GrblSimulator:
     with _REGISTRY_LOCK:
         if name not in _SIMULATORS:
             try:
-                _SIMULATORS[name] = simulator_from_options(parts.query)
+                query = parts.query
+                if name in STOCK_BUILDS and "firmware=" not in query:
+                    query = f"{query}&firmware={name}" if query else f"firmware={name}"
+                _SIMULATORS[name] = simulator_from_options(query)
             except ValueError as exc:
                 raise SerialException(f"bad sim:// option in {url!r}: {exc}") from None
         return _SIMULATORS[name]

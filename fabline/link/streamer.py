@@ -46,7 +46,6 @@ from fabline.link.sender import MODES, Sender, check_mode
 from fabline.link.stopping import Stopper
 from fabline.locks import exclusive_lock, lock_path
 from fabline.machine.build import ANY_BUILD
-from fabline.machine.codes import explain_alarm, explain_error
 from fabline.machine.gcode import ModalState
 from fabline.machine.program import Program, load_program
 
@@ -153,9 +152,10 @@ class Streamer:
                 if response.kind == "ok":
                     return answer + ["ok"]
                 if response.kind == "error":
-                    return answer + [explain_error(response.code)]
+                    return answer + [self.controller.dialect.explain_error(response.code)]
                 if response.kind != "status":
-                    answer.append(response.text if response.kind != "alarm" else explain_alarm(response.code))
+                    answer.append(response.text if response.kind != "alarm"
+                                  else self.controller.dialect.explain_alarm(response.code))
         raise FablineError(f"{self.url}: no answer to {line!r} within {wait:g} s")
 
     # ----- what the controller and the last run tell ---------------------------------------------------
@@ -348,7 +348,7 @@ class Streamer:
         if not controller.settings:  # not read when the controller was found in alarm or busy
             controller.read_build_info()
         problems = controller_problems(self.program, self.ledger.blocks, self.ledger.origin, controller.settings,
-                                       controller.build, self.profile, self.connection.wco)
+                                       controller.build, self.profile, self.connection.wco, controller.dialect)
         if problems and not self.force:
             more = f" (and {len(problems) - 1} more conflict{'s' if len(problems) > 2 else ''})" if len(problems) > 1 else ""
             raise FablineError(f"{problems[0]}{more}; nothing was sent (--force streams anyway)")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from fabline.link.simulator.clock import Clock, check_time_scale
 from fabline.link.simulator.faults import Faults
-from fabline.link.simulator.firmware import BANNER, DEFAULT_SETTINGS, Firmware
+from fabline.link.simulator.firmware import DEFAULT_SETTINGS, Firmware, banner, default_settings
 from fabline.link.simulator.planner import Pending, Planned, Planner
 from fabline.link.simulator.protocol import LineProtocol
 from fabline.link.simulator.status import StatusReport
@@ -34,7 +34,7 @@ class GrblSimulator(LineProtocol, StatusReport, Firmware, Planner, Clock):
         unknown = sorted(set(settings or {}) - set(DEFAULT_SETTINGS))
         if unknown:
             raise ValueError(f"unknown Grbl setting(s) {', '.join(f'${n}' for n in unknown)}")
-        self.settings = {**DEFAULT_SETTINGS, **(settings or {})}
+        self.settings = {**default_settings(build.firmware), **(settings or {})}
         self.position: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.received = 0
         self.connection = 0
@@ -71,7 +71,7 @@ class GrblSimulator(LineProtocol, StatusReport, Firmware, Planner, Clock):
         self.state = "Idle"
         self._critical = False
         self._reset_runtime()
-        self._say(BANNER)
+        self._say(banner(self.build))
 
     def _reset_runtime(self) -> None:
         """What a reset clears: input, partial line, planner, parser state, hold; position is kept."""
@@ -101,7 +101,7 @@ class GrblSimulator(LineProtocol, StatusReport, Firmware, Planner, Clock):
         self._reset_runtime()
         if lost:
             self._say("ALARM:3")
-        self._say(BANNER)
+        self._say(banner(self.build))
         if lost or was_alarm:
             self.state = "Alarm"
             self._say("[MSG:'$H'|'$X' to unlock]")

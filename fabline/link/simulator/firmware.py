@@ -1,5 +1,11 @@
 """The firmware's build and settings: the banner, `$` system commands (`$$`, `$I`, `$N`, `$#`, `$C`, `$X`,
-`$J=`, `$RST=`) and the EEPROM settings they read and store."""
+`$J=`, `$RST=`) and the EEPROM settings they read and store; as Grbl 1.1h, grblHAL or FluidNC (the build's firmware).
+
+grblHAL answers as grblHAL/core report.c (its banner, the extended `$I`) with its default `$10=511` (`Bf:` and
+`Ln:` on); FluidNC as bdring/FluidNC Report.cpp and ProcessSettings.cpp: `$$` lists only the numbered proxies of
+its config (SettingsDefinitions.cpp), `$CD` dumps the config as YAML (Configuration/Generator.cpp: two spaces a
+level), with a `Laser:` spindle when laser mode (`$32`) is on. Inside, every setting keeps Grbl's number; FluidNC
+refuses `$N=` but for $10 (error:3 here: its exact code for a read-only proxy is not modelled)."""
 
 from __future__ import annotations
 
@@ -21,6 +27,29 @@ DEFAULT_SETTINGS: dict[int, float] = {
 }
 
 
+GRBLHAL_SETTINGS = {10: 511}
+"""grblHAL's defaults where they differ from Grbl's (config.h: every status report field on up to WCO sync)."""
+FLUIDNC_NUMBERED = (10, 13, 20, 21, 22, 100, 101, 102, 110, 111, 112, 120, 121, 122, 130, 131, 132)
+"""The numbered settings FluidNC's `$$` lists: $10 (Report/Status), $13 (Report/Inches) and the proxies."""
+_FLUIDNC_AXIS = (("steps_per_mm", 100), ("max_rate_mm_per_min", 110), ("acceleration_mm_per_sec2", 120),
+                 ("max_travel_mm", 130))
+
+
+def default_settings(firmware: str) -> dict[int, float]:
+    """A fresh controller's settings in Grbl's numbers, for `firmware`."""
+    return {**DEFAULT_SETTINGS, **(GRBLHAL_SETTINGS if firmware == "grblhal" else {})}
+
+
+def banner(build) -> str:
+    """The line the firmware of `build` greets with after a reset."""
+    if build.firmware == "grblhal":
+        return f"GrblHAL {build.version.rsplit('.', 1)[0]} ['$' or '$HELP' for help]"
+    if build.firmware == "fluidnc":
+        grbl, _, git = build.version.partition(" FluidNC ")
+        return f"Grbl {grbl} [FluidNC {git} (noradio) '$' for help]"
+    return BANNER
+
+
 class Firmware:
     """GrblSimulator's system commands: answers `$` lines from its settings, build and state."""
 
@@ -37,6 +66,10 @@ class Firmware:
             if self.state not in ("Idle", "Jog"):
                 return 8
             return self._jog(line[3:])
+        if self.build.firmware == "fluidnc" and line in ("$CD", "$CONFIG/DUMP"):
+            for text in self._config_dump():
+                self._say(text)
+            return 0
         if line in ("$$", "$G", "$C", "$X"):
             return self._query_command(line[1])
         if line[1:2] in "$GCXJ":
@@ -63,7 +96,7 @@ class Firmware:
             if line not in ("$RST=$", "$RST=#", "$RST=*"):
                 return 3
             if line != "$RST=#":
-                self.settings = dict(DEFAULT_SETTINGS)
+                self.settings = default_settings(self.build.firmware)
             self._say("[MSG:Restoring defaults]")
             self._say("ok")
             self._soft_reset()
@@ -74,7 +107,10 @@ class Firmware:
         if letter == "$":
             if self.state in ("Run", "Hold"):
                 return 8
+            fluidnc = self.build.firmware == "fluidnc"
             for key, value in self.settings.items():
+                if fluidnc and key not in FLUIDNC_NUMBERED:
+                    continue
                 self._say(f"${key}={value:.0f}" if key in _INT_SETTINGS else f"${key}={value:.3f}")
         elif letter == "G":
             self._say(self.modal.report())
@@ -84,7 +120,7 @@ class Firmware:
                 self.state = "Idle"
                 self._say("[MSG:Disabled]")
                 self._say("ok")
-                self._say(BANNER)
+                self._say(banner(self.build))
                 return None
             if self.state != "Idle":
                 return 8
@@ -109,10 +145,23 @@ class Firmware:
             return 2
         if parsed < 0:
             return 4
-        if number not in self.settings:
+        if number not in self.settings or (self.build.firmware == "fluidnc" and number != 10):
             return 3
         self.settings[number] = float(int(parsed)) if number in _INT_SETTINGS else parsed
         return 0
+
+    def _config_dump(self) -> list[str]:
+        """FluidNC's `$CD`: the config its numbered settings stand for, as YAML."""
+        settings = self.settings
+        lines = ["board: None", "name: fabline simulator", "planner_blocks: 16",
+                 f"junction_deviation_mm: {settings[11]:.3f}", f"arc_tolerance_mm: {settings[12]:.3f}", "axes:"]
+        for index, axis in enumerate("xyz"):
+            lines.append(f"  {axis}:")
+            lines += [f"    {key}: {settings[number + index]:.3f}" for key, number in _FLUIDNC_AXIS]
+            lines.append(f"    soft_limits: {'true' if settings[20] else 'false'}")
+        lines += ["Laser:" if settings[32] == 1 else "PWM:", "  pwm_hz: 5000", "  output_pin: gpio.2",
+                  f"  speed_map: {settings[31]:.0f}=0.000% {settings[30]:.0f}=100.000%"]
+        return lines
 
     def _jog(self, text: str) -> int:
         try:

@@ -15,7 +15,8 @@ class StatusReport:
         parts = [state, ("MPos:" if mask & 1 else "WPos:") + ",".join(f"{v:.3f}" for v in position)]
         if mask & 2:
             parts.append(f"Bf:{self.build.planner_blocks - self._motion_blocks()},{self.build.rx_buffer - len(self._rx)}")
-        if (self.build.line_numbers and self.planner and self.planner[0].line_number
+        line_numbers = mask & 4 if self.build.firmware == "grblhal" else self.build.line_numbers  # grblHAL: $10 says
+        if (line_numbers and self.planner and self.planner[0].line_number
                 and self.state in ("Run", "Hold", "Jog")):
             parts.append(f"Ln:{self.planner[0].line_number}")
         feed, speed = self._current_feed_speed()
