@@ -57,7 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="seconds to wait for a dropped port to come back (0 = stop at once)")
     stream.set_defaults(func=_stream)
 
-    sim = subparsers.add_parser("grbl-sim", help="run a GRBL 1.1h simulator on 127.0.0.1 TCP or a pseudo-terminal")
+    sim = subparsers.add_parser("grbl-sim", help="run a Grbl 1.1h (or grblHAL, FluidNC) simulator on 127.0.0.1 TCP or a pseudo-terminal")
     sim.add_argument("--transport", choices=("tcp", "pty"), default="tcp", help="TCP socket or pseudo-terminal")
     sim.add_argument("--listen-port", type=int, default=0, help="TCP port on 127.0.0.1 (0: any free port)")
     sim.add_argument("--log", help="executed-line log (append-only)")
@@ -67,10 +67,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--baud", type=int, help="pace bytes like a serial line at this rate, bits per second")
     sim.add_argument("--adapter-latency", type=float, default=0.0,
                      help="batch answers like a USB-serial bridge flushing every this many seconds (Uno: 0.004)")
-    sim.add_argument("--build-options", default="V",
-                     help="the build's $I option letters (V: a stock build; VN adds Ln: line numbers)")
-    sim.add_argument("--planner-blocks", type=positive(int), default=15, help="planner size in blocks")
-    sim.add_argument("--rx-buffer", type=positive(int), default=128, help="serial receive buffer, bytes")
+    sim.add_argument("--firmware", choices=("grbl", "grblhal", "fluidnc"), default="grbl",
+                     help="answer as a stock build of this firmware: Grbl 1.1h (the default), grblHAL or FluidNC")
+    sim.add_argument("--build-options",
+                     help="the build's $I option letters (default the firmware's stock build: V for Grbl; VN adds "
+                     "Ln: line numbers)")
+    sim.add_argument("--planner-blocks", type=positive(int),
+                     help="planner size in blocks (default the firmware's stock build: 15 for Grbl)")
+    sim.add_argument("--rx-buffer", type=positive(int),
+                     help="serial receive buffer, bytes (default the firmware's stock build: 128 for Grbl)")
     sim.add_argument("--machine", metavar="NAME",
                      help="set the controller up as this machine profile (name or .toml): its $N settings, e.g. "
                      "grbl-laser for the example job's programs (laser mode $32=1, 4100 x 2100 mm travel)")
@@ -179,8 +184,10 @@ def _abort_on_interrupt(streamer: Streamer):
 def _grbl_sim(args: argparse.Namespace) -> int:
     from fabline.link.server import serve
 
-    options = {"time_scale": args.time_scale, "line_time": args.line_time, "build_options": args.build_options,
-               "planner_blocks": args.planner_blocks, "rx_buffer": args.rx_buffer}
+    options = {"time_scale": args.time_scale, "line_time": args.line_time, "firmware": args.firmware}
+    for key in ("build_options", "planner_blocks", "rx_buffer"):
+        if getattr(args, key) is not None:
+            options[key] = getattr(args, key)
     if args.machine:
         options["machine"] = args.machine
     if args.setting:

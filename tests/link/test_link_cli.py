@@ -183,11 +183,10 @@ def test_controller_left_in_check_mode_is_taken_out_of_it(cli, gcode, simulator)
     assert executed_file_lines(log) == list(range(1, 65))
 
 
-def test_grbl_sim_options_make_another_build_and_settings():
-    """`fabline grbl-sim` is a stock build unless its options say otherwise: --build-options, --rx-buffer,
-    --planner-blocks and --setting reach the controller (the other path than a sim:// URL's query)."""
+def _grbl_sim_answers(*options: str) -> list[str]:
+    """The lines a `fabline grbl-sim` process started with `options` answers to `$I` and `$$`."""
     command = [sys.executable, "-c", "import sys; from fabline.cli import main; sys.exit(main())", "grbl-sim",
-               "--build-options", "VN", "--rx-buffer", "256", "--planner-blocks", "31", "--setting", "32=1"]
+               *options]
     server = subprocess.Popen(command, stdout=subprocess.PIPE, text=True,
                               env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[2])})
     try:
@@ -201,8 +200,23 @@ def test_grbl_sim_options_make_another_build_and_settings():
     finally:
         server.terminate()
         server.wait()
-    lines = answer.decode().split("\r\n")
+    return answer.decode().split("\r\n")
+
+
+def test_grbl_sim_options_make_another_build_and_settings():
+    """`fabline grbl-sim` is a stock build unless its options say otherwise: --build-options, --rx-buffer,
+    --planner-blocks and --setting reach the controller (the other path than a sim:// URL's query)."""
+    lines = _grbl_sim_answers("--build-options", "VN", "--rx-buffer", "256", "--planner-blocks", "31",
+                              "--setting", "32=1")
     assert "[OPT:VN,31,256]" in lines and "$32=1" in lines and "$10=1" in lines
+
+
+def test_grbl_sim_firmware_option_answers_as_a_stock_grblhal():
+    """`--firmware grblhal` is grblHAL's stock build (grblHAL/core report.c: `[FIRMWARE:grblHAL]`, blocks and RX
+    bytes in `[OPT:...]`), and an option still overrides one figure of it."""
+    lines = _grbl_sim_answers("--firmware", "grblhal", "--rx-buffer", "512")
+    assert "[FIRMWARE:grblHAL]" in lines
+    assert any(line.startswith("[OPT:") and line.split(",")[1:3] == ["100", "512"] for line in lines), lines
 
 
 def test_check_mode_parses_arcs_from_the_previous_target(cli, simulator, tmp_path):
