@@ -3,7 +3,9 @@ the executing line told from a stopped position.
 
 `ok` means parsed into the planner; a status report `Ln:N` means every line before N is done; Idle with nothing
 in flight means every acknowledged line is done. After a stop with the planner flushed the executing line is one of
-the window of lines that can still have been in the planner, the one whose path holds the stopped position.
+the window of lines that can still have been in the planner, the one whose path holds the stopped position. A line
+is done only once it has ended: a machine at rest within the tolerance of a line's end may be microns short of it,
+so that line counts as not done (re-sent, it cuts the rest) unless the planner's fill tells it was discarded.
 """
 
 from __future__ import annotations
@@ -89,10 +91,10 @@ class Ledger:
         self.status_after_last_ok = False
         if response.kind == "ok":
             if index is not None:
-                self.journal.record("ok", n=index, line=self.program.lines[index].file_line)
-                self.acked = index + 1
+                self.acked = index + 1  # what the controller said, even when the journal fails to record it
                 if self.blocks[index].pause:
                     self.pauses.append(index)
+                self.journal.record("ok", n=index, line=self.program.lines[index].file_line)
             return
         if index is not None:
             self.journal.record("error", n=index, line=self.program.lines[index].file_line, code=response.code)
@@ -117,11 +119,13 @@ class Ledger:
             self.journal.record("done", count=executed)
 
     # ----- where a stopped machine was ------------------------------------------------------------------------------
-    def executed_from_position(self, status: StatusReport, wco, planner_empty: bool, rejected: int | None = None) -> int:
+    def executed_from_position(self, status: StatusReport, wco, planner_empty: bool, rejected: int | None = None,
+                               held: bool = False) -> int:
         """Lines executed when the machine stopped at `status` with its planner flushed: the executing line is one
         of the window of lines that can still have been in the planner (`window`), the one whose path holds
-        the stopped position; `Ln:` names it where the build reports it. Raises Undecided when no line or
-        several lines of the window fit the position."""
+        the stopped position; `Ln:` names it where the build reports it; in a finished hold (`held`: the planner
+        still holds the stopped line) a planner known to be full (`Bf:`, or a straight move waiting for room)
+        names it too. Raises Undecided when no line or several lines of the window fit the position."""
         acked = self.acked
         if planner_empty:
             return rejected if rejected is not None else acked
@@ -131,6 +135,9 @@ class Ledger:
                 return index if rejected is None else min(index, rejected)
         position = status.work_position(wco)
         counts = self.counts_at(position)
+        planned = self.planned_line(status) if held and rejected is None else None
+        if planned is not None and self.fits(planned, position):
+            return planned
         if rejected is not None:
             beyond = sorted(count for count in counts if count > rejected)
             if beyond:
@@ -177,16 +184,57 @@ class Ledger:
         following = motions + [len(self.blocks)]
         if math.dist(position, rest) <= POSITION_TOLERANCE:
             counts.add(min(max(self.acked, (before if before is not None else -1) + 1), following[0]))
-        for number, index in enumerate(motions):
+        for index in motions:
             segment = self.blocks[index].segment
             if math.dist(position, segment.end) <= POSITION_TOLERANCE:
-                counts.add(min(max(self.acked, index + 1), following[number + 1]))
-                if following[number + 1] < len(self.blocks) and _turns_back(segment, self.blocks[following[number + 1]].segment):
-                    counts.add(index)  # the machine comes to rest at a reversal: its last microns may be still to run
+                counts.add(index)  # at rest at its end, or microns short of it: not ended unless the planner says so
             elif (math.dist(position, segment.start) > POSITION_TOLERANCE
                   and segment.contains(position, POSITION_TOLERANCE)):
                 counts.add(index)
         return {count for count in counts if count >= self.done}
+
+    def planned_line(self, status: StatusReport) -> int | None:
+        """The line the machine holds in a finished feed hold, told by how many planner blocks are in use: `Bf:`
+        where reported, else all of them when the oldest line in flight is a straight move (the parser waits for
+        room). Grbl keeps the held block in its planner and its segment buffer is empty by then, so the blocks
+        in use are the newest planned ones, the held block the oldest of them. None when neither tells or an arc
+        (a chord count of its own) is among them."""
+        capacity = self.controller.build.planner_blocks
+        waiting = self.waiting()
+        if status.planner_free is not None and (waiting is None or self.blocks_of(waiting) is not None):
+            used = capacity - status.planner_free
+        elif waiting is not None and self.blocks_of(waiting) == 1:
+            used = capacity
+        else:
+            return None
+        counted = 0
+        for index in range(self.acked - 1, self.done - 1, -1):
+            blocks = self.blocks_of(index)
+            if blocks is None:
+                return None
+            counted += blocks
+            if counted >= used > 0:
+                return index
+        return None
+
+    def waiting(self) -> int | None:
+        """The oldest program line in flight (sent, not answered), if it is one."""
+        if self.counter is not None:
+            oldest = self.counter.oldest()
+            return oldest if oldest is not None and oldest == self.acked else None
+        return self.acked if self.acked < min(self.sent, len(self.blocks)) else None
+
+    def blocks_of(self, index: int) -> int | None:
+        """Planner blocks line `index` takes: none without motion, one for a straight move, None for an arc."""
+        segment = self.blocks[index].segment
+        if segment is None or segment.length <= 0:
+            return 0
+        return 1 if segment.center is None else None
+
+    def fits(self, index: int, position: Vector) -> bool:
+        """Whether `position` lies on the path of line `index` (its ends within the tolerance included)."""
+        segment = self.blocks[index].segment
+        return segment is not None and segment.contains(position, POSITION_TOLERANCE)
 
     def moves(self, index: int) -> bool:
         segment = self.blocks[index].segment
@@ -212,14 +260,4 @@ class Ledger:
         if strict:
             raise FablineError(f"{self.program.name}:{file_line}: no G-code command on that line to restart from")
         return None
-
-
-def _turns_back(segment, following) -> bool:
-    """Whether the straight move `following` runs back along the straight `segment` (a retraced path): Grbl plans a
-    full stop at that junction, so a stop within POSITION_TOLERANCE of the end can as well be short of it."""
-    if segment.center is not None or following.center is not None:
-        return False
-    ahead = [e - s for s, e in zip(segment.start, segment.end)]
-    back = [e - s for s, e in zip(following.start, following.end)]
-    return sum(a * b for a, b in zip(ahead, back)) < -0.99 * math.hypot(*ahead) * math.hypot(*back)
 

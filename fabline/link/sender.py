@@ -38,11 +38,14 @@ class Sender:
         self.connection.exchange("#", self.controls.message)
         self.reporter.report()
 
-    def stream(self, preamble: list[bytes]) -> StreamResult:
-        """Send `preamble`, then every line from `ledger.done` on; return when the machine has executed the last."""
+    def stream(self, preamble: list[bytes], first: bytes | None = None) -> StreamResult:
+        """Send `preamble`, then every line from `ledger.done` on (the first as `first` where given: the rest of a
+        line a stop cut short); return when the machine has executed the last."""
         link, ledger, journal = self.connection, self.ledger, self.ledger.journal
         lines = ledger.program.lines
         outgoing = [(None, wire) for wire in preamble] + [(line.index, line.wire) for line in lines[ledger.done:]]
+        if first is not None and len(outgoing) > len(preamble):
+            outgoing[len(preamble)] = (ledger.done, first)
         counter = CharacterCounter(self.controller.rx_buffer, max_lines=1 if self.mode == "send-response" else None)
         ledger.begin(counter)
         position, next_poll, next_report = 0, 0.0, 0.0

@@ -123,7 +123,7 @@ class Stopper:
             self.controller.feed_hold()  # again each time: a hold asked for while a line was parsing may not have taken
             status = link.query_status()
             if status.state == "Hold" and status.substate == 0:
-                status = link.query_status()  # answers the controller sent before this report are read by now
+                status = self._settled(status)
                 break
             if status.state in ("Idle", "Alarm", "Check") and not in_flight():
                 break
@@ -134,4 +134,16 @@ class Stopper:
                                         "resume with --from-line", "error", ledger.done)
             time.sleep(0.02)
         self.controller.soft_reset()  # first, so the machine is never left in a hold whatever the verdict
-        return ledger.executed_from_position(status, link.wco, status.state == "Idle", rejected)
+        return ledger.executed_from_position(status, link.wco, status.state == "Idle", rejected,
+                                             held=status.state == "Hold")
+
+    def _settled(self, status):
+        """The status of a finished hold once the `ok`s of lines the parser was still planning have come: two
+        reports in a row with no new `ok` (the planner's fill then tells the held line, `Ledger.planned_line`)."""
+        quiet, deadline = 0, time.monotonic() + 1.0
+        while quiet < 2 and time.monotonic() < deadline:
+            before = self.ledger.acked
+            time.sleep(0.02)
+            status = self.connection.query_status()
+            quiet = quiet + 1 if self.ledger.acked == before else 0
+        return status

@@ -320,7 +320,7 @@ class Streamer:
         self.reporter.start()  # elapsed counts streaming, not the handshake
         while True:
             try:
-                return self.sender.stream(preamble)
+                return self.sender.stream(preamble, self.recovery.first_line if preamble else None)
             except JournalError as exc:
                 self.stopper.unrecorded(exc)
             except Lost as exc:

@@ -100,20 +100,57 @@ def test_connection_and_grbl_against_the_simulator(tmp_path):
         close_simulator(name)
 
 
-def test_a_stop_at_a_reversal_names_the_line_still_short_of_its_end():
-    """Out and back (X10, then X0): Grbl plans a full stop where the path turns back, so a stop 0.007 mm short of X10
-    (within the position tolerance of its end) may be the first line's last microns as well as its end: both are
-    named, never the end alone (the fault campaign's case 127: resuming after line 2 left line 2 unfinished). At a
-    plain corner the end is still taken."""
-    ledger = ledger_of(b"G21 G90\nG1 X10 F600\nG1 X0\nG1 Y10\n")
-    send_all(ledger)
-    ledger.heard(classify("ok"))
-    ledger.heard(classify("ok"))
-    with pytest.raises(Undecided, match=r"one of 2, 3\)"):
-        ledger.executed_from_position(classify("<Hold:0|WPos:9.993,0.000,0.000>").status, None, planner_empty=False)
+def held(ledger: Ledger, report: str, acked: int) -> int:
+    """Lines executed by the ledger's verdict on a finished feed hold after `acked` oks."""
+    for _ in range(acked):
+        ledger.heard(classify("ok"))
+    return ledger.executed_from_position(classify(report).status, None, planner_empty=False, held=True)
+
+
+def test_a_stop_within_the_tolerance_of_a_lines_end_counts_that_line_not_done():
+    """Out and back (X10, then X0), or round a corner: a machine at rest 0.007 mm short of X10 may be at the end or
+    microns short of it (a feed hold decelerating into a full stop ends there either way): the line is not done, it
+    is re-sent and cuts what is left (the fault campaign's case 127: resuming after it left it unfinished)."""
+    out_and_back = ledger_of(b"G21 G90\nG1 X10 F600\nG1 X0\nG1 Y10\n")
+    send_all(out_and_back)
+    assert held(out_and_back, "<Hold:0|WPos:9.993,0.000,0.000>", 2) == 1
     corner = ledger_of(SQUARE)
     send_all(corner)
-    corner.heard(classify("ok"))
-    corner.heard(classify("ok"))
-    assert corner.executed_from_position(classify("<Hold:0|WPos:9.993,0.000,0.000>").status, None,
-                                         planner_empty=False) == 2
+    assert held(corner, "<Hold:0|WPos:10.000,0.000,0.000>", 2) == 1
+
+
+STRAIGHT = b"G21 G90\n" + b"".join(f"G1 X{x} F600\n".encode() for x in range(1, 21))
+
+
+def test_the_planners_fill_tells_whether_the_line_at_whose_end_the_machine_rests_was_discarded():
+    """20 moves of 1 mm along X, 16 lines acknowledged (15 moves: a stock planner's 15 blocks), line 16 (G1 X16)
+    waiting for room: the planner is full, so it holds the moves to X1 .. X15 and the held block is the move to X1
+    (file line 2): at X1.000 it is not done. With `Bf:1` 14 blocks are in use, the moves to X2 .. X15: the move
+    to X1 was discarded, the machine stands at the start of the move to X2 (file line 3), 2 lines done."""
+    full = ledger_of(STRAIGHT)
+    send_all(full)
+    assert held(full, "<Hold:0|WPos:1.000,0.000,0.000>", 16) == 1
+    reported = ledger_of(STRAIGHT)
+    send_all(reported)
+    assert held(reported, "<Hold:0|WPos:1.000,0.000,0.000|Bf:1,40>", 16) == 2
+    idle_parser = ledger_of(STRAIGHT)  # everything answered, no Bf: nothing tells, the line is not done
+    counter = send_all(idle_parser)
+    assert held(idle_parser, "<Hold:0|WPos:1.000,0.000,0.000>", counter.in_flight) == 1
+
+
+def test_a_full_planner_tells_which_pass_of_a_retraced_path_was_held():
+    """Back and forth between X1 and X2 (after G0 X1): X1.500 lies on every move of the window. 16 lines
+    acknowledged and the next move waiting: the planner holds lines 1..15 (0-based), so the held pass is line 1,
+    1 -> 2 (file line 2); with `Bf:12` three blocks are in use, lines 13..15, held line 13 (2 -> 1: it fits).
+    Without either the position alone cannot tell and the candidates are named."""
+    zigzag = b"G21 G90 G0 X1\n" + b"".join(f"G1 X{2 - i % 2} F600\n".encode() for i in range(20))
+    full = ledger_of(zigzag)
+    send_all(full)
+    assert held(full, "<Hold:0|WPos:1.500,0.000,0.000>", 16) == 1
+    reported = ledger_of(zigzag)
+    send_all(reported)
+    assert held(reported, "<Hold:0|WPos:1.500,0.000,0.000|Bf:12,40>", 16) == 13
+    unknown = ledger_of(zigzag)
+    counter = send_all(unknown)
+    with pytest.raises(Undecided, match=r"passes more than once"):
+        held(unknown, "<Hold:0|WPos:1.500,0.000,0.000>", counter.in_flight)

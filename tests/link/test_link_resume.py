@@ -93,13 +93,33 @@ def test_a_halt_on_a_retraced_pass_resumes_there_not_on_the_first_pass(tmp_path,
     assert exactly_once(program, url)
 
 
-def test_a_position_several_window_lines_pass_is_refused_naming_them_then_from_line_resumes(tmp_path, sim):
+def test_a_halt_on_a_zigzag_while_lines_wait_for_planner_room_is_placed_by_the_planners_fill(tmp_path, sim):
+    """Back and forth over 3 mm 12 times: a halt's position lies on several passes of the window, but with the next
+    move waiting for planner room the planner is full, so the held line is the oldest of its 15 blocks."""
     zigzag = [f"G1 X{x}" for _ in range(12) for x in (1, 2, 3, 2, 1, 0)]
     program = write(tmp_path / "zigzag.gcode", ["G0 X0 Y10"] + zigzag)
     url = sim(time_scale=2)
     streamer = Streamer(url, status_interval=0.02)
+    result = streamer.run(program, on_progress=abort_when(streamer, lambda p: p.acked >= 40))
+    assert result.reason == "aborted"
+    executed = executed_file_lines(log_of(url))
+    assert result.executed == len(executed) and executed == expected(program)[: len(executed)]
+    simulator_of(url).time_scale = 200
+    assert Streamer(url, status_interval=0.02).run(program, resume=True).completed
+    assert exactly_once(program, url)
+
+
+def test_a_position_several_window_lines_pass_is_refused_naming_them_then_from_line_resumes(tmp_path, sim):
+    """The whole zigzag answered (nothing waits for planner room) and halted on its way: the position fits several
+    passes and nothing else tells them apart (M5 waits for an empty planner: its fill says nothing), so the candidates are named for the operator's --from-line."""
+    zigzag = [f"G1 X{x}" for _ in range(2) for x in (1, 2, 3, 2, 1, 0)]
+    program = write(tmp_path / "zigzag.gcode", ["G0 X0 Y10"] + zigzag)
+    url = sim(time_scale=2)
+    streamer = Streamer(url, status_interval=0.02)
+    total = len(load_program(program).lines)
     with pytest.raises(StreamInterrupted) as stopped:
-        streamer.run(program, on_progress=abort_when(streamer, lambda p: p.acked >= 40))
+        streamer.run(program, on_progress=abort_when(  # on the zigzag, all answered but M5 (it waits for the rest), M2
+            streamer, lambda p: p.acked >= total - 2 and p.position is not None and p.position[0] > 0.5))
     assert stopped.value.reason == "undecided" and "where the path passes more than once" in str(stopped.value)
     candidates = [int(n) for n in str(stopped.value).split("(one of ")[1].rstrip(")").split(", ")]
     assert len(candidates) >= 2
