@@ -214,6 +214,31 @@ def test_travel_soft_limits_and_build_options_are_checked(tmp_path, sim, body, o
     assert not log_of(url).exists() or executed_file_lines(log_of(url)) == []
 
 
+def test_a_feed_above_the_max_rates_with_the_laser_at_constant_power_is_refused_before_anything_is_sent(tmp_path,
+                                                                                                        sim):
+    """$110 = $111 = 5000 mm/min and F6000: Grbl caps a move so that no axis runs over its max rate
+    (limit_value_by_axis_maximum): along X the cap is 5000 / 1 = 5000 < 6000, on the diagonal to (10, 10) it is
+    5000 / (1/sqrt 2) = 7071 > 6000. With M3 in laser mode the power stays while the cut slows: refused, naming
+    the move along X (file line 9); with M4 (power follows the speed) it streams, and the log notes the cap."""
+    body = ["G1 X10 Y10", "G1 X20"]
+    program = tmp_path / "fast.gcode"
+    program.write_text("\n".join(["G21", "G90", "G17", "G94", "M3 S800", "F6000", "G0 X0 Y0"] + body + ["M5", "M2"])
+                       + "\n", encoding="ascii")
+    url = sim(settings="32:1,110:5000,111:5000")
+    with pytest.raises(FablineError) as refused:
+        Streamer(url).run(program)
+    message = str(refused.value)
+    assert message.startswith(f"{program}:9: feed 6000 mm/min is above what the controller's max rates "
+                              "($110..$112) allow along this move, 5000 mm/min: Grbl caps it and with the laser at "
+                              "constant power (M3) the slower cut burns more than planned")
+    assert "nothing was sent" in message and (not log_of(url).exists() or executed_file_lines(log_of(url)) == [])
+    program.write_text(program.read_text().replace("M3 S800", "M4 S800"), encoding="ascii")
+    exchange = tmp_path / "exchange.log"
+    assert Streamer(url, status_interval=0.02, exchange_log=exchange).run(program).completed
+    assert f"note: {program}:9: feed 6000 mm/min is above" in exchange.read_text()
+    assert "the cut runs slower than planned" in exchange.read_text()
+
+
 def test_the_receive_buffer_comes_from_the_build(tmp_path, sim):
     program = write(tmp_path / "sheet.gcode", sawtooth(60))
     url = sim(rx_buffer=256, build_options="VN")
@@ -322,6 +347,35 @@ def test_a_controller_moved_after_its_host_died_is_not_resumed_by_its_tag_alone(
     assert executed_file_lines(log_of(url)) == ran
     first_not_cut = expected(program)[len(ran)]
     assert Streamer(url, status_interval=0.02).run(program, resume=True, start_line=first_not_cut).completed
+    assert exactly_once(program, url)
+
+
+def test_a_held_controller_whose_host_died_is_checked_before_the_resume_lets_it_go_on(tmp_path, sim):
+    """The host died with the machine held mid-sheet; the resume names a profile the controller conflicts with
+    (grbl-plotter needs $32=0, it has $32=1): refused before the cycle start that would let it cut what it holds
+    (a held Grbl answers `$$` with error:8: the run's journaled settings are checked), nothing run, still held."""
+    program = write(tmp_path / "held.gcode", sawtooth(120))
+    url = sim(time_scale=10)
+    streamer = Streamer(url, status_interval=0.02)
+
+    def pause_then_die(progress):
+        if progress.acked > 40 and not streamer.paused:
+            streamer.pause()
+        elif streamer.paused and progress.state == "Hold":
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        streamer.run(program, on_progress=pause_then_die)
+    controller, deadline = simulator_of(url), time.monotonic() + 10
+    while controller._hold != "complete":
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    ran = executed_file_lines(log_of(url))
+    with pytest.raises(FablineError, match=r"machine grbl-plotter needs .*nothing was sent"):
+        Streamer(url, status_interval=0.02).run(program, resume=True, machine="grbl-plotter")
+    time.sleep(0.2)
+    assert controller.state == "Hold" and executed_file_lines(log_of(url)) == ran
+    assert Streamer(url, status_interval=0.02).run(program, resume=True).completed
     assert exactly_once(program, url)
 
 
