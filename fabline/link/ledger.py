@@ -11,18 +11,21 @@ so that line counts as not done (re-sent, it cuts the rest) unless the planner's
 from __future__ import annotations
 
 import math
+from collections import deque
 from typing import Callable
 
 from fabline.errors import FablineError
 from fabline.link.controller import Grbl
 from fabline.link.protocol import CharacterCounter, Response, StatusReport
-from fabline.machine.gcode import Vector
+from fabline.machine.gcode import ModalState, Segment, Vector
 from fabline.machine.program import Program
 
 SEGMENT_BUFFER = 6
 """Grbl's stepper segment buffer (SEGMENT_BUFFER_SIZE): up to this many blocks may still run after leaving the planner."""
 POSITION_TOLERANCE = 0.01
 """mm: status reports carry three decimals; a stopped position is matched to a path within this."""
+SEEN = 500
+"""Status reports (position, lines acknowledged) kept from a stream's motion, to bound where a stop can be."""
 
 
 def file_line(program: Program, index: int) -> int | None:
@@ -50,6 +53,8 @@ class Ledger:
         self.errors: list[tuple[int | None, int | None]] = []
         self.pauses: list[int] = []  # acknowledged M0 lines whose pause has not been reported yet
         self.status_after_last_ok = False
+        self.seen: deque = deque(maxlen=SEEN)
+        self.waiting_at_reset: int | None = None
         self.on_pause: Callable[[int], None] | None = None
         """Told the index of an M0 line when the machine stops there."""
 
@@ -61,6 +66,8 @@ class Ledger:
         """A stream starts with `counter` its flow control: nothing answered, rejected or paused yet."""
         self.counter, self.errors, self.pauses = counter, [], []
         self.status_after_last_ok = False
+        self.seen.clear()
+        self.waiting_at_reset = None
 
     @property
     def url(self) -> str:
@@ -77,6 +84,7 @@ class Ledger:
     def reset(self) -> None:
         """The controller flushed its buffers: nothing is in flight any more."""
         if self.counter is not None:
+            self.waiting_at_reset = self.waiting()
             self.counter.clear()
             self.counter = None
 
@@ -103,6 +111,10 @@ class Ledger:
     def track(self, status: StatusReport) -> None:
         """Advance the count of executed lines from `Ln:` (or Idle with nothing in flight)."""
         self.status_after_last_ok = True
+        if status.state in ("Run", "Hold") and self.blocks is not None:
+            position = status.work_position(self.controller.connection.wco)
+            if position is not None:
+                self.seen.append((position, self.acked))
         if self.errors:
             return  # after a rejected line only the halt decides what ran
         if self.pauses and status.state == "Hold" and status.substate == 0 and self.on_pause is not None:
@@ -134,7 +146,8 @@ class Ledger:
             if index is not None and self.done <= index <= self.sent:
                 return index if rejected is None else min(index, rejected)
         position = status.work_position(wco)
-        counts = self.counts_at(position)
+        floor = self.floor()
+        counts = {count for count in self.counts_at(position) if count >= floor}
         planned = self.planned_line(status) if held and rejected is None else None
         if planned is not None and self.fits(planned, position):
             return planned
@@ -184,14 +197,39 @@ class Ledger:
         following = motions + [len(self.blocks)]
         if math.dist(position, rest) <= POSITION_TOLERANCE:
             counts.add(min(max(self.acked, (before if before is not None else -1) + 1), following[0]))
-        for index in motions:
+        for number, index in enumerate(motions):
             segment = self.blocks[index].segment
             if math.dist(position, segment.end) <= POSITION_TOLERANCE:
-                counts.add(index)  # at rest at its end, or microns short of it: not ended unless the planner says so
+                # at rest at its end, or microns short of it: not ended, unless a line after it that waits for an
+                # empty planner (a dwell, a spindle or coolant change) was answered
+                if any(self.synchronizes(later) for later in range(index + 1, min(following[number + 1], self.acked))):
+                    counts.add(min(max(self.acked, index + 1), following[number + 1]))
+                else:
+                    counts.add(index)
             elif (math.dist(position, segment.start) > POSITION_TOLERANCE
-                  and segment.contains(position, POSITION_TOLERANCE)):
+                  and on_path(segment, position)):
                 counts.add(index)
         return {count for count in counts if count >= self.done}
+
+    def floor(self) -> int:
+        """The lowest line the machine can have been executing at the stop, from the positions reported while it
+        ran: at each report it was on a line it had acknowledged, at or after the floor so far, whose path holds
+        the position; the first such line is the new floor (motion only goes on)."""
+        floor = self.done
+        for position, acked in self.seen:
+            fitting = next((index for index in range(floor, min(acked, len(self.blocks)))
+                            if self.blocks[index].segment is not None and self.blocks[index].segment.length > 0
+                            and on_path(self.blocks[index].segment, position)), None)
+            floor = fitting if fitting is not None else floor
+        return floor
+
+    def synchronizes(self, index: int) -> bool:
+        """Whether line `index` waits for an empty planner before its ok (Grbl: a dwell, M0, M2/M30, a spindle or
+        coolant state change, even in laser mode)."""
+        block = self.blocks[index]
+        before = self.blocks[index - 1].modal if index else ModalState()
+        return (block.dwell > 0 or block.pause or block.program_end or block.modal.spindle != before.spindle
+                or block.modal.coolant != before.coolant)
 
     def planned_line(self, status: StatusReport) -> int | None:
         """The line the machine holds in a finished feed hold, told by how many planner blocks are in use: `Bf:`
@@ -219,10 +257,10 @@ class Ledger:
 
     def waiting(self) -> int | None:
         """The oldest program line in flight (sent, not answered), if it is one."""
-        if self.counter is not None:
-            oldest = self.counter.oldest()
-            return oldest if oldest is not None and oldest == self.acked else None
-        return self.acked if self.acked < min(self.sent, len(self.blocks)) else None
+        if self.counter is None:
+            return self.waiting_at_reset
+        oldest = self.counter.oldest()
+        return oldest if oldest is not None and oldest == self.acked else None
 
     def blocks_of(self, index: int) -> int | None:
         """Planner blocks line `index` takes: none without motion, one for a straight move, None for an arc."""
@@ -234,7 +272,7 @@ class Ledger:
     def fits(self, index: int, position: Vector) -> bool:
         """Whether `position` lies on the path of line `index` (its ends within the tolerance included)."""
         segment = self.blocks[index].segment
-        return segment is not None and segment.contains(position, POSITION_TOLERANCE)
+        return segment is not None and on_path(segment, position)
 
     def moves(self, index: int) -> bool:
         segment = self.blocks[index].segment
@@ -261,3 +299,18 @@ class Ledger:
             raise FablineError(f"{self.program.name}:{file_line}: no G-code command on that line to restart from")
         return None
 
+
+def on_path(segment: Segment, point: Vector, tolerance: float = POSITION_TOLERANCE) -> bool:
+    """Whether `point` lies on `segment` within `tolerance`: a straight move by projection, an arc by its radius
+    and sweep (no sampling: it is asked for every status report a stop looks back on)."""
+    if segment.center is None or math.dist(point, segment.start) <= tolerance or math.dist(point, segment.end) <= tolerance:
+        return segment.contains(point, tolerance) if segment.center is None else True
+    a, b, c = segment.plane
+    radius, angle0, sweep = segment._arc()
+    if abs(math.hypot(point[a] - segment.center[a], point[b] - segment.center[b]) - radius) > tolerance:
+        return False
+    turned = math.atan2(point[b] - segment.center[b], point[a] - segment.center[a]) - angle0
+    turned = turned % (2 * math.pi) if sweep > 0 else -((-turned) % (2 * math.pi))
+    if not 0 <= turned / sweep <= 1:
+        return False
+    return abs(point[c] - (segment.start[c] + (segment.end[c] - segment.start[c]) * turned / sweep)) <= tolerance

@@ -141,7 +141,7 @@ def test_the_planners_fill_tells_whether_the_line_at_whose_end_the_machine_rests
 def test_a_full_planner_tells_which_pass_of_a_retraced_path_was_held():
     """Back and forth between X1 and X2 (after G0 X1): X1.500 lies on every move of the window. 16 lines
     acknowledged and the next move waiting: the planner holds lines 1..15 (0-based), so the held pass is line 1,
-    1 -> 2 (file line 2); with `Bf:12` three blocks are in use, lines 13..15, held line 13 (2 -> 1: it fits).
+    1 -> 2 (file line 2); with `Bf:12` three blocks are in use, lines 13..15, held line 13 (1 -> 2: it fits).
     Without either the position alone cannot tell and the candidates are named."""
     zigzag = b"G21 G90 G0 X1\n" + b"".join(f"G1 X{2 - i % 2} F600\n".encode() for i in range(20))
     full = ledger_of(zigzag)
@@ -154,3 +154,40 @@ def test_a_full_planner_tells_which_pass_of_a_retraced_path_was_held():
     counter = send_all(unknown)
     with pytest.raises(Undecided, match=r"passes more than once"):
         held(unknown, "<Hold:0|WPos:1.500,0.000,0.000>", counter.in_flight)
+
+
+def stopped_at(ledger: Ledger, report: str) -> int:
+    return ledger.executed_from_position(classify(report).status, None, planner_empty=False)
+
+
+def test_the_positions_reported_while_it_ran_bound_which_pass_a_stop_is_on():
+    """0 -> 3 -> 0 twice in 1 mm moves (0-based lines 1..12: 1 is 0 -> 1, 6 is 1 -> 0, 7 is 0 -> 1 again), lines
+    0..6 sent and acknowledged: a stop at X0.200 lies on lines 1 and 6. Reported on the way, X0.500 (first line from 0 on
+    whose path it is: 1), X2.500 (first from 1 on: 3), X1.500 (first from 3 on: 5): the machine was at least on line
+    5 before the stop, so it stopped in line 6 (file line 7), 6 lines done. Without the reports both are named."""
+    data = b"G21 G90 G0 X0\n" + b"".join(f"G1 X{x} F600\n".encode() for _ in range(2) for x in (1, 2, 3, 2, 1, 0))
+    tracked, blind = ledger_of(data), ledger_of(data)
+    for ledger in (tracked, blind):
+        ledger.begin(CharacterCounter(128))
+        for line in ledger.program.lines[:7]:
+            ledger.counter.sent(line.index, len(line.wire))
+            ledger.sending(line.index)
+            ledger.heard(classify("ok"))
+    for x in ("0.500", "2.500", "1.500"):
+        tracked.heard(classify(f"<Run|WPos:{x},0.000,0.000>"))
+    assert stopped_at(tracked, "<Alarm|WPos:0.200,0.000,0.000>") == 6
+    with pytest.raises(Undecided, match=r"one of 2, 7\)"):
+        stopped_at(blind, "<Alarm|WPos:0.200,0.000,0.000>")
+
+
+def test_a_stop_at_a_lines_end_with_the_dwell_after_it_answered_counts_the_line_done():
+    """G4 waits for an empty planner before its ok: answered, the move before it has ended (line 1 done, and the
+    dwell: 3 lines done); not answered, a machine at rest at X10 may be microns short of it (1 line done)."""
+    data = b"G21 G90\nG1 X10 F600\nG4 P1\nG1 X20\n"
+    answered, waiting = ledger_of(data), ledger_of(data)
+    for ledger, oks in ((answered, 3), (waiting, 2)):
+        send_all(ledger)
+        for _ in range(oks):
+            ledger.heard(classify("ok"))
+    assert stopped_at(answered, "<Hold:0|WPos:10.000,0.000,0.000>") == 3
+    assert stopped_at(waiting, "<Hold:0|WPos:10.000,0.000,0.000>") == 1

@@ -110,16 +110,15 @@ def test_a_halt_on_a_zigzag_while_lines_wait_for_planner_room_is_placed_by_the_p
 
 
 def test_a_position_several_window_lines_pass_is_refused_naming_them_then_from_line_resumes(tmp_path, sim):
-    """The whole zigzag answered (nothing waits for planner room) and halted on its way: the position fits several
-    passes and nothing else tells them apart (M5 waits for an empty planner: its fill says nothing), so the candidates are named for the operator's --from-line."""
+    """The whole zigzag answered (nothing waits for planner room: M5 waits for an empty planner, its fill says
+    nothing) and no status report while it ran (polled every 10 s) to tell which pass the machine was on: halted on
+    its way, the position fits several passes, so the candidates are named for the operator's --from-line."""
     zigzag = [f"G1 X{x}" for _ in range(2) for x in (1, 2, 3, 2, 1, 0)]
     program = write(tmp_path / "zigzag.gcode", ["G0 X0 Y10"] + zigzag)
-    url = sim(time_scale=2)
-    streamer = Streamer(url, status_interval=0.02)
-    total = len(load_program(program).lines)
+    url = sim(time_scale=2)  # the travel to X0 Y10 takes 0.8 s, the zigzag 2.2 s more
+    streamer = Streamer(url, status_interval=10)
     with pytest.raises(StreamInterrupted) as stopped:
-        streamer.run(program, on_progress=abort_when(  # on the zigzag, all answered but M5 (it waits for the rest), M2
-            streamer, lambda p: p.acked >= total - 2 and p.position is not None and p.position[0] > 0.5))
+        streamer.run(program, on_progress=abort_when(streamer, lambda p: p.elapsed > 1.5))
     assert stopped.value.reason == "undecided" and "where the path passes more than once" in str(stopped.value)
     candidates = [int(n) for n in str(stopped.value).split("(one of ")[1].rstrip(")").split(", ")]
     assert len(candidates) >= 2
