@@ -1,8 +1,9 @@
 """The record of what ran: lines sent, acknowledged and known executed, journaled as the controller answers, and
 the executing line told from a stopped position.
 
-`ok` means parsed into the planner; a status report `Ln:N` means every line before N is done; Idle with nothing
-in flight means every acknowledged line is done. After a stop with the planner flushed the executing line is one of
+`ok` means parsed into the planner; a status report `Ln:N` means every line before N is done, and so does one
+whose position lies on line N's path, N the first acknowledged line not known done that passes there; Idle with
+nothing in flight means every acknowledged line is done. After a stop with the planner flushed the executing line is one of
 the window of lines that can still have been in the planner, the one whose path holds the stopped position. A line
 is done only once it has ended: a machine at rest within the tolerance of a line's end may be microns short of it,
 so that line counts as not done (re-sent, it cuts the rest) unless the planner's fill tells it was discarded.
@@ -11,7 +12,6 @@ so that line counts as not done (re-sent, it cuts the rest) unless the planner's
 from __future__ import annotations
 
 import math
-from collections import deque
 from typing import Callable
 
 from fabline.errors import FablineError
@@ -24,8 +24,8 @@ SEGMENT_BUFFER = 6
 """Grbl's stepper segment buffer (SEGMENT_BUFFER_SIZE): up to this many blocks may still run after leaving the planner."""
 POSITION_TOLERANCE = 0.01
 """mm: status reports carry three decimals; a stopped position is matched to a path within this."""
-SEEN = 500
-"""Status reports (position, lines acknowledged) kept from a stream's motion, to bound where a stop can be."""
+ROUNDING = 0.001
+"""mm: a reported position is within this of where the machine is (three decimals per axis)."""
 
 
 def file_line(program: Program, index: int) -> int | None:
@@ -53,7 +53,7 @@ class Ledger:
         self.errors: list[tuple[int | None, int | None]] = []
         self.pauses: list[int] = []  # acknowledged M0 lines whose pause has not been reported yet
         self.status_after_last_ok = False
-        self.seen: deque = deque(maxlen=SEEN)
+        self.watch = False
         self.waiting_at_reset: int | None = None
         self.on_pause: Callable[[int], None] | None = None
         """Told the index of an M0 line when the machine stops there."""
@@ -62,11 +62,11 @@ class Ledger:
         """Every count set to `executed` lines (a start or a resume)."""
         self.acked = self.done = self.sent = executed
 
-    def begin(self, counter: CharacterCounter) -> None:
-        """A stream starts with `counter` its flow control: nothing answered, rejected or paused yet."""
-        self.counter, self.errors, self.pauses = counter, [], []
+    def begin(self, counter: CharacterCounter, watch: bool = True) -> None:
+        """A stream starts with `counter` its flow control: nothing answered, rejected or paused yet. `watch`: the
+        reported positions are the program's (not while a resume's travel may run before its first line)."""
+        self.counter, self.errors, self.pauses, self.watch = counter, [], [], watch
         self.status_after_last_ok = False
-        self.seen.clear()
         self.waiting_at_reset = None
 
     @property
@@ -109,12 +109,8 @@ class Ledger:
         self.errors.append((index, response.code))
 
     def track(self, status: StatusReport) -> None:
-        """Advance the count of executed lines from `Ln:` (or Idle with nothing in flight)."""
+        """Advance the count of executed lines from `Ln:`, Idle with nothing in flight, or the machine seen on a line."""
         self.status_after_last_ok = True
-        if status.state in ("Run", "Hold") and self.blocks is not None:
-            position = status.work_position(self.controller.connection.wco)
-            if position is not None:
-                self.seen.append((position, self.acked))
         if self.errors:
             return  # after a rejected line only the halt decides what ran
         if self.pauses and status.state == "Hold" and status.substate == 0 and self.on_pause is not None:
@@ -126,6 +122,9 @@ class Ledger:
                 executed = index
         elif status.state == "Idle" and self.counter.in_flight == 0:
             executed = self.acked
+        elif (status.state in ("Run", "Hold") and self.watch
+              and (position := status.work_position(self.controller.connection.wco))):
+            executed = self.first_on_path(position) or executed  # the machine is seen on it: every line before ran
         if executed > self.done:
             self.done = executed
             self.journal.record("done", count=executed)
@@ -146,8 +145,7 @@ class Ledger:
             if index is not None and self.done <= index <= self.sent:
                 return index if rejected is None else min(index, rejected)
         position = status.work_position(wco)
-        floor = self.floor()
-        counts = {count for count in self.counts_at(position) if count >= floor}
+        counts = self.counts_at(position)
         planned = self.planned_line(status) if held and rejected is None else None
         if planned is not None and self.fits(planned, position):
             return planned
@@ -201,9 +199,13 @@ class Ledger:
             segment = self.blocks[index].segment
             if math.dist(position, segment.end) <= POSITION_TOLERANCE:
                 # at rest at its end, or microns short of it: not ended, unless a line after it that waits for an
-                # empty planner (a dwell, a spindle or coolant change) was answered
-                if any(self.synchronizes(later) for later in range(index + 1, min(following[number + 1], self.acked))):
-                    counts.add(min(max(self.acked, index + 1), following[number + 1]))
+                # empty planner (a dwell, a spindle or coolant change) was answered, or the position lies on the
+                # next motion (acknowledged) and off this one beyond the reports' rounding: a few microns past
+                after = following[number + 1]
+                if (any(self.synchronizes(later) for later in range(index + 1, min(after, self.acked)))
+                        or after < self.acked and on_path(self.blocks[after].segment, position, ROUNDING)
+                        and not on_path(segment, position, 2 * ROUNDING)):
+                    counts.add(min(max(self.acked, index + 1), after))
                 else:
                     counts.add(index)
             elif (math.dist(position, segment.start) > POSITION_TOLERANCE
@@ -211,17 +213,16 @@ class Ledger:
                 counts.add(index)
         return {count for count in counts if count >= self.done}
 
-    def floor(self) -> int:
-        """The lowest line the machine can have been executing at the stop, from the positions reported while it
-        ran: at each report it was on a line it had acknowledged, at or after the floor so far, whose path holds
-        the position; the first such line is the new floor (motion only goes on)."""
-        floor = self.done
-        for position, acked in self.seen:
-            fitting = next((index for index in range(floor, min(acked, len(self.blocks)))
-                            if self.blocks[index].segment is not None and self.blocks[index].segment.length > 0
-                            and on_path(self.blocks[index].segment, position)), None)
-            floor = fitting if fitting is not None else floor
-        return floor
+    def first_on_path(self, position: Vector) -> int | None:
+        """The first line from `done` on, among those acknowledged, whose path holds `position`: a status report
+        shows the machine on a line it acknowledged (a line executes once planned, and its ok comes first), and
+        motion only goes on, so every line before that one has run (on a retraced path, earlier passes are ruled
+        out as the machine is seen past them)."""
+        for index in range(self.done, min(self.acked, len(self.blocks))):
+            segment = self.blocks[index].segment
+            if segment is not None and segment.length > 0 and on_path(segment, position):
+                return index
+        return None
 
     def synchronizes(self, index: int) -> bool:
         """Whether line `index` waits for an empty planner before its ok (Grbl: a dwell, M0, M2/M30, a spindle or

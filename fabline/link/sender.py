@@ -4,6 +4,7 @@ same over check mode ($C), where nothing moves."""
 
 from __future__ import annotations
 
+import re
 import time
 
 from fabline.errors import FablineError
@@ -18,6 +19,7 @@ from fabline.machine.codes import explain_error, listing
 from fabline.machine.program import Program
 
 MODES = ("counting", "send-response")
+_AXIS = re.compile(rb"[XYZ]")
 
 
 class Sender:
@@ -47,7 +49,7 @@ class Sender:
         if first is not None and len(outgoing) > len(preamble):
             outgoing[len(preamble)] = (ledger.done, first)
         counter = CharacterCounter(self.controller.rx_buffer, max_lines=1 if self.mode == "send-response" else None)
-        ledger.begin(counter)
+        ledger.begin(counter, watch=not any(_AXIS.search(wire) for wire in preamble))  # a travel: not the program's
         position, next_poll, next_report = 0, 0.0, 0.0
         link.last_heard = time.monotonic()
         while True:

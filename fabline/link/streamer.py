@@ -4,8 +4,9 @@
 runner use. It detects the controller, streams with character counting (or send-response), polls
 status, stops safely on `error:N`, alarms, an abort or a lost connection, and resumes from the last
 line known to be executed after re-establishing the modal state. How it knows what was executed:
-  * `ok` means parsed into the planner; a status report `Ln:N` means every line before N is done;
-    Idle with nothing in flight means every acknowledged line is done.
+  * `ok` means parsed into the planner; a status report `Ln:N` means every line before N is done, and so
+    does one whose position is on the first acknowledged line not known done that passes there; Idle with
+    nothing in flight means every acknowledged line is done. A line is done only once it has ended.
   * after a lost connection or a killed host it waits for the controller to finish, discards any
     half-received line (`#` + newline always fails to parse) and reads `$G`: its T word is the tag of
     the last line parsed, looked up among the lines the journal shows sent after its last `ok` (a batch's
@@ -15,9 +16,12 @@ line known to be executed after re-establishing the modal state. How it knows wh
   * after an alarm or a halt (feed hold + reset) the planner is flushed; the interrupted line is found
     from the stopped position within the window of lines that can still have been in the planner (the
     acknowledged lines back to `planner_blocks` motion lines, or the `Ln:` of builds that report it), and
-    it is run again from its start. A position that fits several lines of the window (a retraced path) is
-    refused, naming the candidate file lines, for the operator to choose with --from-line.
-  * a host that died during a feed hold: cycle start lets the controller finish what it holds, then `$G`.
+    it is re-sent from where the machine stands (an arc with its centre offsets from there). In a finished
+    hold a full planner (`Bf:`, or a straight move waiting for room) names the held line. A position that
+    still fits several lines of the window (a retraced path) is refused, naming the candidate file lines, for
+    the operator to choose with --from-line.
+  * a host that died during a feed hold: the settings its journal kept are checked, then cycle start lets the
+    controller finish what it holds, then `$G`.
 Motion is planned from the controller's work position at the start of the run (kept in the journal).
 Before the first move the controller's build (`$I`) and settings (`$$`) are checked against the program and
 its machine profile (`fabline.link.compat`); the port and the journal are locked for the whole run.

@@ -110,13 +110,19 @@ def held(ledger: Ledger, report: str, acked: int) -> int:
 def test_a_stop_within_the_tolerance_of_a_lines_end_counts_that_line_not_done():
     """Out and back (X10, then X0), or round a corner: a machine at rest 0.007 mm short of X10 may be at the end or
     microns short of it (a feed hold decelerating into a full stop ends there either way): the line is not done, it
-    is re-sent and cuts what is left (the fault campaign's case 127: resuming after it left it unfinished)."""
+    is re-sent and cuts what is left (the fault campaign's case 127: resuming after it left it unfinished). Only a
+    position off its path and on the next one, beyond the reports' rounding, shows the machine past the corner."""
     out_and_back = ledger_of(b"G21 G90\nG1 X10 F600\nG1 X0\nG1 Y10\n")
     send_all(out_and_back)
     assert held(out_and_back, "<Hold:0|WPos:9.993,0.000,0.000>", 2) == 1
     corner = ledger_of(SQUARE)
     send_all(corner)
     assert held(corner, "<Hold:0|WPos:10.000,0.000,0.000>", 2) == 1
+    assert corner.executed_from_position(classify("<Hold:0|WPos:9.995,0.000,0.000>").status, None, False) == 1
+    # 5 microns up the move to X10 Y10 (file line 3, answered), 5 microns off the end of the first (beyond the
+    # reports' 0.001 mm rounding): past the corner, the first move has ended
+    corner.heard(classify("ok"))
+    assert corner.executed_from_position(classify("<Hold:0|WPos:10.000,0.005,0.000>").status, None, False) == 2
 
 
 STRAIGHT = b"G21 G90\n" + b"".join(f"G1 X{x} F600\n".encode() for x in range(1, 21))
