@@ -3,10 +3,11 @@ the executing line told from a stopped position.
 
 `ok` means parsed into the planner; a status report `Ln:N` means every line before N is done, and so does one
 whose position lies on line N's path, N the first acknowledged line not known done that passes there; Idle with
-nothing in flight means every acknowledged line is done. After a stop with the planner flushed the executing line is one of
-the window of lines that can still have been in the planner, the one whose path holds the stopped position. A line
-is done only once it has ended: a machine at rest within the tolerance of a line's end may be microns short of it,
-so that line counts as not done (re-sent, it cuts the rest) unless the planner's fill tells it was discarded.
+nothing in flight means every acknowledged line is done. After a stop with the planner flushed the executing line
+is one of the window of lines that can still have been in the planner, the one whose path holds the stopped
+position. A line is done only once it has ended: a machine at rest within the tolerance of a line's end may be
+microns short of it, so that line counts as not done (re-sent, it cuts the rest) unless other evidence says it
+ended: the planner's fill, an answered line that waits for an empty planner, a position past the corner.
 """
 
 from __future__ import annotations
@@ -109,7 +110,7 @@ class Ledger:
         self.errors.append((index, response.code))
 
     def track(self, status: StatusReport) -> None:
-        """Advance the count of executed lines from `Ln:`, Idle with nothing in flight, or the machine seen on a line."""
+        """Advance the count of executed lines: from `Ln:`, Idle with nothing in flight, the machine seen on a line."""
         self.status_after_last_ok = True
         if self.errors:
             return  # after a rejected line only the halt decides what ran
@@ -145,7 +146,7 @@ class Ledger:
             if index is not None and self.done <= index <= self.sent:
                 return index if rejected is None else min(index, rejected)
         position = status.work_position(wco)
-        counts = self.counts_at(position)
+        counts, ended = self.counts_at(position)
         planned = self.planned_line(status) if held and rejected is None else None
         if planned is not None and self.fits(planned, position):
             return planned
@@ -165,7 +166,8 @@ class Ledger:
                             f"none of file lines {self.file_line(self.window()[0])}.."
                             f"{self.file_line(self.sent - 1)} passes there); check the part and resume with "
                             "--from-line")
-        lines = [str(self.file_line(count)) if count < len(self.program.lines) else "the end" for count in sorted(counts)]
+        lines = [str(self.file_line(count)) if count < len(self.program.lines) else "the end"
+                 for count in sorted(counts | ended)]  # named: a line at whose end it rests may have ended too
         raise Undecided(f"{self.program.name}: the machine stopped at {where}, where the path passes more than once "
                         f"(file lines {', '.join(lines)} can have been cutting); look at the part and resume with "
                         f"--resume --from-line N, N the first line not yet cut (one of {', '.join(lines)})")
@@ -184,13 +186,15 @@ class Ledger:
             low -= 1
         return low, min(max(self.sent, self.acked), len(self.blocks))
 
-    def counts_at(self, position: Vector) -> set[int]:
-        """Every count of executed lines the stopped `position` fits: strictly inside motion line m (m lines done), or
-        at rest between motion lines p and q (p + 1 done, and the lines between them that were acknowledged)."""
+    def counts_at(self, position: Vector) -> tuple[set[int], set[int]]:
+        """Every count of executed lines the stopped `position` fits: inside motion line m or at rest at its end (m
+        lines done: it is re-sent), past its end where something tells it ended (m + 1 done, and the lines up to
+        the next motion that were acknowledged), or at rest at the window's start; and the counts had the lines
+        at whose end it rests ended (to name, should it come to naming candidates)."""
         low, high = self.window()
         motions = [index for index in range(low, high) if self.moves(index)]
         before = next((index for index in range(low - 1, -1, -1) if self.moves(index)), None)
-        counts = set()
+        counts, ended = set(), set()
         rest = self.origin if before is None else self.blocks[before].segment.end
         following = motions + [len(self.blocks)]
         if math.dist(position, rest) <= POSITION_TOLERANCE:
@@ -208,10 +212,11 @@ class Ledger:
                     counts.add(min(max(self.acked, index + 1), after))
                 else:
                     counts.add(index)
+                    ended.add(min(max(self.acked, index + 1), after))
             elif (math.dist(position, segment.start) > POSITION_TOLERANCE
                   and on_path(segment, position)):
                 counts.add(index)
-        return {count for count in counts if count >= self.done}
+        return {count for count in counts if count >= self.done}, {count for count in ended if count >= self.done}
 
     def first_on_path(self, position: Vector) -> int | None:
         """The first line from `done` on, among those acknowledged, whose path holds `position`: a status report
@@ -304,8 +309,10 @@ class Ledger:
 def on_path(segment: Segment, point: Vector, tolerance: float = POSITION_TOLERANCE) -> bool:
     """Whether `point` lies on `segment` within `tolerance`: a straight move by projection, an arc by its radius
     and sweep (no sampling: it is asked for every status report a stop looks back on)."""
-    if segment.center is None or math.dist(point, segment.start) <= tolerance or math.dist(point, segment.end) <= tolerance:
-        return segment.contains(point, tolerance) if segment.center is None else True
+    if segment.center is None:
+        return segment.contains(point, tolerance)
+    if math.dist(point, segment.start) <= tolerance or math.dist(point, segment.end) <= tolerance:
+        return True
     a, b, c = segment.plane
     radius, angle0, sweep = segment._arc()
     if abs(math.hypot(point[a] - segment.center[a], point[b] - segment.center[b]) - radius) > tolerance:

@@ -17,7 +17,7 @@ from fabline.errors import FablineError
 from fabline.link.connection import Connection
 from fabline.link.controller import Grbl
 from fabline.link.journal import JournalState, read_journal
-from fabline.link.ledger import POSITION_TOLERANCE, Ledger, Undecided, file_line
+from fabline.link.ledger import POSITION_TOLERANCE, Ledger, Undecided, file_line, on_path
 from fabline.machine.gcode import ModalState, Vector
 from fabline.machine.program import TAG_CYCLE, Program, line_tag
 
@@ -191,17 +191,16 @@ class Recovery:
         start is its end would be a full circle). None when the machine does not stand on the line's path."""
         block, line = self.ledger.blocks[index], self.ledger.program.lines[index]
         segment = block.segment
-        if (segment is None or math.dist(here, segment.start) <= POSITION_TOLERANCE
-                or not segment.contains(here, POSITION_TOLERANCE)):
+        if segment is None or math.dist(here, segment.start) <= POSITION_TOLERANCE or not on_path(segment, here):
             return None
         if segment.center is None:
             return line.wire
         command = _ARC_WORDS.sub("", line.command)
         if math.dist(here, segment.end) <= POSITION_TOLERANCE:
             if not _ARC_MOTION.search(command):
-                raise FablineError(f"{self.ledger.program.name}:{line.file_line}: the machine stopped microns short of "
-                                   "the end of this arc, which relies on modal G2/G3: resume with --from-line at the "
-                                   "next line")
+                raise FablineError(f"{self.ledger.program.name}:{line.file_line}: the machine stopped microns short "
+                                   "of the end of this arc, which relies on modal G2/G3: resume with --from-line at "
+                                   "the next line")
             command = _ARC_MOTION.sub("G1", command)
         else:
             scale = 25.4 if block.modal.units == "G20" else 1.0

@@ -5,7 +5,9 @@ zero; each interrupted once at a random point by a feed hold (abort), SIGKILL of
 a soft reset or an alarm; then the documented recovery (`--resume`, `--unlock` after an alarm or a reset; when
 fabline refuses because the stopped position fits several lines, the operator's `--from-line`, chosen here from
 the simulator's truth and required to be one of the lines fabline named). Every case must end with every
-program line executed exactly once, in order. The cases are generated from a fixed seed.
+program line executed exactly once, in order (a line a resume re-sent from within 0.01 mm of its end, which moved
+microns, counts once: `campaign_cases.cut_once`). The cases are generated from a fixed seed
+(tests/link/campaign_cases.py, shared with benchmarks/resume_bench.py).
 """
 
 from __future__ import annotations
@@ -26,7 +28,8 @@ from fabline.errors import FablineError
 from fabline.link import SimulatorServer, Streamer, executed_file_lines
 from fabline.machine import load_program
 
-from .campaign_cases import CASES, FINISHED, HOST, REFUSED, REPO, SETTINGS, cases, first_not_cut, move_to, run_case
+from .campaign_cases import (CASES, FINISHED, HOST, MICRONS, REFUSED, REPO, SETTINGS, cases, first_not_cut, move_to,
+                             run_case)
 
 
 def test_fault_campaign_on_a_stock_build_every_line_exactly_once_or_an_ambiguity_named(tmp_path, capsys):
@@ -38,6 +41,8 @@ def test_fault_campaign_on_a_stock_build_every_line_exactly_once_or_an_ambiguity
             outcome = run_case(number, rng, tmp_path, server, server_log)
             if REFUSED in outcome:
                 outcomes[f"{outcome[0]}: refused (ambiguous line, named), then --from-line"] += 1
+            elif MICRONS in outcome:
+                outcomes[f"{outcome[0]}: resumed, a line re-sent from its end (microns)"] += 1
             elif FINISHED in outcome:
                 outcomes[f"{outcome[0]}: finished before the fault"] += 1
             else:

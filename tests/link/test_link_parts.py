@@ -9,6 +9,7 @@ from fabline.link.connection import Connection
 from fabline.link.controller import Grbl
 from fabline.link.ledger import Ledger, Undecided
 from fabline.link.protocol import CharacterCounter, classify
+from fabline.link.recovery import Recovery
 from fabline.link.protocol_sim import close_simulator
 from fabline.machine.gcode import ModalState
 from fabline.machine.program import parse_program
@@ -168,9 +169,9 @@ def stopped_at(ledger: Ledger, report: str) -> int:
 
 def test_the_positions_reported_while_it_ran_bound_which_pass_a_stop_is_on():
     """0 -> 3 -> 0 twice in 1 mm moves (0-based lines 1..12: 1 is 0 -> 1, 6 is 1 -> 0, 7 is 0 -> 1 again), lines
-    0..6 sent and acknowledged: a stop at X0.200 lies on lines 1 and 6. Reported on the way, X0.500 (first line from 0 on
-    whose path it is: 1), X2.500 (first from 1 on: 3), X1.500 (first from 3 on: 5): the machine was at least on line
-    5 before the stop, so it stopped in line 6 (file line 7), 6 lines done. Without the reports both are named."""
+    0..6 sent and acknowledged: a stop at X0.200 lies on lines 1 and 6. Reported on the way, X0.500 (the first line
+    from 0 on whose path it is: 1), X2.500 (the first from 1 on: 3), X1.500 (the first from 3 on: 5): the machine
+    was on line 5 before the stop, so it stopped in line 6 (file line 7), 6 lines done. Without them both are named."""
     data = b"G21 G90 G0 X0\n" + b"".join(f"G1 X{x} F600\n".encode() for _ in range(2) for x in (1, 2, 3, 2, 1, 0))
     tracked, blind = ledger_of(data), ledger_of(data)
     for ledger in (tracked, blind):
@@ -197,3 +198,16 @@ def test_a_stop_at_a_lines_end_with_the_dwell_after_it_answered_counts_the_line_
             ledger.heard(classify("ok"))
     assert stopped_at(answered, "<Hold:0|WPos:10.000,0.000,0.000>") == 3
     assert stopped_at(waiting, "<Hold:0|WPos:10.000,0.000,0.000>") == 1
+
+
+def test_a_line_a_stop_cut_short_is_re_sent_from_where_the_machine_stands():
+    """G2 X10 Y0 I5 J0 from the origin: centre (5, 0), radius 5, clockwise over the top. Stopped at the top (5, 5),
+    the rest is G2 X10 Y0 with I = 5 - 5 = 0, J = 0 - 5 = -5 (offsets from the new start); stopped 0.004 mm short
+    of its end, a straight move to X10 Y0 (an arc from its end to its end would be a full circle); a straight move
+    is re-sent as it is; off the path, None (the preamble travels to the line's start)."""
+    ledger = ledger_of(b"G21 G90\nG2 X10 Y0 I5 J0 F600\nG1 X20\n")
+    recovery = Recovery(None, None, ledger, None)
+    assert recovery._rest_of_line(1, (5.0, 5.0, 0.0)) == b"N2G2X10Y0F600I0.0000J-5.0000T2\n"
+    assert recovery._rest_of_line(1, (9.999998, 0.004, 0.0)) == b"N2G1X10Y0F600T2\n"
+    assert recovery._rest_of_line(2, (15.0, 0.0, 0.0)) == ledger.program.lines[2].wire
+    assert recovery._rest_of_line(2, (15.0, 1.0, 0.0)) is None and recovery._rest_of_line(1, (0.0, 0.0, 0.0)) is None
