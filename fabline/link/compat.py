@@ -3,9 +3,11 @@ suit the program and the machine profile that made it?
 
 A laser program on a controller with `$32=0` fires the beam on every G0 travel; a program wider than the
 travel (`$130..$132`) or outside the soft limits stops with an alarm mid-sheet; M7 on a build without mist
-coolant is refused mid-job (error:20). Each problem is one line naming the setting and the fix. Settings are in
-Grbl's numbers whatever the firmware (fabline.link.dialects reads grblHAL's and FluidNC's into them); the fix is said
-in the controller's dialect (FluidNC's laser mode is a `Laser:` spindle in its config, not `$32=1`).
+coolant is refused mid-job (error:20); a feed above the max rates (`$110..$112`) is capped by Grbl without a word,
+which with a laser at constant power (M3 in laser mode) burns more than planned. Each problem is one line naming the
+setting and the fix; a capped feed that only runs slower (M4 scales the power with the speed) is a note. Settings
+are in Grbl's numbers whatever the firmware (fabline.link.dialects reads grblHAL's and FluidNC's into them); the fix
+is said in the controller's dialect (FluidNC's laser mode is a `Laser:` spindle in its config, not `$32=1`).
 """
 
 from __future__ import annotations
@@ -70,7 +72,52 @@ def controller_problems(program: Program, blocks: Sequence[Block], origin: Vecto
             problems.append(f"{program.name}:{mist.file_line}: M7 (mist coolant) is not in this controller's build "
                             f"([OPT:{build.options},...] has no M, Grbl answers error:20); use M8, or a build with M7")
     problems += _travel_problems(blocks, origin, settings, wco)
+    problems += feed_problems(program, blocks, settings)[0]
     return problems
+
+
+def feed_problems(program: Program, blocks: Sequence[Block], settings: dict[int, float]) -> tuple[list[str], list[str]]:
+    """Feeds the controller caps (Grbl's limit_value_by_axis_maximum: no axis beyond its `$110+i` along the move):
+    (problems, notes). A capped cut with a laser at constant power ($32=1, M3, S > 0) is a problem: the same power
+    over a slower cut burns more; any other capped feed is a note (it runs slower than planned)."""
+    rates = [settings.get(110 + axis) for axis in range(3)]
+    if any(rate is None or rate <= 0 for rate in rates):
+        return [], []
+    burning, slower = [], []
+    for line, block in zip(program.lines, blocks):
+        segment = block.segment
+        if segment is None or segment.rapid or segment.length <= 0:
+            continue
+        cap = _rate_cap(segment, rates)
+        if block.feed_rate > cap * (1 + 1e-6):
+            constant = settings.get(32) == 1 and block.modal.spindle == "M3" and block.modal.speed > 0
+            (burning if constant else slower).append((line, block.feed_rate, cap))
+    return _feed_messages(program, burning, True), _feed_messages(program, slower, False)
+
+
+def _rate_cap(segment, rates: list[float]) -> float:
+    """The fastest feed (mm/min) along `segment` with no axis over its max rate (an arc: over its sampled chords)."""
+    points = [segment.start] + (segment.points(_ARC_SAMPLES) if segment.center is not None else [segment.end])
+    cap = np.inf
+    for start, end in zip(points, points[1:]):
+        step = np.subtract(end, start)
+        length = float(np.linalg.norm(step))
+        if length > 0:
+            moving = np.abs(step) > 1e-12
+            cap = min(cap, float(np.min(np.asarray(rates)[moving] * length / np.abs(step[moving]))))
+    return cap
+
+
+def _feed_messages(program: Program, capped: list, burning: bool) -> list[str]:
+    if not capped:
+        return []
+    line, feed, cap = capped[0]
+    more = f" (and {len(capped) - 1} more line{'s' if len(capped) > 2 else ''})" if len(capped) > 1 else ""
+    effect = ("with the laser at constant power (M3) the slower cut burns more than planned" if burning
+              else "the cut runs slower than planned")
+    return [f"{program.name}:{line.file_line}: feed {feed:g} mm/min is above what the controller's max rates "
+            f"($110..$112) allow along this move, {cap:.0f} mm/min{more}: Grbl caps it and {effect}; lower the "
+            "program's feed, or raise the max rates"]
 
 
 def _laser_mode_problems(program: Program, blocks: Sequence[Block], settings: dict[int, float],

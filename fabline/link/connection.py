@@ -139,18 +139,19 @@ class Connection:
             raise Lost(str(exc)) from None
         if data:
             self.last_heard = time.monotonic()
-        responses = []
+        responses, logged = [], []
         for text in self._splitter.feed(data):
             response = classify(text)
-            if response.kind != "status":
-                self.exchange("<<<", text)
-            else:
+            if response.kind == "status":
                 self.status = response.status
                 if response.status.wco is not None:
                     self.wco = response.status.wco
             if self.listener is not None:
                 self.listener.heard(response)
             responses.append(response)
+            logged += [text] if response.kind != "status" else []
+        for text in logged:  # once every answer is counted: a log that fails loses no `ok`
+            self.exchange("<<<", text)
         return responses
 
     def command(self, line: bytes, expect_error: bool = False, until_banner: bool = False,

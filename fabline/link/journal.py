@@ -1,10 +1,13 @@
 """The stream journal: an append-only, fsynced record of every line sent to and answered by the controller.
 
 Format (`fabline.link-journal/1`): one JSON object per line, each with an `event`:
-  start    {program, sha256, lines, mode, origin, identity}
+  start    {program, sha256, lines, mode, origin, identity, settings, build}
                                              a new job (or a resumed one) begins: origin = the controller's work
                                              position [x, y, z] where the run started (a resume keeps the first
-                                             run's), identity = {name: text} given by the caller (job, run ids)
+                                             run's), identity = {name: text} given by the caller (job, run ids),
+                                             settings = {"110": 500.0, ...} ($$) and build = its `$I` lines (a
+                                             held controller refuses `$$`: a resume checks these before it lets
+                                             the controller go on)
   forced   {problems}                        the run went on despite these controller conflicts (--force)
   paused   {line}                            the program paused (M0) at file line `line`, waiting for cycle start
   sent     {n, line}                         program line n (0-based; `line` = file line) was written to the port
@@ -62,6 +65,8 @@ class JournalState:
     stopped: str | None = None
     origin: tuple[float, float, float] | None = None
     identity: dict[str, str] | None = None
+    settings: dict[int, float] | None = None
+    build: list[str] | None = None
 
 
 class JournalError(FablineError):
@@ -238,6 +243,20 @@ def _identity(record: dict, path: Path, number: int) -> dict[str, str] | None:
     return value
 
 
+def _controller(record: dict, path: Path, number: int) -> tuple[dict[int, float] | None, list[str] | None]:
+    """The controller's settings and `$I` lines a start record keeps (None where an older fabline kept none)."""
+    settings, build = record.get("settings"), record.get("build")
+    if settings is not None:
+        if not isinstance(settings, dict) or not all(
+                isinstance(k, str) and k.isdigit() and isinstance(v, (int, float)) and not isinstance(v, bool)
+                for k, v in settings.items()):
+            raise FablineError(f"{path}:{number}: journal start record has malformed settings {settings!r}")
+        settings = {int(k): float(v) for k, v in settings.items()}
+    if build is not None and (not isinstance(build, list) or not all(isinstance(text, str) for text in build)):
+        raise FablineError(f"{path}:{number}: journal start record has a malformed build {build!r}")
+    return settings, build
+
+
 def read_journal(path: str | os.PathLike) -> JournalState:
     """Replay a journal into a JournalState; a malformed record other than a torn last one is an error."""
     path = Path(path)
@@ -271,6 +290,7 @@ def read_journal(path: str | os.PathLike) -> JournalState:
                 raise FablineError(f"{path}:{number}: journal mixes two different programs")
             state.sha256, state.total = record["sha256"], record["lines"]
             state.origin, state.identity = _origin(record, path, number), _identity(record, path, number)
+            state.settings, state.build = _controller(record, path, number)
             state.finished, state.stopped, state.error, state.alarm = False, None, None, None
             state.sent = state.acked = state.done = 0  # a run starts from nothing; a resume record says otherwise
             state.resumed_at = None

@@ -208,6 +208,10 @@ class CharacterCounter:
         self._used -= size
         return tag
 
+    def oldest(self):
+        """The tag of the oldest line sent and not yet answered (None if none is)."""
+        return self._in_flight[0][0] if self._in_flight else None
+
     @property
     def in_flight(self) -> int:
         """Number of lines sent and not yet answered."""

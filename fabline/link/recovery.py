@@ -17,11 +17,13 @@ from fabline.errors import FablineError
 from fabline.link.connection import Connection
 from fabline.link.controller import Grbl
 from fabline.link.journal import JournalState, read_journal
-from fabline.link.ledger import POSITION_TOLERANCE, Ledger, Undecided, file_line
+from fabline.link.ledger import POSITION_TOLERANCE, Ledger, Undecided, file_line, on_path
 from fabline.machine.gcode import ModalState, Vector
 from fabline.machine.program import TAG_CYCLE, Program, line_tag
 
 _MOTION_WORD = re.compile(r"G0*[0-3](?![0-9.])")
+_ARC_MOTION = re.compile(r"G0*[23](?![0-9.])")
+_ARC_WORDS = re.compile(r"[IJKR][-+]?[0-9.]+")
 
 
 def _where(position) -> str:
@@ -68,6 +70,8 @@ class Recovery:
 
     def __init__(self, connection: Connection, controller: Grbl, ledger: Ledger, journal_path: Path):
         self.connection, self.controller, self.ledger, self.journal_path = connection, controller, ledger, journal_path
+        self.first_line: bytes | None = None
+        """The first program line as the last `preamble` has it re-sent (its rest from where the machine stopped)."""
 
     @property
     def url(self) -> str:
@@ -165,7 +169,8 @@ class Recovery:
         lines = ["G21G90G17G94M5", f"{modal.coord}"]
         status = self.connection.query_status()
         here = status.work_position(self.connection.wco) or target
-        if not all(math.isclose(a, b, abs_tol=1e-4) for a, b in zip(here, target)):
+        self.first_line = self._rest_of_line(executed, here)
+        if self.first_line is None and not all(math.isclose(a, b, abs_tol=1e-4) for a, b in zip(here, target)):
             top = max(here[2], target[2])
             lines += [f"G0Z{top:.4f}"] if top > here[2] else []
             lines += [f"G0X{target[0]:.4f}Y{target[1]:.4f}"]
@@ -178,6 +183,30 @@ class Recovery:
             self._refuse_modal_arc(executed, modal.motion)
         lines.append(f"T{line_tag(executed - 1)}")
         return [f"{line}\n".encode("ascii") for line in lines]
+
+    def _rest_of_line(self, index: int, here: Vector) -> bytes | None:
+        """Line `index` re-sent from `here`, a point on its path past its start (a stop cut it short): an absolute
+        straight move as it is, cutting only the rest; an arc with its centre offsets from `here` (I, J, K are
+        relative to the start), or, with less than the tolerance left, a straight move to its end (an arc whose
+        start is its end would be a full circle). None when the machine does not stand on the line's path."""
+        block, line = self.ledger.blocks[index], self.ledger.program.lines[index]
+        segment = block.segment
+        if segment is None or math.dist(here, segment.start) <= POSITION_TOLERANCE or not on_path(segment, here):
+            return None
+        if segment.center is None:
+            return line.wire
+        command = _ARC_WORDS.sub("", line.command)
+        if math.dist(here, segment.end) <= POSITION_TOLERANCE:
+            if not _ARC_MOTION.search(command):
+                raise FablineError(f"{self.ledger.program.name}:{line.file_line}: the machine stopped microns short "
+                                   "of the end of this arc, which relies on modal G2/G3: resume with --from-line at "
+                                   "the next line")
+            command = _ARC_MOTION.sub("G1", command)
+        else:
+            scale = 25.4 if block.modal.units == "G20" else 1.0
+            command += "".join(f"{'IJK'[axis]}{(segment.center[axis] - here[axis]) / scale:.4f}"
+                               for axis in segment.plane[:2])
+        return f"N{line.file_line}{command}T{line_tag(index)}\n".encode("ascii")
 
     def _refuse_stored_references(self, executed: int) -> None:
         """Positions after a work offset change (G10, G92, G43.1) or a move to a stored or machine position (G28,

@@ -4,6 +4,7 @@ same over check mode ($C), where nothing moves."""
 
 from __future__ import annotations
 
+import re
 import time
 
 from fabline.errors import FablineError
@@ -18,6 +19,7 @@ from fabline.machine.codes import explain_error, listing
 from fabline.machine.program import Program
 
 MODES = ("counting", "send-response")
+_AXIS = re.compile(rb"[XYZ]")
 
 
 class Sender:
@@ -38,13 +40,16 @@ class Sender:
         self.connection.exchange("#", self.controls.message)
         self.reporter.report()
 
-    def stream(self, preamble: list[bytes]) -> StreamResult:
-        """Send `preamble`, then every line from `ledger.done` on; return when the machine has executed the last."""
+    def stream(self, preamble: list[bytes], first: bytes | None = None) -> StreamResult:
+        """Send `preamble`, then every line from `ledger.done` on (the first as `first` where given: the rest of a
+        line a stop cut short); return when the machine has executed the last."""
         link, ledger, journal = self.connection, self.ledger, self.ledger.journal
         lines = ledger.program.lines
         outgoing = [(None, wire) for wire in preamble] + [(line.index, line.wire) for line in lines[ledger.done:]]
+        if first is not None and len(outgoing) > len(preamble):
+            outgoing[len(preamble)] = (ledger.done, first)
         counter = CharacterCounter(self.controller.rx_buffer, max_lines=1 if self.mode == "send-response" else None)
-        ledger.begin(counter)
+        ledger.begin(counter, watch=not any(_AXIS.search(wire) for wire in preamble))  # a travel: not the program's
         position, next_poll, next_report = 0, 0.0, 0.0
         link.last_heard = time.monotonic()
         while True:

@@ -10,7 +10,6 @@ from fabline.link.controller import Grbl
 from fabline.link.journal import JournalError
 from fabline.link.ledger import Ledger, Undecided
 from fabline.link.report import Reporter, StreamInterrupted, StreamResult
-from fabline.machine.codes import explain_alarm, explain_error
 
 
 class Stopper:
@@ -28,9 +27,9 @@ class Stopper:
 
     def on_error(self, index: int | None, code: int | None) -> None:
         """The controller rejected a line: halt it, journal how far it got, and raise."""
-        ledger, journal = self.ledger, self.ledger.journal
+        ledger, journal, dialect = self.ledger, self.ledger.journal, self.controller.dialect
         if index is None:
-            raise StreamInterrupted(f"{self.url}: controller refused a resume command: {explain_error(code)}",
+            raise StreamInterrupted(f"{self.url}: controller refused a resume command: {dialect.explain_error(code)}",
                                     "error", ledger.done)
         line = ledger.program.lines[index]
         journal.commit()
@@ -39,7 +38,7 @@ class Stopper:
         journal.record("stopped", reason=f"error:{code} at file line {line.file_line}")
         journal.commit()
         raise StreamInterrupted(f"{ledger.program.name}:{line.file_line}: controller answered "
-                                f"{explain_error(code)}: {line.source.strip()}; stopped with "
+                                f"{dialect.explain_error(code)}: {line.source.strip()}; stopped with "
                                 f"{executed} lines executed", "error", executed)
 
     def on_alarm(self, code: int | None) -> None:
@@ -56,8 +55,8 @@ class Stopper:
         journal.record("done", count=executed)
         journal.record("stopped", reason=f"ALARM:{code}")
         journal.commit()
-        raise StreamInterrupted(f"{self.url}: {explain_alarm(code)} during file line {ledger.file_line(executed)}; "
-                                "check the machine, then run again with --resume --unlock", "alarm", executed)
+        raise StreamInterrupted(f"{self.url}: {self.controller.dialect.explain_alarm(code)} during file line "
+                                f"{ledger.file_line(executed)}; check the machine, then run again with --resume --unlock", "alarm", executed)
 
     def on_reset(self) -> None:
         """The controller reset itself mid-job (its banner came): journal it and raise."""
@@ -123,7 +122,7 @@ class Stopper:
             self.controller.feed_hold()  # again each time: a hold asked for while a line was parsing may not have taken
             status = link.query_status()
             if status.state == "Hold" and status.substate == 0:
-                status = link.query_status()  # answers the controller sent before this report are read by now
+                status = self._settled(status)
                 break
             if status.state in ("Idle", "Alarm", "Check") and not in_flight():
                 break
@@ -134,4 +133,16 @@ class Stopper:
                                         "resume with --from-line", "error", ledger.done)
             time.sleep(0.02)
         self.controller.soft_reset()  # first, so the machine is never left in a hold whatever the verdict
-        return ledger.executed_from_position(status, link.wco, status.state == "Idle", rejected)
+        return ledger.executed_from_position(status, link.wco, status.state == "Idle", rejected,
+                                             held=status.state == "Hold")
+
+    def _settled(self, status):
+        """The status of a finished hold once the `ok`s of lines the parser was still planning have come: two
+        reports in a row with no new `ok` (the planner's fill then tells the held line, `Ledger.planned_line`)."""
+        quiet, deadline = 0, time.monotonic() + 1.0
+        while quiet < 2 and time.monotonic() < deadline:
+            before = self.ledger.acked
+            time.sleep(0.02)
+            status = self.connection.query_status()
+            quiet = quiet + 1 if self.ledger.acked == before else 0
+        return status

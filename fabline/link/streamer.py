@@ -4,8 +4,9 @@
 runner use. It detects the controller, streams with character counting (or send-response), polls
 status, stops safely on `error:N`, alarms, an abort or a lost connection, and resumes from the last
 line known to be executed after re-establishing the modal state. How it knows what was executed:
-  * `ok` means parsed into the planner; a status report `Ln:N` means every line before N is done;
-    Idle with nothing in flight means every acknowledged line is done.
+  * `ok` means parsed into the planner; a status report `Ln:N` means every line before N is done, and so
+    does one whose position is on the first acknowledged line not known done that passes there; Idle with
+    nothing in flight means every acknowledged line is done. A line is done only once it has ended.
   * after a lost connection or a killed host it waits for the controller to finish, discards any
     half-received line (`#` + newline always fails to parse) and reads `$G`: its T word is the tag of
     the last line parsed, looked up among the lines the journal shows sent after its last `ok` (a batch's
@@ -15,9 +16,12 @@ line known to be executed after re-establishing the modal state. How it knows wh
   * after an alarm or a halt (feed hold + reset) the planner is flushed; the interrupted line is found
     from the stopped position within the window of lines that can still have been in the planner (the
     acknowledged lines back to `planner_blocks` motion lines, or the `Ln:` of builds that report it), and
-    it is run again from its start. A position that fits several lines of the window (a retraced path) is
-    refused, naming the candidate file lines, for the operator to choose with --from-line.
-  * a host that died during a feed hold: cycle start lets the controller finish what it holds, then `$G`.
+    it is re-sent from where the machine stands (an arc with its centre offsets from there). In a finished
+    hold a full planner (`Bf:`, or a straight move waiting for room) names the held line. A position that
+    still fits several lines of the window (a retraced path) is refused, naming the candidate file lines, for
+    the operator to choose with --from-line.
+  * a host that died during a feed hold: the settings its journal kept are checked, then cycle start lets the
+    controller finish what it holds, then `$G`.
 Motion is planned from the controller's work position at the start of the run (kept in the journal).
 Before the first move the controller's build (`$I`) and settings (`$$`) are checked against the program and
 its machine profile (`fabline.link.compat`); the port and the journal are locked for the whole run.
@@ -33,7 +37,7 @@ from pathlib import Path
 from typing import Callable
 
 from fabline.errors import FablineError
-from fabline.link.compat import controller_problems, program_machine
+from fabline.link.compat import controller_problems, feed_problems, program_machine
 from fabline.link.connection import Connection, Lost
 from fabline.link.controller import Grbl
 from fabline.link.controls import Controls, override_byte
@@ -45,7 +49,7 @@ from fabline.link.report import Progress, Reporter, StreamInterrupted, StreamRes
 from fabline.link.sender import MODES, Sender, check_mode
 from fabline.link.stopping import Stopper
 from fabline.locks import exclusive_lock, lock_path
-from fabline.machine.build import ANY_BUILD
+from fabline.machine.build import ANY_BUILD, BuildInfo
 from fabline.machine.gcode import ModalState
 from fabline.machine.program import Program, load_program
 
@@ -275,6 +279,8 @@ class Streamer:
         ledger.origin = origin
         ledger.blocks = self.program.plan(ModalState(), origin, ANY_BUILD)
         problems = self._check_controller() if self.controller.settings else None  # unless found busy or in alarm
+        if problems is None and previous is not None and start_line is None:
+            self._check_held(previous)
         if previous is None:
             executed = 0
         elif start_line is not None:  # the operator's choice overrides anything the journal would infer
@@ -301,7 +307,9 @@ class Streamer:
         """Stream with the journal open, from `executed` lines on; recover in place from a lost connection."""
         program, ledger, journal = self.program, self.ledger, self.ledger.journal
         journal.record("start", program=program.name, sha256=program.sha256, lines=len(program.lines),
-                       mode=self.mode, origin=list(ledger.origin), identity=identity)
+                       mode=self.mode, origin=list(ledger.origin), identity=identity,
+                       settings={str(number): value for number, value in self.controller.settings.items()},
+                       build=self.controller.build.lines())
         if forced:
             journal.record("forced", problems=forced)
             self.connection.exchange("#", "--force: streaming despite: " + "; ".join(forced))
@@ -320,7 +328,7 @@ class Streamer:
         self.reporter.start()  # elapsed counts streaming, not the handshake
         while True:
             try:
-                return self.sender.stream(preamble)
+                return self.sender.stream(preamble, self.recovery.first_line if preamble else None)
             except JournalError as exc:
                 self.stopper.unrecorded(exc)
             except Lost as exc:
@@ -341,14 +349,30 @@ class Streamer:
                 journal.record("resume", count=executed)
                 journal.commit()
 
-    def _check_controller(self) -> list[str]:
+    def _check_held(self, previous: JournalState) -> None:
+        """Before a resume lets a held controller go on: check the settings and build the interrupted run journaled
+        (a held Grbl refuses `$$`, and nothing can change them while it holds); refuse when it journaled none."""
+        if self.connection.status is None or self.connection.status.state != "Hold":
+            return
+        if previous.settings:
+            self._check_controller(previous.settings, BuildInfo.parse(previous.build or []))
+        else:
+            raise FablineError(f"{self.url}: the controller is held by the interrupted run, and its settings can be "
+                               "checked neither now (Grbl answers $$ only when idle) nor from the journal (an older "
+                               "fabline wrote it): check the part, then resume with --resume --from-line N")
+
+    def _check_controller(self, settings: dict[int, float] | None = None, build: BuildInfo | None = None) -> list[str]:
         """Refuse a controller whose build or settings conflict with the program or its profile (one line naming the
-        setting and the fix), unless `force`; return the problems forced past."""
+        setting and the fix), unless `force`; return the problems forced past. Capped feeds that only run slower
+        are noted in the exchange log."""
         controller = self.controller
-        if not controller.settings:  # not read when the controller was found in alarm or busy
+        if settings is None and not controller.settings:  # not read when the controller was found in alarm or busy
             controller.read_build_info()
-        problems = controller_problems(self.program, self.ledger.blocks, self.ledger.origin, controller.settings,
-                                       controller.build, self.profile, self.connection.wco, controller.dialect)
+        settings, build = settings or controller.settings, build or controller.build
+        problems = controller_problems(self.program, self.ledger.blocks, self.ledger.origin, settings, build,
+                                       self.profile, self.connection.wco, controller.dialect)
+        for note in feed_problems(self.program, self.ledger.blocks, settings)[1]:
+            self.connection.exchange("#", f"note: {note}")
         if problems and not self.force:
             more = f" (and {len(problems) - 1} more conflict{'s' if len(problems) > 2 else ''})" if len(problems) > 1 else ""
             raise FablineError(f"{problems[0]}{more}; nothing was sent (--force streams anyway)")

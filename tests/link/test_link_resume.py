@@ -93,13 +93,32 @@ def test_a_halt_on_a_retraced_pass_resumes_there_not_on_the_first_pass(tmp_path,
     assert exactly_once(program, url)
 
 
-def test_a_position_several_window_lines_pass_is_refused_naming_them_then_from_line_resumes(tmp_path, sim):
+def test_a_halt_on_a_zigzag_while_lines_wait_for_planner_room_is_placed_by_the_planners_fill(tmp_path, sim):
+    """Back and forth over 3 mm 12 times: a halt's position lies on several passes of the window, but with the next
+    move waiting for planner room the planner is full, so the held line is the oldest of its 15 blocks."""
     zigzag = [f"G1 X{x}" for _ in range(12) for x in (1, 2, 3, 2, 1, 0)]
     program = write(tmp_path / "zigzag.gcode", ["G0 X0 Y10"] + zigzag)
     url = sim(time_scale=2)
     streamer = Streamer(url, status_interval=0.02)
+    result = streamer.run(program, on_progress=abort_when(streamer, lambda p: p.acked >= 40))
+    assert result.reason == "aborted"
+    executed = executed_file_lines(log_of(url))
+    assert result.executed == len(executed) and executed == expected(program)[: len(executed)]
+    simulator_of(url).time_scale = 200
+    assert Streamer(url, status_interval=0.02).run(program, resume=True).completed
+    assert exactly_once(program, url)
+
+
+def test_a_position_several_window_lines_pass_is_refused_naming_them_then_from_line_resumes(tmp_path, sim):
+    """The whole zigzag answered (nothing waits for planner room: M5 waits for an empty planner, its fill says
+    nothing) and no status report while it ran (polled every 10 s) to tell which pass the machine was on: halted on
+    its way, the position fits several passes, so the candidates are named for the operator's --from-line."""
+    zigzag = [f"G1 X{x}" for _ in range(2) for x in (1, 2, 3, 2, 1, 0)]
+    program = write(tmp_path / "zigzag.gcode", ["G0 X0 Y10"] + zigzag)
+    url = sim(time_scale=2)  # the travel to X0 Y10 takes 0.8 s, the zigzag 2.2 s more
+    streamer = Streamer(url, status_interval=10)
     with pytest.raises(StreamInterrupted) as stopped:
-        streamer.run(program, on_progress=abort_when(streamer, lambda p: p.acked >= 40))
+        streamer.run(program, on_progress=abort_when(streamer, lambda p: p.elapsed > 1.5))
     assert stopped.value.reason == "undecided" and "where the path passes more than once" in str(stopped.value)
     candidates = [int(n) for n in str(stopped.value).split("(one of ")[1].rstrip(")").split(", ")]
     assert len(candidates) >= 2
@@ -192,6 +211,31 @@ def test_travel_soft_limits_and_build_options_are_checked(tmp_path, sim, body, o
         Streamer(url).run(program)
     assert message in str(refused.value) and "nothing was sent" in str(refused.value)
     assert not log_of(url).exists() or executed_file_lines(log_of(url)) == []
+
+
+def test_a_feed_above_the_max_rates_with_the_laser_at_constant_power_is_refused_before_anything_is_sent(tmp_path,
+                                                                                                        sim):
+    """$110 = $111 = 5000 mm/min and F6000: Grbl caps a move so that no axis runs over its max rate
+    (limit_value_by_axis_maximum): along X the cap is 5000 / 1 = 5000 < 6000, on the diagonal to (10, 10) it is
+    5000 / (1/sqrt 2) = 7071 > 6000. With M3 in laser mode the power stays while the cut slows: refused, naming
+    the move along X (file line 9); with M4 (power follows the speed) it streams, and the log notes the cap."""
+    body = ["G1 X10 Y10", "G1 X20"]
+    program = tmp_path / "fast.gcode"
+    program.write_text("\n".join(["G21", "G90", "G17", "G94", "M3 S800", "F6000", "G0 X0 Y0"] + body + ["M5", "M2"])
+                       + "\n", encoding="ascii")
+    url = sim(settings="32:1,110:5000,111:5000")
+    with pytest.raises(FablineError) as refused:
+        Streamer(url).run(program)
+    message = str(refused.value)
+    assert message.startswith(f"{program}:9: feed 6000 mm/min is above what the controller's max rates "
+                              "($110..$112) allow along this move, 5000 mm/min: Grbl caps it and with the laser at "
+                              "constant power (M3) the slower cut burns more than planned")
+    assert "nothing was sent" in message and (not log_of(url).exists() or executed_file_lines(log_of(url)) == [])
+    program.write_text(program.read_text().replace("M3 S800", "M4 S800"), encoding="ascii")
+    exchange = tmp_path / "exchange.log"
+    assert Streamer(url, status_interval=0.02, exchange_log=exchange).run(program).completed
+    assert f"note: {program}:9: feed 6000 mm/min is above" in exchange.read_text()
+    assert "the cut runs slower than planned" in exchange.read_text()
 
 
 def test_the_receive_buffer_comes_from_the_build(tmp_path, sim):
@@ -302,6 +346,35 @@ def test_a_controller_moved_after_its_host_died_is_not_resumed_by_its_tag_alone(
     assert executed_file_lines(log_of(url)) == ran
     first_not_cut = expected(program)[len(ran)]
     assert Streamer(url, status_interval=0.02).run(program, resume=True, start_line=first_not_cut).completed
+    assert exactly_once(program, url)
+
+
+def test_a_held_controller_whose_host_died_is_checked_before_the_resume_lets_it_go_on(tmp_path, sim):
+    """The host died with the machine held mid-sheet; the resume names a profile the controller conflicts with
+    (grbl-plotter needs $32=0, it has $32=1): refused before the cycle start that would let it cut what it holds
+    (a held Grbl answers `$$` with error:8: the run's journaled settings are checked), nothing run, still held."""
+    program = write(tmp_path / "held.gcode", sawtooth(120))
+    url = sim(time_scale=10)
+    streamer = Streamer(url, status_interval=0.02)
+
+    def pause_then_die(progress):
+        if progress.acked > 40 and not streamer.paused:
+            streamer.pause()
+        elif streamer.paused and progress.state == "Hold":
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        streamer.run(program, on_progress=pause_then_die)
+    controller, deadline = simulator_of(url), time.monotonic() + 10
+    while controller._hold != "complete":
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    ran = executed_file_lines(log_of(url))
+    with pytest.raises(FablineError, match=r"machine grbl-plotter needs .*nothing was sent"):
+        Streamer(url, status_interval=0.02).run(program, resume=True, machine="grbl-plotter")
+    time.sleep(0.2)
+    assert controller.state == "Hold" and executed_file_lines(log_of(url)) == ran
+    assert Streamer(url, status_interval=0.02).run(program, resume=True).completed
     assert exactly_once(program, url)
 
 
