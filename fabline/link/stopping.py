@@ -56,7 +56,8 @@ class Stopper:
         journal.record("stopped", reason=f"ALARM:{code}")
         journal.commit()
         raise StreamInterrupted(f"{self.url}: {self.controller.dialect.explain_alarm(code)} during file line "
-                                f"{ledger.file_line(executed)}; check the machine, then run again with --resume --unlock", "alarm", executed)
+                                f"{ledger.file_line(executed)}; check the machine, then run again with --resume --unlock",
+                                "alarm", executed)
 
     def on_reset(self) -> None:
         """The controller reset itself mid-job (its banner came): journal it and raise."""

@@ -25,7 +25,7 @@ from fabline.link.protocol_sim import close_simulator, get_simulator
 from fabline.machine import load_program
 from fabline.machine.build import BuildInfo
 
-from .test_link_campaign import HOST, REPO, SETTINGS, random_program, recover
+from .campaign_cases import HOST, REPO, SETTINGS, random_program, recover
 
 FIRMWARES = ("grbl", "grblhal", "fluidnc")
 
