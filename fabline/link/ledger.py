@@ -18,7 +18,7 @@ from typing import Callable
 from fabline.errors import FablineError
 from fabline.link.controller import Grbl
 from fabline.link.protocol import CharacterCounter, Response, StatusReport
-from fabline.machine.gcode import ModalState, Segment, Vector
+from fabline.machine.gcode import ModalState, Vector
 from fabline.machine.program import Program
 
 SEGMENT_BUFFER = 6
@@ -207,14 +207,14 @@ class Ledger:
                 # next motion (acknowledged) and off this one beyond the reports' rounding: a few microns past
                 after = following[number + 1]
                 if (any(self.synchronizes(later) for later in range(index + 1, min(after, self.acked)))
-                        or after < self.acked and on_path(self.blocks[after].segment, position, ROUNDING)
-                        and not on_path(segment, position, 2 * ROUNDING)):
+                        or after < self.acked and self.blocks[after].segment.contains(position, ROUNDING)
+                        and not segment.contains(position, 2 * ROUNDING)):
                     counts.add(min(max(self.acked, index + 1), after))
                 else:
                     counts.add(index)
                     ended.add(min(max(self.acked, index + 1), after))
             elif (math.dist(position, segment.start) > POSITION_TOLERANCE
-                  and on_path(segment, position)):
+                  and segment.contains(position, POSITION_TOLERANCE)):
                 counts.add(index)
         return {count for count in counts if count >= self.done}, {count for count in ended if count >= self.done}
 
@@ -225,7 +225,7 @@ class Ledger:
         out as the machine is seen past them)."""
         for index in range(self.done, min(self.acked, len(self.blocks))):
             segment = self.blocks[index].segment
-            if segment is not None and segment.length > 0 and on_path(segment, position):
+            if segment is not None and segment.length > 0 and segment.contains(position, POSITION_TOLERANCE):
                 return index
         return None
 
@@ -278,7 +278,7 @@ class Ledger:
     def fits(self, index: int, position: Vector) -> bool:
         """Whether `position` lies on the path of line `index` (its ends within the tolerance included)."""
         segment = self.blocks[index].segment
-        return segment is not None and on_path(segment, position)
+        return segment is not None and segment.contains(position, POSITION_TOLERANCE)
 
     def moves(self, index: int) -> bool:
         segment = self.blocks[index].segment
@@ -304,21 +304,3 @@ class Ledger:
         if strict:
             raise FablineError(f"{self.program.name}:{file_line}: no G-code command on that line to restart from")
         return None
-
-
-def on_path(segment: Segment, point: Vector, tolerance: float = POSITION_TOLERANCE) -> bool:
-    """Whether `point` lies on `segment` within `tolerance`: a straight move by projection, an arc by its radius
-    and sweep (no sampling: it is asked for every status report a stop looks back on)."""
-    if segment.center is None:
-        return segment.contains(point, tolerance)
-    if math.dist(point, segment.start) <= tolerance or math.dist(point, segment.end) <= tolerance:
-        return True
-    a, b, c = segment.plane
-    radius, angle0, sweep = segment._arc()
-    if abs(math.hypot(point[a] - segment.center[a], point[b] - segment.center[b]) - radius) > tolerance:
-        return False
-    turned = math.atan2(point[b] - segment.center[b], point[a] - segment.center[a]) - angle0
-    turned = turned % (2 * math.pi) if sweep > 0 else -((-turned) % (2 * math.pi))
-    if not 0 <= turned / sweep <= 1:
-        return False
-    return abs(point[c] - (segment.start[c] + (segment.end[c] - segment.start[c]) * turned / sweep)) <= tolerance

@@ -17,7 +17,7 @@ from fabline.errors import FablineError
 from fabline.link.connection import Connection
 from fabline.link.controller import Grbl
 from fabline.link.journal import JournalState, read_journal
-from fabline.link.ledger import POSITION_TOLERANCE, Ledger, Undecided, file_line, on_path
+from fabline.link.ledger import POSITION_TOLERANCE, Ledger, Undecided, file_line
 from fabline.machine.gcode import ModalState, Vector
 from fabline.machine.program import TAG_CYCLE, Program, line_tag
 
@@ -191,7 +191,7 @@ class Recovery:
         start is its end would be a full circle). None when the machine does not stand on the line's path."""
         block, line = self.ledger.blocks[index], self.ledger.program.lines[index]
         segment = block.segment
-        if segment is None or math.dist(here, segment.start) <= POSITION_TOLERANCE or not on_path(segment, here):
+        if segment is None or math.dist(here, segment.start) <= POSITION_TOLERANCE or not segment.contains(here, POSITION_TOLERANCE):
             return None
         if segment.center is None:
             return line.wire

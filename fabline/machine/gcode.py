@@ -159,16 +159,25 @@ class Segment:
         return points
 
     def contains(self, point: Vector, tolerance: float) -> bool:
-        """Whether `point` lies on this path within `tolerance` mm."""
+        """Whether `point` lies on this path within `tolerance` mm: a straight move by projection, an arc by its
+        radius, sweep and rise (no sampling: a stopped machine is matched against every line it may have been on)."""
         if self.center is None:
             start, end = self.start, self.end
             span = [e - s for s, e in zip(start, end)]
             norm2 = sum(d * d for d in span)
             t = 0.0 if norm2 == 0 else max(0.0, min(1.0, sum((p - s) * d for p, s, d in zip(point, start, span)) / norm2))
             return math.dist(point, self.point_at(t)) <= tolerance
-        samples = max(8, int(self.length / max(tolerance, 1e-3)) + 1)
-        samples = min(samples, 20000)
-        return any(math.dist(point, self.point_at(i / samples)) <= tolerance * 2 for i in range(samples + 1))
+        if math.dist(point, self.start) <= tolerance or math.dist(point, self.end) <= tolerance:
+            return True
+        a, b, c = self.plane
+        radius, angle0, sweep = self._arc()
+        if abs(math.hypot(point[a] - self.center[a], point[b] - self.center[b]) - radius) > tolerance:
+            return False
+        turned = math.atan2(point[b] - self.center[b], point[a] - self.center[a]) - angle0
+        turned = turned % (2 * math.pi) if sweep > 0 else -((-turned) % (2 * math.pi))
+        if not 0 <= turned / sweep <= 1:
+            return False
+        return abs(point[c] - (self.start[c] + (self.end[c] - self.start[c]) * turned / sweep)) <= tolerance
 
 
 @dataclass(frozen=True)

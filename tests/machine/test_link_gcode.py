@@ -184,3 +184,20 @@ def test_word_splitting_agrees_with_pygcode():
         got = split_words(line)
         assert [w[0] for w in got] == [w[0] for w in expected], line
         assert all(math.isclose(a[1], b[1]) for a, b in zip(got, expected)), line
+
+
+def test_a_point_on_an_arc_is_told_by_its_radius_sweep_and_rise():
+    """Segment.contains for a helical quarter arc of radius 10 about (0, 0) from (10, 0, 0) to (0, 10, 5), counter-
+    clockwise: points by the closed form (10 cos t, 10 sin t, 5 t / (pi/2)) are on it, and not off the radius, past
+    the sweep (the other three quarters of the circle) or off the rise."""
+    from fabline.machine.gcode import Segment
+
+    arc = Segment((10.0, 0.0, 0.0), (0.0, 10.0, 5.0), rapid=False, center=(0.0, 0.0, 0.0))
+    for t in (0.1, 0.7, 1.3):
+        assert arc.contains((10 * math.cos(t), 10 * math.sin(t), 5 * t / (math.pi / 2)), 0.01)
+        assert not arc.contains((10.02 * math.cos(t), 10.02 * math.sin(t), 5 * t / (math.pi / 2)), 0.01)
+        assert not arc.contains((10 * math.cos(t), 10 * math.sin(t), 5 * t / (math.pi / 2) + 0.02), 0.01)
+    for t in (2.0, 3.5, 5.5, -0.05):
+        assert not arc.contains((10 * math.cos(t), 10 * math.sin(t), 0.0), 0.01)
+    clockwise = Segment((10.0, 0.0, 0.0), (0.0, 10.0, 0.0), rapid=False, center=(0.0, 0.0, 0.0), clockwise=True)
+    assert clockwise.contains((0.0, -10.0, 0.0), 0.01) and not clockwise.contains((7.071, 7.071, 0.0), 0.01)
