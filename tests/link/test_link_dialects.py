@@ -296,3 +296,48 @@ def test_status_reports_of_grblhal_and_fluidnc_are_read():
         ("Run", 42, 1500.0, 12000.0, 1012, "P")
     fluidnc = classify("<Hold:0|MPos:1.000,2.000,0.000|FS:0,0|Pn:XY|SD:12.50,/sd/sheet.nc>")
     assert fluidnc.kind == "status" and fluidnc.status.substate == 0 and fluidnc.status.pins == "XY"
+
+
+@pytest.fixture(scope="module")
+def pavilion_sheet(tmp_path_factory) -> Path:
+    """The first sheet of a pavilion-like job (lamella strips with slots, marks and labels, washers, clamps) as
+    `export` writes it for the grbl-laser profile: lead-ins, tabs, arcs, the laser armed once."""
+    from fabline.export.job import export_job
+    from fabline.export.samplejob import pavilion_job
+    from fabline.export.toolpath import ToolpathOptions
+    from fabline.machine import load_machine
+
+    nesting, partset = pavilion_job(strips=24, washers=60, clamps=12)
+    nesting.sheets = nesting.sheets[:1]
+    profile = load_machine("grbl-laser")
+    folder = tmp_path_factory.mktemp("pavilion")
+    export_job(nesting, {part.id: part for part in partset.parts}, profile, ToolpathOptions.for_profile(profile),
+               gcode_dir=folder, name="pavilion")
+    return next(folder.glob("pavilion_*.gcode"))
+
+
+@pytest.mark.parametrize("firmware", FIRMWARES)
+def test_a_pavilion_sheet_killed_mid_stream_resumes_exactly_once_on_each_firmware(pavilion_sheet, tmp_path, firmware):
+    """An exported sheet streamed to each firmware's stock build set up as the grbl-laser machine (laser mode, a
+    4100 x 2100 mm bed), the host SIGKILLed after a third of its lines were answered, then `--resume`: every
+    program line ran exactly once, in order (the simulator's executed-line log)."""
+    program = tmp_path / pavilion_sheet.name
+    program.write_bytes(pavilion_sheet.read_bytes())
+    lines = load_program(program).lines
+    assert len(lines) > 2000
+    log, journal = tmp_path / "executed.log", Path(f"{program}.journal")
+    with SimulatorServer(log=log, time_scale=2000, machine="grbl-laser", faults={"firmware": firmware}) as server:
+        host = subprocess.Popen([sys.executable, "-c", HOST, server.url, str(program)], stderr=subprocess.PIPE,
+                                env={**os.environ, "PYTHONPATH": str(REPO)})
+        deadline = time.monotonic() + 120
+        while host.poll() is None and time.monotonic() < deadline and (
+                not journal.exists() or journal.read_text().count('"event":"ok"') < len(lines) // 3):
+            time.sleep(0.01)
+        host.send_signal(signal.SIGKILL)
+        host.wait()
+        assert not read_journal(journal).finished, "the sheet finished before the kill: lower the time scale"
+        executed = lambda: executed_file_lines(log)  # noqa: E731
+        assert 0 < len(executed()) < len(lines)
+        outcome: list[str] = []
+        recover(server.url, program, executed, outcome)
+    assert executed_file_lines(log) == [line.file_line for line in lines]
