@@ -225,6 +225,27 @@ def test_fluidnc_travel_too_short_names_its_config_key(tmp_path, sim):
 
 
 # ----- exact-once through a killed host, per dialect -------------------------------------------------------------
+def _killed_and_resumed(program: Path, share: int, server: SimulatorServer, log: Path) -> None:
+    """Stream `program` from a host process, SIGKILL it once 1/`share` of the lines were answered, then recover as
+    documented (--resume, or the operator's --from-line where fabline names the candidates): every line ran
+    exactly once, in order, by the simulator's executed-line `log`."""
+    lines = load_program(program).lines
+    journal = Path(f"{program}.journal")
+    host = subprocess.Popen([sys.executable, "-c", HOST, server.url, str(program)], stderr=subprocess.PIPE,
+                            env={**os.environ, "PYTHONPATH": str(REPO)})
+    deadline = time.monotonic() + 120
+    while host.poll() is None and time.monotonic() < deadline and (
+            not journal.exists() or journal.read_text().count('"event":"ok"') < len(lines) // share):
+        time.sleep(0.005)
+    host.send_signal(signal.SIGKILL)
+    host.wait()
+    assert not read_journal(journal).finished, "the job finished before the kill: make it longer or slower"
+    executed = lambda: executed_file_lines(log)  # noqa: E731
+    assert 0 < len(executed()) < len(lines)
+    recover(server.url, program, executed, [])
+    assert executed_file_lines(log) == [line.file_line for line in lines]
+
+
 @pytest.mark.parametrize("firmware", FIRMWARES)
 def test_a_job_killed_mid_stream_resumes_exactly_once_on_each_firmware(tmp_path, firmware):
     """The campaign's laser programs (out-and-back paths, arcs, dwells, power changes) on each firmware's stock
@@ -232,23 +253,9 @@ def test_a_job_killed_mid_stream_resumes_exactly_once_on_each_firmware(tmp_path,
     rng = random.Random(f"dialect-{firmware}")
     program = tmp_path / "sheet.gcode"
     program.write_text("\n".join(random_program(rng, (0.0, 0.0))) + "\n", encoding="ascii")
-    lines = load_program(program).lines
-    log, journal = tmp_path / "executed.log", Path(f"{program}.journal")
+    log = tmp_path / "executed.log"
     with SimulatorServer(log=log, time_scale=20, faults={"settings": SETTINGS, "firmware": firmware}) as server:
-        host = subprocess.Popen([sys.executable, "-c", HOST, server.url, str(program)], stderr=subprocess.PIPE,
-                                env={**os.environ, "PYTHONPATH": str(REPO)})
-        deadline = time.monotonic() + 60
-        while host.poll() is None and time.monotonic() < deadline and (
-                not journal.exists() or journal.read_text().count('"event":"ok"') < len(lines) // 4):
-            time.sleep(0.005)
-        host.send_signal(signal.SIGKILL)
-        host.wait()
-        assert not read_journal(journal).finished, "the job finished before the kill: make it longer"
-        executed = lambda: executed_file_lines(log)  # noqa: E731
-        assert 0 < len(executed()) < len(lines)
-        outcome: list[str] = []
-        recover(server.url, program, executed, outcome)
-    assert executed_file_lines(log) == [line.file_line for line in lines]
+        _killed_and_resumed(program, 4, server, log)
 
 
 def test_alarms_beyond_grbl_are_explained_in_each_dialects_numbering():
@@ -323,21 +330,7 @@ def test_a_pavilion_sheet_killed_mid_stream_resumes_exactly_once_on_each_firmwar
     program line ran exactly once, in order (the simulator's executed-line log)."""
     program = tmp_path / pavilion_sheet.name
     program.write_bytes(pavilion_sheet.read_bytes())
-    lines = load_program(program).lines
-    assert len(lines) > 2000
-    log, journal = tmp_path / "executed.log", Path(f"{program}.journal")
+    assert len(load_program(program).lines) > 2000
+    log = tmp_path / "executed.log"
     with SimulatorServer(log=log, time_scale=2000, machine="grbl-laser", faults={"firmware": firmware}) as server:
-        host = subprocess.Popen([sys.executable, "-c", HOST, server.url, str(program)], stderr=subprocess.PIPE,
-                                env={**os.environ, "PYTHONPATH": str(REPO)})
-        deadline = time.monotonic() + 120
-        while host.poll() is None and time.monotonic() < deadline and (
-                not journal.exists() or journal.read_text().count('"event":"ok"') < len(lines) // 3):
-            time.sleep(0.01)
-        host.send_signal(signal.SIGKILL)
-        host.wait()
-        assert not read_journal(journal).finished, "the sheet finished before the kill: lower the time scale"
-        executed = lambda: executed_file_lines(log)  # noqa: E731
-        assert 0 < len(executed()) < len(lines)
-        outcome: list[str] = []
-        recover(server.url, program, executed, outcome)
-    assert executed_file_lines(log) == [line.file_line for line in lines]
+        _killed_and_resumed(program, 3, server, log)
