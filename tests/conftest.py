@@ -5,6 +5,7 @@ from __future__ import annotations
 import atexit
 import os
 import shutil
+import signal
 import tempfile
 
 import pytest
@@ -16,6 +17,11 @@ from fabline.model.designs import catenoid_network, enneper_network, helicoid_ne
 # runner servers the tests start publish a discovery record in the user's state folder: a folder of the tests' own
 os.environ["XDG_STATE_HOME"] = tempfile.mkdtemp(prefix="fabline-test-state-")
 atexit.register(shutil.rmtree, os.environ["XDG_STATE_HOME"], True)
+
+# the Ctrl-C tests send SIGINT as a terminal does; a shell's background job starts with SIGINT ignored, and every
+# process it starts would inherit that, so the tests run with Python's own handler, as from a terminal
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session")
