@@ -37,7 +37,7 @@ NAME_MAX = 100
 their prefix), which must stay under the file systems' 255 bytes."""
 """Bytes a job file may have (a job file is a page of TOML; anything larger is a mistake or an attack)."""
 _TYPE_NAMES = {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
-               dict: "a table"}
+               dict: "a table", object: "a number or a string"}
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ SCHEMA: dict[str, Any] = {
                "end_length": Length(), "compensate_twist": Key(bool), "singularity": Key(str),
                "hardware": Key(bool), "text_height": Length(), "min_crossing_angle": Key(float),
                "strict": Key(bool), "previews": Key(bool, default=False), "edge_members": Key(bool),
-               "edge_width": Length()},
+               "edge_width": Length(), "cable_pretension": Key(object), "cable_end_allowance": Length()},
     "nest": {"kerf": Length(0.2), "gap": Length(3.0), "sheet_margin": Length(10.0),
              "rotations": Key(int, default=4), "time_limit": Key(float, default=10.0),
              "common_line": Key(bool, default=False), "fill_holes": Key(bool, default=False),
@@ -394,7 +394,11 @@ def unroll_options(lamella: dict[str, Any], unroll: dict[str, Any], stock: dict[
     from fabline.mechanics.materials import get_material, parse_profile
     from fabline.unroll.options import UnrollOptions
 
+    from fabline.unroll.cables import parse_pretension
+
     given = {key: value for key, value in unroll.items() if value is not None and key != "previews"}
+    if "cable_pretension" in given:
+        given["cable_pretension"] = parse_pretension(given["cable_pretension"], "unroll.cable_pretension")
     given.setdefault("sheet_length", _sheet_length(stock))
     given.setdefault("sheet_margin", nest["sheet_margin"])
     options = UnrollOptions(profile=parse_profile(lamella["profile"]),

@@ -75,13 +75,14 @@ def build_network(spec: JobSpec) -> "Network":
 def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) -> JobResult:
     """Run the job's stages up to export and write the report; returns the result with the sheet programs. The
     stages are one `OutputSet`: a stage that refuses its input leaves the output folder as it was."""
+    from fabline.jobs.bom import BOM_NAME
     from fabline.model import save_network
     from fabline.model.extent import extent_text
 
     spec = job if isinstance(job, JobSpec) else load_job_file(job)
     timings: dict[str, float] = {}
     report = spec.report_name
-    names = ("network.json", "parts.json", "nesting.json", report, Path(report).with_suffix(".json"))
+    names = ("network.json", "parts.json", "nesting.json", report, Path(report).with_suffix(".json"), BOM_NAME)
     with OutputSet():  # a stage refused (or Ctrl-C) removes what every stage before it wrote: the folder is as it was
         check_outputs(files=[spec.output(name) for name in names],
                       folders=[spec.output(name) for name in ("dxf", "gcode", "sheets")],
@@ -157,8 +158,12 @@ def write_report(result: JobResult) -> Path:
     spec = result.spec
     data = report_data(result)
     result.report_path = spec.output(spec.report_name)
-    with OutputSet():  # the page and its twin as one: a failure leaves the last complete pair
+    with OutputSet():  # the page, its twin and the bill's CSV as one: a failure leaves the last complete set
         write_json(spec.output(Path(spec.report_name).with_suffix(".json")), data)
+        if data["bill_of_materials"]:
+            from fabline.jobs.bom import BOM_NAME, write_bom_csv
+
+            write_bom_csv(data["bill_of_materials"]["items"], spec.output(BOM_NAME))
         with atomic_output(result.report_path) as handle:
             handle.write(render_report(result, data))
     return result.report_path

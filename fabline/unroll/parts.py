@@ -127,6 +127,7 @@ class PartSet:
     material: str = ""
     source: str = ""
     report: dict = field(default_factory=dict)
+    cables: list[dict] = field(default_factory=list)  # bracing cable runs (bought, not cut): `fabline.unroll.cables`
 
 
 def _same_contour(a: np.ndarray, b: np.ndarray) -> bool:
@@ -174,6 +175,7 @@ def parts_to_dict(partset: PartSet, arrays: bool = False) -> dict[str, Any]:
         "profile": partset.profile,
         "material": partset.material,
         "report": partset.report,
+        "cables": partset.cables,
         "parts": [
             {
                 "id": p.id, "kind": p.kind, "lamella": p.lamella, "label": p.label, "grain": p.grain,
@@ -275,7 +277,7 @@ def parts_from_dict(data: Any, source: str = "parts") -> PartSet:
             nodes=_field_list(raw, "nodes", where), meta=_field(raw, "meta", dict, where),
         ))
     return PartSet(parts, _field(data, "profile", dict, source), str(data.get("material", "")),
-                   str(data.get("source", "")), _field(data, "report", dict, source))
+                   str(data.get("source", "")), _field(data, "report", dict, source), _field(data, "cables", list, source))
 
 
 class _ContourPool:

@@ -16,6 +16,7 @@ from fabline.geometry.offsets import OffsetCurve
 from fabline.model.network import Network
 from fabline.progress import progress
 from fabline.unroll.batch import straight_flags, straight_parts
+from fabline.unroll.cables import CableSettings, cable_runs, cable_summary, clamp_lift
 from fabline.unroll.collector import collector_paused
 from fabline.unroll.hardware import (HardwareSizes, checkerboard, clamp, clamp_ids, singularity_joints, washer_ids,
                                      washer_keys, washers)
@@ -59,8 +60,13 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
     if options.strict and warnings:
         more = f" (and {len(warnings) - 1} more warnings)" if len(warnings) > 1 else ""
         raise FablineError(warnings[0] + more)
+    cables = None
     if options.hardware:
-        parts.extend(hardware_parts(geometry, options, sizes))
+        hardware = hardware_parts(geometry, options, sizes)
+        parts.extend(hardware)
+        cables = cable_runs(geometry.network, {p.meta["node"] for p in hardware if p.kind == "clamp"},
+                            clamp_lift(options.profile.h, options.profile.t, sizes),
+                            CableSettings(options.cable_pretension, options.cable_end_allowance))
     edges = None
     if options.edge_members:
         from fabline.unroll.edges import edge_parts
@@ -81,8 +87,10 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
     }
     if edges is not None:
         report["edges"] = edges
+    if cables is not None:
+        report["cables"] = cable_summary(cables, options, clamp_lift(options.profile.h, options.profile.t, sizes))
     profile = {"h": options.profile.h, "t": options.profile.t, "name": str(options.profile)}
-    return PartSet(parts, profile, options.material.name, network.name, report)
+    return PartSet(parts, profile, options.material.name, network.name, report, cables or [])
 
 
 def _segment_parts(segments: list[Segment], options: UnrollOptions) -> list[Part]:
