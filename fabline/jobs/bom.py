@@ -143,7 +143,7 @@ def part_items(parts: list[Part], thickness: float, kg_per_mm3: float) -> list[d
         length = sum(float(p.meta.get("length_mm", 0.0)) for p in members)
         rows.append({"item": kind, "kind": "cut part", "size": f"t {thickness:g}",
                      "length_mm": round(length, 1) if length else None, "count": len(members),
-                     "unit_mass_kg": round(mass / len(members), 4), "total_mass_kg": round(mass, 2),
+                     "unit_mass_kg": round(mass / len(members), 5), "total_mass_kg": round(mass, 2),
                      "per": "cut from the sheets" + (" (length: their total)" if length else "")})
     return rows
 

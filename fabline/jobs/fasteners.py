@@ -35,7 +35,7 @@ def hole_across(hole: np.ndarray) -> float:
 
 def _row(item: str, bolt: Bolt, count: int, per: str) -> dict[str, Any]:
     return {"item": f"{item} {bolt.name}", "kind": "fastener", "size": bolt.size.name, "length_mm": bolt.length,
-            "count": count, "unit_mass_kg": round(bolt.mass_g / 1000.0, 4),
+            "count": count, "unit_mass_kg": round(bolt.mass_g / 1000.0, 5),
             "total_mass_kg": round(bolt.mass_g * count / 1000.0, 3), "per": per, "grip_mm": round(bolt.grip, 2)}
 
 
@@ -89,6 +89,6 @@ def edge_fasteners(parts: list[Part], h: float, t: float, catalogue: Catalogue) 
     tube_g = np.pi / 4.0 * (outer ** 2 - (outer - 2 * wall) ** 2) * h * catalogue.density * 1e-6
     rows.append({"item": f"spacer tube {outer:g} x {wall:g} for {size.name}", "kind": "fastener",
                  "size": f"{outer:g}x{wall:g}", "length_mm": h, "count": len(layers),
-                 "unit_mass_kg": round(tube_g / 1000.0, 4), "total_mass_kg": round(tube_g * len(layers) / 1000.0, 3),
+                 "unit_mass_kg": round(tube_g / 1000.0, 5), "total_mass_kg": round(tube_g * len(layers) / 1000.0, 3),
                  "per": "edge node: between the top and bottom edge bars", "grip_mm": None})
     return rows
