@@ -47,6 +47,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="cut the bracing cables this much short: '1 mm/m', '0.1 %%' (default 1 mm/m)")
     unroll.add_argument("--cable-end-allowance", type=length_mm, default=80.0, metavar="MM",
                         help="cable beyond each end clamp's centre, for its outer hole and end stop (default 80 mm)")
+    unroll.add_argument("--supports", action=argparse.BooleanOptionalAction, default=False,
+                        help="also a bracket (fin and base plate) at every support node, cut from plate")
+    unroll.add_argument("--support-plate", type=length_mm, default=6.0, metavar="MM",
+                        help="the brackets' plate thickness (default 6 mm)")
+    unroll.add_argument("--support-material", default="steel-s235", help="the brackets' plate material")
+    unroll.add_argument("--support-height", type=length_mm, default=150.0, metavar="MM",
+                        help="from a support's bolt down to its footing (default 150 mm)")
     unroll.add_argument("--text-height", type=length_mm, default=6.0, metavar="MM", help="engraved text height")
     unroll.add_argument("--min-crossing-angle", type=float, default=30.0, metavar="DEG",
                         help="smallest crossing angle the slotted joint reaches, degrees")
@@ -80,6 +87,7 @@ def run_unroll(args: argparse.Namespace) -> int:
 
     check_outputs(files=(args.output,), folders=(args.svg,), inputs=(args.model, args.materials))
     network = load_network(args.model)
+    get_material(args.support_material, args.materials)  # the support plates' material must be known too
     options = UnrollOptions(
         profile=parse_profile(args.profile), material=get_material(args.material, args.materials),
         pair_spacing=args.pair_spacing, slot_clearance=args.slot_clearance, slot_width=args.slot_width,
@@ -89,7 +97,8 @@ def run_unroll(args: argparse.Namespace) -> int:
         singularity=args.singularity, hardware=not args.no_hardware, text_height=args.text_height,
         min_crossing_angle=args.min_crossing_angle, strict=args.strict, edge_members=args.edge_members,
         edge_width=args.edge_width, cable_pretension=parse_pretension(args.cable_pretension, "--cable-pretension"),
-        cable_end_allowance=args.cable_end_allowance)
+        cable_end_allowance=args.cable_end_allowance, supports=args.supports, support_plate=args.support_plate,
+        support_material=args.support_material, support_height=args.support_height)
     from fabline.mechanics.structure import percent, verdict_lines
     from fabline.unroll import unroll_network  # after the model and the options are checked: it takes a second
     from fabline.unroll.preview import write_previews

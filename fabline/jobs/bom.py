@@ -25,7 +25,7 @@ import numpy as np
 import shapely
 
 from fabline.fileio import atomic_output
-from fabline.jobs.fasteners import edge_fasteners, fastener_rows
+from fabline.jobs.fasteners import edge_fasteners, fastener_rows, hole_across
 from fabline.mechanics.hardware import Catalogue, load_catalogue
 from fabline.mechanics.materials import Material
 from fabline.nest.layout import Nesting
@@ -80,8 +80,8 @@ def edge_members(parts: list[Part], thickness: float, kg_per_mm3: float) -> dict
             "mass_kg": round(sum(net_area(p) for p in bars) * thickness * kg_per_mm3, 2)}
 
 
-def bill_of_materials(nesting: Nesting, partset: PartSet, material: Material) -> dict[str, Any]:
-    """Sheets with mass and scrap share, totals (cost where the material has a price), and the hardware counts."""
+def sheet_rows(nesting: Nesting, partset: PartSet, material: Material) -> list[dict[str, Any]]:
+    """Per sheet of `nesting` (the parts of `partset`, at its profile's thickness t): size, mass, parts' mass, scrap."""
     thickness = float(partset.profile.get("t", 0.0))
     kg_per_mm3 = material.density * 1e-9
     parts = {p.id: p for p in partset.parts}
@@ -94,6 +94,16 @@ def bill_of_materials(nesting: Nesting, partset: PartSet, material: Material) ->
                        "material": material.name, "mass_kg": round(area * thickness * kg_per_mm3, 2),
                        "parts_mass_kg": round(used * thickness * kg_per_mm3, 2),
                        "scrap_share": round(1.0 - used / area, 4)})
+    return sheets
+
+
+def bill_of_materials(nesting: Nesting, partset: PartSet, material: Material, plate_nesting: Nesting | None = None,
+                      plate_material: Material | None = None) -> dict[str, Any]:
+    """Sheets with mass and scrap share, totals (cost where the material has a price), the hardware counts and the
+    bill's rows (`items`); the plate parts (supports) on their own sheets (`plate_nesting`, of `plate_material`)."""
+    thickness = float(partset.profile.get("t", 0.0))
+    kg_per_mm3 = material.density * 1e-9
+    sheets = sheet_rows(nesting, partset, material)
     mass = sum(s["mass_kg"] for s in sheets)
     parts_mass = sum(s["parts_mass_kg"] for s in sheets)
     totals = {"sheets": len(sheets), "mass_kg": round(mass, 1), "parts_mass_kg": round(parts_mass, 1),
@@ -108,14 +118,47 @@ def bill_of_materials(nesting: Nesting, partset: PartSet, material: Material) ->
                      "per": f"{edges['length_m']:.1f} m of bar, {edges['mass_kg']:.1f} kg"})
     catalogue = load_catalogue()
     h = float(partset.profile.get("h", 0.0))
+    plates = partset.plates
+    fins = {p.meta["node"]: float(plates.profile["t"]) for p in plates.parts if p.meta.get("plate") == "fin"} if plates else {}
     items = (sheet_items(sheets) + part_items(partset.parts, thickness, kg_per_mm3)
-             + fastener_rows(partset.parts, h, thickness, screw_hole, catalogue)
-             + edge_fasteners(partset.parts, h, thickness, catalogue)
+             + fastener_rows(partset.parts, h, thickness, screw_hole, catalogue, fins)
+             + edge_fasteners(partset.parts, h, thickness, catalogue, fins)
              + cable_items(partset.cables, catalogue))
+    plate_entry = None
+    if plates and plate_nesting is not None and plate_material is not None:
+        plate_sheets = sheet_rows(plate_nesting, plates, plate_material)
+        plate_t = float(plates.profile["t"])
+        supports = support_items(plates.parts, plate_t, plate_material.density * 1e-9, catalogue)
+        items += sheet_items(plate_sheets) + supports
+        plate_entry = {"material": plate_material.name, "thickness_mm": plate_t, "sheets": plate_sheets,
+                       "parts": len(plates.parts), "supports": len(fins),
+                       "mass_kg": round(sum(s["mass_kg"] for s in plate_sheets), 1),
+                       "parts_mass_kg": round(sum(s["parts_mass_kg"] for s in plate_sheets), 1)}
     return {"material": material.name, "density_kg_m3": material.density, "thickness_mm": thickness,
             "price_per_kg": material.price_per_kg, "sheets": sheets, "totals": totals,
             "hardware": rows, "edge_members": edges, "items": items,
-            "cables": cable_totals(partset.cables, catalogue) if partset.cables else None}
+            "cables": cable_totals(partset.cables, catalogue) if partset.cables else None, "plates": plate_entry}
+
+
+def support_items(plates: list[Part], thickness: float, kg_per_mm3: float, catalogue: Catalogue) -> list[dict[str, Any]]:
+    """The support brackets' plates (fins and base plates, each its own size) and their anchor bolts."""
+    rows = []
+    for kind in ("fin", "base"):
+        members = [p for p in plates if p.meta.get("plate") == kind]
+        if not members:
+            continue
+        mass = sum(net_area(p) for p in members) * thickness * kg_per_mm3
+        rows.append({"item": f"support {kind} plate", "kind": "cut part", "size": f"t {thickness:g}",
+                     "length_mm": None, "count": len(members), "unit_mass_kg": round(mass / len(members), 4),
+                     "total_mass_kg": round(mass, 2),
+                     "per": "support node: cut from the plate sheets" + (", welded on its base plate" if kind == "fin" else "")})
+    bases = [p for p in plates if p.meta.get("plate") == "base"]
+    if bases:
+        size = catalogue.size_for_hole(min(hole_across(h) for p in bases for h in p.holes))
+        rows.append({"item": f"anchor bolt {size.name}", "kind": "fastener", "size": size.name, "length_mm": None,
+                     "count": sum(len(p.holes) for p in bases), "unit_mass_kg": None, "total_mass_kg": None,
+                     "per": "base plate hole into the footing (length and kind by the footing)"})
+    return rows
 
 
 def sheet_items(sheets: list[dict]) -> list[dict[str, Any]]:
@@ -132,8 +175,8 @@ def sheet_items(sheets: list[dict]) -> list[dict[str, Any]]:
 
 
 def part_items(parts: list[Part], thickness: float, kg_per_mm3: float) -> list[dict[str, Any]]:
-    """One row per kind of cut part (edge bars apart from strips): how many and their mass (net area x t x density);
-    the unit mass is their mean."""
+    """One row per kind of cut part (edge bars apart from strips): how many, their mass (net area x t x density; the
+    unit mass is their mean) and, for strips and bars, their total length."""
     groups: dict[str, list[Part]] = {}
     for part in parts:
         groups.setdefault("edge bar" if part.meta.get("member") == "edge" else part.kind, []).append(part)
@@ -141,10 +184,10 @@ def part_items(parts: list[Part], thickness: float, kg_per_mm3: float) -> list[d
     for kind, members in groups.items():
         mass = sum(net_area(p) for p in members) * thickness * kg_per_mm3
         length = sum(float(p.meta.get("length_mm", 0.0)) for p in members)
-        rows.append({"item": kind, "kind": "cut part", "size": f"t {thickness:g}",
-                     "length_mm": round(length, 1) if length else None, "count": len(members),
-                     "unit_mass_kg": round(mass / len(members), 5), "total_mass_kg": round(mass, 2),
-                     "per": "cut from the sheets" + (" (length: their total)" if length else "")})
+        rows.append({"item": kind, "kind": "cut part", "size": f"t {thickness:g}", "length_mm": None,
+                     "count": len(members), "unit_mass_kg": round(mass / len(members), 5),
+                     "total_mass_kg": round(mass, 2),
+                     "per": "cut from the sheets" + (f", {length / 1000.0:.1f} m in all" if length else "")})
     return rows
 
 

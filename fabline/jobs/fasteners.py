@@ -39,51 +39,63 @@ def _row(item: str, bolt: Bolt, count: int, per: str) -> dict[str, Any]:
             "total_mass_kg": round(bolt.mass_g * count / 1000.0, 3), "per": per, "grip_mm": round(bolt.grip, 2)}
 
 
-def fastener_rows(parts: list[Part], h: float, t: float, screw_hole_mm: float | None,
-                  catalogue: Catalogue) -> list[dict[str, Any]]:
+def _grouped(item: str, what: str, bolts: list[tuple[Bolt, int, str]]) -> list[dict[str, Any]]:
+    """One row per bolt size and length from (bolt, count, its stack-up) entries; `per` says each stack-up's count."""
+    groups: dict[str, list[tuple[Bolt, int, str]]] = {}
+    for entry in bolts:
+        groups.setdefault(entry[0].name, []).append(entry)
+    return [_row(item, entries[0][0], sum(c for _, c, _ in entries),
+                 what + "; ".join(f"{c} {stack}" for _, c, stack in entries)) for entries in groups.values()]
+
+
+def fastener_rows(parts: list[Part], h: float, t: float, screw_hole_mm: float | None, catalogue: Catalogue,
+                  fins: dict[str, float] | None = None) -> list[dict[str, Any]]:
     """BOM rows (item, kind, size, length_mm, count, masses, per, grip) of the node bolts, joint bolts and seam screws,
-    one per size and length."""
+    one per size and length. `fins`: support nodes and their fin plate's thickness, which a node bolt there also
+    passes where the node has no edge bolt."""
     washers = [p for p in parts if p.kind == "washer" and p.meta.get("side") == "T"]
     clamped = {p.meta.get("node") for p in parts if p.kind == "clamp"}
     rows = []
     if washers:
         square = hole_across(washers[0].holes[0])
-        counts = Counter(p.meta.get("node") in clamped for p in washers)
-        bolts: dict[str, tuple[Bolt, int, list[str]]] = {}
-        for with_clamp, count in sorted(counts.items()):
-            bolt = catalogue.bolt("carriage", square, h + 2.0 * t + (t if with_clamp else 0.0), square=True)
-            _, total, stacks = bolts.get(bolt.name, (bolt, 0, []))
-            stacks.append(f"{count} through washer, h, washer" + (", clamp" if with_clamp else ""))
-            bolts[bolt.name] = (bolt, total + count, stacks)
-        rows.extend(_row("carriage bolt with nut", bolt, count, "crossing node: " + "; ".join(stacks))
-                    for bolt, count, stacks in bolts.values())
+        edge_nodes = {node["id"] for p in parts if p.meta.get("member") == "edge" for node in p.nodes}
+        fin = {n: v for n, v in (fins or {}).items() if n not in edge_nodes}
+        counts = Counter((p.meta.get("node") in clamped, fin.get(p.meta.get("node"), 0.0)) for p in washers)
+        rows.extend(_grouped("carriage bolt with nut", "crossing node: ", [
+            (catalogue.bolt("carriage", square, h + 2.0 * t + (t if with_clamp else 0.0) + plate, square=True), count,
+             "through washer, h, washer" + (", clamp" if with_clamp else "") + (f", {plate:g} mm support fin" if plate else ""))
+            for (with_clamp, plate), count in sorted(counts.items())]))
     joints = [p for p in parts if p.kind == "joint" and p.meta.get("side") == "T"]
     if joints:
         bolt = catalogue.bolt("hex", hole_across(joints[0].holes[0]), h + 2.0 * t)
         rows.append(_row("hex bolt with nut", bolt, sum(len(p.holes) for p in joints),
                          f"bolt hole of a singularity joint ({len(joints)} joints): plate, h, plate"))
-    strips = [p for p in parts if p.kind in ("strip", "curved-strip") and p.meta.get("member") != "edge"]
+    strips = [p for p in parts if p.kind in ("strip", "curved-strip")]  # edge bars have seams too
     holes = [hole_across(hole) for p in strips for hole in p.holes]
     screws = [d for d in holes if screw_hole_mm is None or abs(d - screw_hole_mm) < 0.05]
     if screws:
         bolt = catalogue.bolt("button", screws[0], 2.0 * t, washers=1)
         rows.append(_row("button head screw with washer and nut", bolt, len(screws) // 2,
-                         "seam screw: 6 per seam, through the two overlapping strips"))
+                         "seam screw: 6 per seam, through the two overlapping strips or edge bars"))
     return rows
 
 
-def edge_fasteners(parts: list[Part], h: float, t: float, catalogue: Catalogue) -> list[dict[str, Any]]:
-    """The edge nodes' bolts and spacer tubes: per node a hex bolt through every edge bar listing the node and a tube
-    of length h between the top and bottom bars; grouped by bolt length."""
+def edge_fasteners(parts: list[Part], h: float, t: float, catalogue: Catalogue,
+                   fins: dict[str, float] | None = None) -> list[dict[str, Any]]:
+    """The edge nodes' bolts and spacer tubes: per node a hex bolt through every edge bar listing the node, a tube of
+    length h between the top and bottom bars and, at a support node, the support's fin (`fins`: its thickness);
+    grouped by bolt length."""
     bars = [p for p in parts if p.meta.get("member") == "edge"]
     if not bars:
         return []
     layers = Counter(node["id"] for p in bars for node in p.nodes)
+    fins = fins or {}
+    stacks = Counter((count, fins.get(node, 0.0)) for node, count in layers.items())
     hole = hole_across(bars[0].holes[0])
-    rows = []
-    for count, nodes in sorted(Counter(layers.values()).items()):
-        bolt = catalogue.bolt("hex", hole, h + count * t)
-        rows.append(_row("edge bolt with nut", bolt, nodes, f"edge node through {count} bars and the spacer tube"))
+    rows = _grouped("edge bolt with nut", "edge node: ", [
+        (catalogue.bolt("hex", hole, h + count * t + plate), nodes,
+         f"through {count} bars and the spacer tube" + (f" and a {plate:g} mm support fin" if plate else ""))
+        for (count, plate), nodes in sorted(stacks.items())])
     size = catalogue.size_for_hole(hole)
     outer, wall = size.d + 4.0, 1.5  # a 1.5 mm wall tube the bolt passes (bore d + 1 mm)
     tube_g = np.pi / 4.0 * (outer ** 2 - (outer - 2 * wall) ** 2) * h * catalogue.density * 1e-6

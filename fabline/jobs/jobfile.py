@@ -63,7 +63,8 @@ SCHEMA: dict[str, Any] = {
     "model": {"design": Key(str), "file": Key(str), "options": Key(dict, default={})},
     "lamella": {"material": Key(str, default="stainless"), "profile": Key(str, default="100x1.5"),
                 "materials_file": Key(str)},
-    "stock": {"sheet": Key(str, default="4000x2000"), "count": Key(int), "file": Key(str)},
+    "stock": {"sheet": Key(str, default="4000x2000"), "count": Key(int), "file": Key(str),
+              "plate_sheet": Key(str, default="2000x1000")},
     # [unroll], [nest] and [export] hold every option of `fabline unroll`, `nest` and `export` under its own name
     # (--pair-spacing is unroll.pair_spacing); a key left out takes the command's default (None here)
     "unroll": {"pair_spacing": Length(), "slot_clearance": Length(), "slot_width": Length(),
@@ -72,7 +73,9 @@ SCHEMA: dict[str, Any] = {
                "end_length": Length(), "compensate_twist": Key(bool), "singularity": Key(str),
                "hardware": Key(bool), "text_height": Length(), "min_crossing_angle": Key(float),
                "strict": Key(bool), "previews": Key(bool, default=False), "edge_members": Key(bool),
-               "edge_width": Length(), "cable_pretension": Key(object), "cable_end_allowance": Length()},
+               "edge_width": Length(), "cable_pretension": Key(object), "cable_end_allowance": Length(),
+               "supports": Key(bool), "support_plate": Length(), "support_material": Key(str),
+               "support_height": Length()},
     "nest": {"kerf": Length(0.2), "gap": Length(3.0), "sheet_margin": Length(10.0),
              "rotations": Key(int, default=4), "time_limit": Key(float, default=10.0),
              "common_line": Key(bool, default=False), "fill_holes": Key(bool, default=False),
@@ -439,6 +442,7 @@ def _check_values(data: dict[str, Any], where: str) -> None:
             raise FablineError(f"{where}: {key_path}: {exc}") from None
 
     wrapped("stock.sheet", parse_sheet_size, data["stock"]["sheet"])
+    wrapped("stock.plate_sheet", parse_sheet_size, data["stock"]["plate_sheet"])
     wrapped("lamella.profile", parse_profile, data["lamella"]["profile"])
     materials = wrapped("lamella.materials_file", load_materials, data["lamella"]["materials_file"])
     if data["lamella"]["material"] not in materials:
@@ -458,6 +462,9 @@ def _check_values(data: dict[str, Any], where: str) -> None:
         check_time_scale(data["machine"]["time_scale"])
     except ValueError as exc:
         raise FablineError(f"{where}: machine.time_scale: {exc}") from None
+    if data["unroll"]["support_material"] is not None and data["unroll"]["support_material"] not in materials:
+        raise FablineError(f"{where}: unroll.support_material: unknown material {data['unroll']['support_material']!r} "
+                           f"(use one of {', '.join(sorted(materials))})")
     try:
         nest_options(data["nest"]).check(name=lambda key: f"nest.{key}")
         unroll_options(data["lamella"], data["unroll"], data["stock"], data["nest"])

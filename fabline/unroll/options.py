@@ -49,6 +49,10 @@ class UnrollOptions:
     edge_width: float | None = None     # width of an edge member's bar; default the lamella height h
     cable_pretension: float = 1.0       # cables are cut this much short per metre (mm/m), so tensioning fits them
     cable_end_allowance: float = 80.0   # cable beyond each end clamp's centre: its outer hole and the end stop
+    supports: bool = False              # brackets (fin and base plate) at the support nodes, cut from plate
+    support_plate: float = 6.0          # their plate thickness (the thesis's 6 mm)
+    support_material: str = "steel-s235"  # their plate material (a materials file name)
+    support_height: float = 150.0       # from a support's bolt down to its footing, vertically
 
     @property
     def slot(self) -> float:
@@ -96,7 +100,7 @@ class UnrollOptions:
         """Raise a FablineError naming, as `name(field)` gives it, the first setting that cannot work (the command
         line's option by default; a job file names its own keys, which are these fields' names)."""
         positive = ("overlap", "screw_hole", "sheet_length", "text_height", "bolt_square", "slot_width", "end_length",
-                    "straight_tolerance", "edge_width", "cable_end_allowance")
+                    "straight_tolerance", "edge_width", "cable_end_allowance", "support_plate", "support_height")
         for key in positive:
             value = {"slot_width": self.slot, "end_length": self.end,
                      "edge_width": self.profile.h if self.edge_width is None else self.edge_width}.get(key, getattr(self, key))

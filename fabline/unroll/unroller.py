@@ -26,6 +26,7 @@ from fabline.unroll.parts import Part, PartSet
 from fabline.unroll.pieces import is_seam, segment_part
 from fabline.unroll.seams import Segment, split_strip
 from fabline.unroll.stations import Strip, singular_nodes, strip_stations
+from fabline.unroll.supports import support_parts
 
 
 def unroll_network(network: Network, options: UnrollOptions | None = None,
@@ -74,6 +75,15 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
         edge_list, edges = edge_parts(geometry.network, options, sizes.bolt_hole)
         parts.extend(edge_list)
         warnings = warnings + edges["warnings"]
+    plates = None
+    if options.supports:
+        plates = PartSet(support_parts(geometry.network, sizes.bolt_hole, options.profile.h, options.profile.t,
+                                       options.support_plate, options.support_height, options.text_height),
+                         {"t": options.support_plate, "name": f"{options.support_plate:g} mm plate"},
+                         options.support_material, network.name)
+        if not plates.parts:
+            raise FablineError("supports: the model marks no node as a support (node kind 'support': import with "
+                               "--supports, or leave supports off)")
     lamella_rows = [check.summary(options.material, options.profile) for check in checks]
     report = {
         "summary": _summary(parts, lamella_rows, strip_rows, warnings),
@@ -90,7 +100,7 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
     if cables is not None:
         report["cables"] = cable_summary(cables, options, clamp_lift(options.profile.h, options.profile.t, sizes))
     profile = {"h": options.profile.h, "t": options.profile.t, "name": str(options.profile)}
-    return PartSet(parts, profile, options.material.name, network.name, report, cables or [])
+    return PartSet(parts, profile, options.material.name, network.name, report, cables or [], plates)
 
 
 def _segment_parts(segments: list[Segment], options: UnrollOptions) -> list[Part]:
@@ -212,4 +222,7 @@ def _options_row(options: UnrollOptions) -> dict:
         "singularity": options.singularity, "hardware": options.hardware, "text_height_mm": options.engrave_height,
         "min_crossing_angle_deg": options.min_crossing_angle, "edge_members": options.edge_members,
         "edge_width_mm": (options.profile.h if options.edge_width is None else options.edge_width) if options.edge_members else None,
+        "cable_pretension_mm_per_m": options.cable_pretension, "cable_end_allowance_mm": options.cable_end_allowance,
+        "supports": options.supports, "support_plate_mm": options.support_plate if options.supports else None,
+        "support_height_mm": options.support_height if options.supports else None,
     }
