@@ -54,6 +54,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     unroll.add_argument("--support-material", default="steel-s235", help="the brackets' plate material")
     unroll.add_argument("--support-height", type=length_mm, default=150.0, metavar="MM",
                         help="from a support's bolt down to its footing (default 150 mm)")
+    unroll.add_argument("--couplers", type=int, default=0, metavar="N",
+                        help="shear blocks between a pair's strips in the N node intervals next to each support (default 0)")
     unroll.add_argument("--text-height", type=length_mm, default=6.0, metavar="MM", help="engraved text height")
     unroll.add_argument("--min-crossing-angle", type=float, default=30.0, metavar="DEG",
                         help="smallest crossing angle the slotted joint reaches, degrees")
@@ -98,7 +100,7 @@ def run_unroll(args: argparse.Namespace) -> int:
         min_crossing_angle=args.min_crossing_angle, strict=args.strict, edge_members=args.edge_members,
         edge_width=args.edge_width, cable_pretension=parse_pretension(args.cable_pretension, "--cable-pretension"),
         cable_end_allowance=args.cable_end_allowance, supports=args.supports, support_plate=args.support_plate,
-        support_material=args.support_material, support_height=args.support_height)
+        support_material=args.support_material, support_height=args.support_height, couplers=args.couplers)
     from fabline.mechanics.structure import percent, verdict_lines
     from fabline.unroll import unroll_network  # after the model and the options are checked: it takes a second
     from fabline.unroll.preview import write_previews

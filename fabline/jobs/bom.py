@@ -25,7 +25,7 @@ import numpy as np
 import shapely
 
 from fabline.fileio import atomic_output
-from fabline.jobs.fasteners import edge_fasteners, fastener_rows, hole_across
+from fabline.jobs.fasteners import bolt_row, edge_fasteners, fastener_rows, hole_across
 from fabline.mechanics.hardware import Catalogue, load_catalogue
 from fabline.mechanics.materials import Material
 from fabline.nest.layout import Nesting
@@ -123,7 +123,7 @@ def bill_of_materials(nesting: Nesting, partset: PartSet, material: Material, pl
     items = (sheet_items(sheets) + part_items(partset.parts, thickness, kg_per_mm3)
              + fastener_rows(partset.parts, h, thickness, screw_hole, catalogue, fins)
              + edge_fasteners(partset.parts, h, thickness, catalogue, fins)
-             + cable_items(partset.cables, catalogue))
+             + cable_items(partset.cables, catalogue) + coupler_items(partset.couplers, thickness, catalogue))
     plate_entry = None
     if plates and plate_nesting is not None and plate_material is not None:
         plate_sheets = sheet_rows(plate_nesting, plates, plate_material)
@@ -138,6 +138,25 @@ def bill_of_materials(nesting: Nesting, partset: PartSet, material: Material, pl
             "price_per_kg": material.price_per_kg, "sheets": sheets, "totals": totals,
             "hardware": rows, "edge_members": edges, "items": items,
             "cables": cable_totals(partset.cables, catalogue) if partset.cables else None, "plates": plate_entry}
+
+
+def coupler_items(couplers: list[dict], t: float, catalogue: Catalogue) -> list[dict[str, Any]]:
+    """The shear blocks (sawn hardwood, by size; mass from the declared density) and their bolts: through strip,
+    block, strip with a washer under head and nut."""
+    rows = []
+    sizes = Counter(tuple(c["block_mm"]) for c in couplers)
+    wood = catalogue.coupler
+    for (length, height, width), count in sorted(sizes.items()):
+        unit = length * height * width * wood["density"] * 1e-9
+        rows.append({"item": f"shear block {length:g} x {height:g} x {width:g}", "kind": "coupler",
+                     "size": f"{length:g}x{height:g}x{width:g}", "length_mm": length, "count": count,
+                     "unit_mass_kg": round(unit, 4), "total_mass_kg": round(unit * count, 3),
+                     "per": f"{wood['description']}, sawn: between a pair's strips next to a support"})
+    bolts = Counter((c["bolt_hole_mm"], c["block_mm"][2]) for c in couplers for _ in range(c["bolts"]))
+    rows.extend(bolt_row("hex bolt with 2 washers and nut", catalogue.bolt("hex", hole, 2.0 * t + width, washers=2),
+                         count, "shear block: 2 through strip, block, strip")
+                for (hole, width), count in sorted(bolts.items()))
+    return rows
 
 
 def support_items(plates: list[Part], thickness: float, kg_per_mm3: float, catalogue: Catalogue) -> list[dict[str, Any]]:

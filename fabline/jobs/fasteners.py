@@ -33,7 +33,7 @@ def hole_across(hole: np.ndarray) -> float:
     return diameter if abs(area - np.pi * diameter ** 2 / 4.0) < 0.05 * area else float(np.sqrt(area))
 
 
-def _row(item: str, bolt: Bolt, count: int, per: str) -> dict[str, Any]:
+def bolt_row(item: str, bolt: Bolt, count: int, per: str) -> dict[str, Any]:
     return {"item": f"{item} {bolt.name}", "kind": "fastener", "size": bolt.size.name, "length_mm": bolt.length,
             "count": count, "unit_mass_kg": round(bolt.mass_g / 1000.0, 5),
             "total_mass_kg": round(bolt.mass_g * count / 1000.0, 3), "per": per, "grip_mm": round(bolt.grip, 2)}
@@ -44,7 +44,7 @@ def _grouped(item: str, what: str, bolts: list[tuple[Bolt, int, str]]) -> list[d
     groups: dict[str, list[tuple[Bolt, int, str]]] = {}
     for entry in bolts:
         groups.setdefault(entry[0].name, []).append(entry)
-    return [_row(item, entries[0][0], sum(c for _, c, _ in entries),
+    return [bolt_row(item, entries[0][0], sum(c for _, c, _ in entries),
                  what + "; ".join(f"{c} {stack}" for _, c, stack in entries)) for entries in groups.values()]
 
 
@@ -68,14 +68,14 @@ def fastener_rows(parts: list[Part], h: float, t: float, screw_hole_mm: float | 
     joints = [p for p in parts if p.kind == "joint" and p.meta.get("side") == "T"]
     if joints:
         bolt = catalogue.bolt("hex", hole_across(joints[0].holes[0]), h + 2.0 * t)
-        rows.append(_row("hex bolt with nut", bolt, sum(len(p.holes) for p in joints),
+        rows.append(bolt_row("hex bolt with nut", bolt, sum(len(p.holes) for p in joints),
                          f"bolt hole of a singularity joint ({len(joints)} joints): plate, h, plate"))
     strips = [p for p in parts if p.kind in ("strip", "curved-strip")]  # edge bars have seams too
     holes = [hole_across(hole) for p in strips for hole in p.holes]
     screws = [d for d in holes if screw_hole_mm is None or abs(d - screw_hole_mm) < 0.05]
     if screws:
         bolt = catalogue.bolt("button", screws[0], 2.0 * t, washers=1)
-        rows.append(_row("button head screw with washer and nut", bolt, len(screws) // 2,
+        rows.append(bolt_row("button head screw with washer and nut", bolt, len(screws) // 2,
                          "seam screw: 6 per seam, through the two overlapping strips or edge bars"))
     return rows
 

@@ -75,7 +75,7 @@ SCHEMA: dict[str, Any] = {
                "strict": Key(bool), "previews": Key(bool, default=False), "edge_members": Key(bool),
                "edge_width": Length(), "cable_pretension": Key(object), "cable_end_allowance": Length(),
                "supports": Key(bool), "support_plate": Length(), "support_material": Key(str),
-               "support_height": Length()},
+               "support_height": Length(), "couplers": Key(int)},
     "nest": {"kerf": Length(0.2), "gap": Length(3.0), "sheet_margin": Length(10.0),
              "rotations": Key(int, default=4), "time_limit": Key(float, default=10.0),
              "common_line": Key(bool, default=False), "fill_holes": Key(bool, default=False),

@@ -73,6 +73,7 @@ class Catalogue:
     lengths: dict
     density: float
     protrusion_pitches: float
+    coupler: dict  # the shear blocks' wood: description, density (kg/m3)
 
     def size_for_hole(self, hole: float, square: bool = False) -> BoltSize:
         """The largest size whose clearance hole (square: whose square neck, side d) fits a hole `hole` mm across."""
@@ -105,6 +106,7 @@ def load_catalogue(path: Path = BUILTIN_HARDWARE) -> Catalogue:
         bolt = data["bolt"]
         sizes = tuple(sorted((BoltSize(name, **values) for name, values in bolt["sizes"].items()), key=lambda s: s.d))
         lengths = {kind: sorted(bolt["lengths"][kind]) for kind in BOLT_KINDS}
-        return Catalogue(cable, sizes, lengths, float(bolt["density"]), float(bolt["protrusion_pitches"]))
+        coupler = {"description": str(data["coupler"]["description"]), "density": float(data["coupler"]["density"])}
+        return Catalogue(cable, sizes, lengths, float(bolt["density"]), float(bolt["protrusion_pitches"]), coupler)
     except (KeyError, TypeError) as exc:
         raise FablineError(f"{path}: malformed hardware catalogue ({exc})") from None

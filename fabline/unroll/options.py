@@ -53,6 +53,7 @@ class UnrollOptions:
     support_plate: float = 6.0          # their plate thickness (the thesis's 6 mm)
     support_material: str = "steel-s235"  # their plate material (a materials file name)
     support_height: float = 150.0       # from a support's bolt down to its footing, vertically
+    couplers: int = 0                   # shear blocks in this many node intervals from each support (0: none)
 
     @property
     def slot(self) -> float:
@@ -127,6 +128,9 @@ class UnrollOptions:
             raise FablineError(f"{name('screw_hole')}: {self.screw_hole:g} mm does not fit a seam of the "
                                f"{self.profile.h:g} mm strip with a {self.shortest_overlap:g} mm overlap "
                                f"(at most min(h/4, min overlap/6) = {largest_hole:g} mm)")
+        if not 0 <= self.couplers <= 1000:
+            raise FablineError(f"{name('couplers')}: {self.couplers} node intervals from each support: use 0 (none) "
+                               "to 1000")
         if not 0 <= self.cable_pretension < 100:
             raise FablineError(f"{name('cable_pretension')}: {self.cable_pretension:g} mm/m must be at least 0 and "
                                "under 100 mm/m (10 %)")

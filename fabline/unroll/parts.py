@@ -129,6 +129,7 @@ class PartSet:
     report: dict = field(default_factory=dict)
     cables: list[dict] = field(default_factory=list)  # bracing cable runs (bought, not cut): `fabline.unroll.cables`
     plates: "PartSet | None" = None  # parts cut from other plate (supports): their own material and thickness
+    couplers: list[dict] = field(default_factory=list)  # shear blocks between a pair's strips: `fabline.unroll.couplers`
 
 
 def _same_contour(a: np.ndarray, b: np.ndarray) -> bool:
@@ -177,6 +178,7 @@ def parts_to_dict(partset: PartSet, arrays: bool = False) -> dict[str, Any]:
         "material": partset.material,
         "report": partset.report,
         "cables": partset.cables,
+        "couplers": partset.couplers,
         **({"plates": {"material": partset.plates.material, "profile": partset.plates.profile,
                        "parts": parts_to_dict(partset.plates, arrays)["parts"]}} if partset.plates else {}),
         "parts": [
@@ -282,7 +284,8 @@ def parts_from_dict(data: Any, source: str = "parts") -> PartSet:
     plates = _field(data, "plates", dict, source)
     return PartSet(parts, _field(data, "profile", dict, source), str(data.get("material", "")),
                    str(data.get("source", "")), _field(data, "report", dict, source), _field(data, "cables", list, source),
-                   parts_from_dict({**plates, "schema": SCHEMA}, f"{source}: plates") if plates else None)
+                   parts_from_dict({**plates, "schema": SCHEMA}, f"{source}: plates") if plates else None,
+                   _field(data, "couplers", list, source))
 
 
 class _ContourPool:

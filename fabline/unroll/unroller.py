@@ -18,6 +18,7 @@ from fabline.progress import progress
 from fabline.unroll.batch import straight_flags, straight_parts
 from fabline.unroll.cables import CableSettings, cable_runs, cable_summary, clamp_lift
 from fabline.unroll.collector import collector_paused
+from fabline.unroll.couplers import add_couplers
 from fabline.unroll.hardware import (HardwareSizes, checkerboard, clamp, clamp_ids, singularity_joints, washer_ids,
                                      washer_keys, washers)
 from fabline.mechanics.structure import check_lamellas, limits, structural_verdict
@@ -56,6 +57,8 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
         segments.extend(pieces)
         strip_rows.append(_strip_row(strip, pieces, seams, options))
     parts = _segment_parts(segments, options)
+    couplers, uncoupled = add_couplers(parts, geometry.network, options.couplers, sizes.bolt_hole, options.profile.h,
+                            options.pair_spacing, options.profile.t)
     checks = check_lamellas(list(geometry.lamellas.values()), options.material, options.profile)
     warnings = [line for check in checks for line in check.warnings]
     if options.strict and warnings:
@@ -97,10 +100,13 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
     }
     if edges is not None:
         report["edges"] = edges
+    if options.couplers:
+        report["couplers"] = {"intervals_from_support": options.couplers, "placed": len(couplers),
+                              "skipped": uncoupled}
     if cables is not None:
         report["cables"] = cable_summary(cables, options, clamp_lift(options.profile.h, options.profile.t, sizes))
     profile = {"h": options.profile.h, "t": options.profile.t, "name": str(options.profile)}
-    return PartSet(parts, profile, options.material.name, network.name, report, cables or [], plates)
+    return PartSet(parts, profile, options.material.name, network.name, report, cables or [], plates, couplers)
 
 
 def _segment_parts(segments: list[Segment], options: UnrollOptions) -> list[Part]:
@@ -224,5 +230,5 @@ def _options_row(options: UnrollOptions) -> dict:
         "edge_width_mm": (options.profile.h if options.edge_width is None else options.edge_width) if options.edge_members else None,
         "cable_pretension_mm_per_m": options.cable_pretension, "cable_end_allowance_mm": options.cable_end_allowance,
         "supports": options.supports, "support_plate_mm": options.support_plate if options.supports else None,
-        "support_height_mm": options.support_height if options.supports else None,
+        "support_height_mm": options.support_height if options.supports else None, "couplers": options.couplers,
     }
