@@ -133,6 +133,12 @@ def run_unroll(args: argparse.Namespace) -> int:
         print(f"edge members: {len(edges['members'])} boundary curves, {len(edges['bars'])} bars "
               f"{edges['width_mm']:g} x {edges['thickness_mm']:g} mm, {edges['bolt_hole_mm']:g} mm bolt holes"
               + (f"; max utilisation {percent(worst['utilisation'])} ({worst['governing']}, {worst['edge']})" if worst else ""))
+    if partset.plates:
+        print(f"supports: {len(partset.plates.parts)} plates ({partset.plates.profile['t']:g} mm "
+              f"{partset.plates.material}) at {len({p.meta['node'] for p in partset.plates.parts})} support nodes")
+    if "couplers" in report:
+        print(f"couplers: {report['couplers']['placed']} shear blocks, {len(report['couplers']['skipped'])} intervals "
+              "skipped for a seam or too short")
     if "cables" in report:
         cables = report["cables"]
         print(f"cables: {cables['runs']} diagonal runs through {cables['clamps']} clamps, "
