@@ -43,6 +43,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "lamella end")
     unroll.add_argument("--edge-width", type=length_mm, metavar="MM",
                         help="edge member bar width in mm (none: the profile height)")
+    unroll.add_argument("--cable-pretension", default="1 mm/m", metavar="STRAIN",
+                        help="cut the bracing cables this much short: '1 mm/m', '0.1 %%' (default 1 mm/m)")
+    unroll.add_argument("--cable-end-allowance", type=length_mm, default=80.0, metavar="MM",
+                        help="cable beyond each end clamp's centre, for its outer hole and end stop (default 80 mm)")
+    unroll.add_argument("--supports", action=argparse.BooleanOptionalAction, default=False,
+                        help="also a bracket (fin and base plate) at every support node, cut from plate")
+    unroll.add_argument("--support-plate", type=length_mm, default=6.0, metavar="MM",
+                        help="the brackets' plate thickness (default 6 mm)")
+    unroll.add_argument("--support-material", default="steel-s235", help="the brackets' plate material")
+    unroll.add_argument("--support-height", type=length_mm, default=150.0, metavar="MM",
+                        help="from a support's bolt down to its footing (default 150 mm)")
+    unroll.add_argument("--couplers", type=int, default=0, metavar="N",
+                        help="shear blocks between a pair's strips in the N node intervals next to each support (default 0)")
     unroll.add_argument("--text-height", type=length_mm, default=6.0, metavar="MM", help="engraved text height")
     unroll.add_argument("--min-crossing-angle", type=float, default=30.0, metavar="DEG",
                         help="smallest crossing angle the slotted joint reaches, degrees")
@@ -72,9 +85,11 @@ def run_unroll(args: argparse.Namespace) -> int:
     from fabline.mechanics import get_material, parse_profile
     from fabline.model import load_network
     from fabline.unroll import UnrollOptions, save_parts
+    from fabline.unroll.cables import parse_pretension
 
     check_outputs(files=(args.output,), folders=(args.svg,), inputs=(args.model, args.materials))
     network = load_network(args.model)
+    get_material(args.support_material, args.materials)  # the support plates' material must be known too
     options = UnrollOptions(
         profile=parse_profile(args.profile), material=get_material(args.material, args.materials),
         pair_spacing=args.pair_spacing, slot_clearance=args.slot_clearance, slot_width=args.slot_width,
@@ -83,7 +98,9 @@ def run_unroll(args: argparse.Namespace) -> int:
         compensate_twist=args.compensate_twist,
         singularity=args.singularity, hardware=not args.no_hardware, text_height=args.text_height,
         min_crossing_angle=args.min_crossing_angle, strict=args.strict, edge_members=args.edge_members,
-        edge_width=args.edge_width)
+        edge_width=args.edge_width, cable_pretension=parse_pretension(args.cable_pretension, "--cable-pretension"),
+        cable_end_allowance=args.cable_end_allowance, supports=args.supports, support_plate=args.support_plate,
+        support_material=args.support_material, support_height=args.support_height, couplers=args.couplers)
     from fabline.mechanics.structure import percent, verdict_lines
     from fabline.unroll import unroll_network  # after the model and the options are checked: it takes a second
     from fabline.unroll.preview import write_previews
@@ -116,6 +133,17 @@ def run_unroll(args: argparse.Namespace) -> int:
         print(f"edge members: {len(edges['members'])} boundary curves, {len(edges['bars'])} bars "
               f"{edges['width_mm']:g} x {edges['thickness_mm']:g} mm, {edges['bolt_hole_mm']:g} mm bolt holes"
               + (f"; max utilisation {percent(worst['utilisation'])} ({worst['governing']}, {worst['edge']})" if worst else ""))
+    if partset.plates:
+        print(f"supports: {len(partset.plates.parts)} plates ({partset.plates.profile['t']:g} mm "
+              f"{partset.plates.material}) at {len({p.meta['node'] for p in partset.plates.parts})} support nodes")
+    if "couplers" in report:
+        print(f"couplers: {report['couplers']['placed']} shear blocks, {len(report['couplers']['skipped'])} intervals "
+              "skipped for a seam or too short")
+    if "cables" in report:
+        cables = report["cables"]
+        print(f"cables: {cables['runs']} diagonal runs through {cables['clamps']} clamps, "
+              f"{cables['geometric_length_m']:.3f} m geometric, {cables['cut_length_m']:.3f} m cut "
+              f"({cables['pretension_mm_per_m']:g} mm/m pretension, {cables['end_allowance_mm']:g} mm per end)")
     return 0
 
 

@@ -37,7 +37,7 @@ NAME_MAX = 100
 their prefix), which must stay under the file systems' 255 bytes."""
 """Bytes a job file may have (a job file is a page of TOML; anything larger is a mistake or an attack)."""
 _TYPE_NAMES = {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
-               dict: "a table"}
+               dict: "a table", object: "a number or a string"}
 
 
 @dataclass(frozen=True)
@@ -63,7 +63,8 @@ SCHEMA: dict[str, Any] = {
     "model": {"design": Key(str), "file": Key(str), "options": Key(dict, default={})},
     "lamella": {"material": Key(str, default="stainless"), "profile": Key(str, default="100x1.5"),
                 "materials_file": Key(str)},
-    "stock": {"sheet": Key(str, default="4000x2000"), "count": Key(int), "file": Key(str)},
+    "stock": {"sheet": Key(str, default="4000x2000"), "count": Key(int), "file": Key(str),
+              "plate_sheet": Key(str, default="2000x1000")},
     # [unroll], [nest] and [export] hold every option of `fabline unroll`, `nest` and `export` under its own name
     # (--pair-spacing is unroll.pair_spacing); a key left out takes the command's default (None here)
     "unroll": {"pair_spacing": Length(), "slot_clearance": Length(), "slot_width": Length(),
@@ -72,7 +73,9 @@ SCHEMA: dict[str, Any] = {
                "end_length": Length(), "compensate_twist": Key(bool), "singularity": Key(str),
                "hardware": Key(bool), "text_height": Length(), "min_crossing_angle": Key(float),
                "strict": Key(bool), "previews": Key(bool, default=False), "edge_members": Key(bool),
-               "edge_width": Length()},
+               "edge_width": Length(), "cable_pretension": Key(object), "cable_end_allowance": Length(),
+               "supports": Key(bool), "support_plate": Length(), "support_material": Key(str),
+               "support_height": Length(), "couplers": Key(int)},
     "nest": {"kerf": Length(0.2), "gap": Length(3.0), "sheet_margin": Length(10.0),
              "rotations": Key(int, default=4), "time_limit": Key(float, default=10.0),
              "common_line": Key(bool, default=False), "fill_holes": Key(bool, default=False),
@@ -394,7 +397,11 @@ def unroll_options(lamella: dict[str, Any], unroll: dict[str, Any], stock: dict[
     from fabline.mechanics.materials import get_material, parse_profile
     from fabline.unroll.options import UnrollOptions
 
+    from fabline.unroll.cables import parse_pretension
+
     given = {key: value for key, value in unroll.items() if value is not None and key != "previews"}
+    if "cable_pretension" in given:
+        given["cable_pretension"] = parse_pretension(given["cable_pretension"], "unroll.cable_pretension")
     given.setdefault("sheet_length", _sheet_length(stock))
     given.setdefault("sheet_margin", nest["sheet_margin"])
     options = UnrollOptions(profile=parse_profile(lamella["profile"]),
@@ -435,6 +442,7 @@ def _check_values(data: dict[str, Any], where: str) -> None:
             raise FablineError(f"{where}: {key_path}: {exc}") from None
 
     wrapped("stock.sheet", parse_sheet_size, data["stock"]["sheet"])
+    wrapped("stock.plate_sheet", parse_sheet_size, data["stock"]["plate_sheet"])
     wrapped("lamella.profile", parse_profile, data["lamella"]["profile"])
     materials = wrapped("lamella.materials_file", load_materials, data["lamella"]["materials_file"])
     if data["lamella"]["material"] not in materials:
@@ -454,6 +462,9 @@ def _check_values(data: dict[str, Any], where: str) -> None:
         check_time_scale(data["machine"]["time_scale"])
     except ValueError as exc:
         raise FablineError(f"{where}: machine.time_scale: {exc}") from None
+    if data["unroll"]["support_material"] is not None and data["unroll"]["support_material"] not in materials:
+        raise FablineError(f"{where}: unroll.support_material: unknown material {data['unroll']['support_material']!r} "
+                           f"(use one of {', '.join(sorted(materials))})")
     try:
         nest_options(data["nest"]).check(name=lambda key: f"nest.{key}")
         unroll_options(data["lamella"], data["unroll"], data["stock"], data["nest"])

@@ -39,6 +39,7 @@ class JobResult:
     partset: Any = None
     structure: list[dict] = field(default_factory=list)
     nesting: Any = None
+    plate_nesting: Any = None  # the plate parts' (supports') own sheets
     export: Any = None
     sheet_files: list[dict] = field(default_factory=list)
     stream: list[dict] = field(default_factory=list)
@@ -75,13 +76,15 @@ def build_network(spec: JobSpec) -> "Network":
 def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) -> JobResult:
     """Run the job's stages up to export and write the report; returns the result with the sheet programs. The
     stages are one `OutputSet`: a stage that refuses its input leaves the output folder as it was."""
+    from fabline.jobs.bom import BOM_NAME
     from fabline.model import save_network
     from fabline.model.extent import extent_text
 
     spec = job if isinstance(job, JobSpec) else load_job_file(job)
     timings: dict[str, float] = {}
     report = spec.report_name
-    names = ("network.json", "parts.json", "nesting.json", report, Path(report).with_suffix(".json"))
+    names = ("network.json", "parts.json", "nesting.json", report, Path(report).with_suffix(".json"), BOM_NAME,
+             PLATES_NESTING, PLATES_CUTLIST)
     with OutputSet():  # a stage refused (or Ctrl-C) removes what every stage before it wrote: the folder is as it was
         check_outputs(files=[spec.output(name) for name in names],
                       folders=[spec.output(name) for name in ("dxf", "gcode", "sheets")],
@@ -98,6 +101,10 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
         if "nest" in spec.stages:
             _timed(result.timings, "nest", lambda: _nest(result))
             say(f"nest: {len(result.nesting.sheets)} sheet(s) -> {spec.output('nesting.json')}")
+            if result.plate_nesting:
+                plates = result.partset.plates
+                say(f"nest: {len(plates.parts)} support plates on {len(result.plate_nesting.sheets)} sheet(s) of "
+                    f"{plates.profile['t']:g} mm {plates.material} -> {spec.output(PLATES_NESTING)}")
         if "export" in spec.stages:
             _timed(result.timings, "export", lambda: _export(result))
             say(f"export: {len(result.sheet_files)} G-code program(s) -> {spec.output('gcode')}")
@@ -157,8 +164,12 @@ def write_report(result: JobResult) -> Path:
     spec = result.spec
     data = report_data(result)
     result.report_path = spec.output(spec.report_name)
-    with OutputSet():  # the page and its twin as one: a failure leaves the last complete pair
+    with OutputSet():  # the page, its twin and the bill's CSV as one: a failure leaves the last complete set
         write_json(spec.output(Path(spec.report_name).with_suffix(".json")), data)
+        if data["bill_of_materials"]:
+            from fabline.jobs.bom import BOM_NAME, write_bom_csv
+
+            write_bom_csv(data["bill_of_materials"]["items"], spec.output(BOM_NAME))
         with atomic_output(result.report_path) as handle:
             handle.write(render_report(result, data))
     return result.report_path
@@ -200,6 +211,11 @@ def _nest(result: JobResult) -> None:
         stock = [StockItem(spec.stock["sheet"], width, height, spec.stock["count"])]
     result.nesting = nest(result.partset, stock, nest_options(spec.nest), parts_file="parts.json").nesting
     save_nesting(result.nesting, spec.output("nesting.json"))
+    if result.partset.plates:  # another thickness: sheets of their own (stock.plate_sheet)
+        width, height = parse_sheet_size(spec.stock["plate_sheet"])
+        result.plate_nesting = nest(result.partset.plates, [StockItem(spec.stock["plate_sheet"], width, height)],
+                                    nest_options(spec.nest), parts_file="parts.json").nesting
+        save_nesting(result.plate_nesting, spec.output(PLATES_NESTING))
     if spec.nest["svg"]:
         write_sheet_svgs(result.nesting, result.partset, spec.output("nesting-svg"))
     if spec.nest["stock_out"]:
@@ -221,6 +237,8 @@ def _export(result: JobResult) -> None:
                                dxf_dir=spec.output("dxf"), gcode_dir=spec.output("gcode"), name=spec.name,
                                source=str(spec.output("nesting.json")), cutlist=spec.output("cutlist.csv"),
                                previews=spec.export["previews"])
+    if result.plate_nesting:
+        _export_plates(result)
     result.sheet_files = []
     for sheet, made in zip(result.nesting.sheets, result.export.sheets):
         gcode = next(f for f in made.files if f.endswith(".gcode") or f.endswith(".nc"))
@@ -233,6 +251,25 @@ def _export(result: JobResult) -> None:
                                    "thickness_mm": thickness,
                                    **({"preview": preview} if preview else {}),
                                    "cut_length_mm": made.summary.cut_length, "time_s": made.summary.time})
+
+
+PLATES_NESTING = "plates-nesting.json"
+PLATES_DXF = "plates.dxf"
+PLATES_CUTLIST = "plates-cutlist.csv"
+
+
+def _export_plates(result: JobResult) -> None:
+    """The plate parts' sheets (supports) as one DXF and a cut list of their own, no G-code: the job's machine is set
+    up for the strips' thickness, a plate of another thickness goes to a plate cutter with its own settings."""
+    from fabline.export.cutlist import cutlist_csv
+    from fabline.export.dxf import drawing_text
+
+    spec = result.spec
+    parts = {p.id: p for p in result.partset.plates.parts}
+    with atomic_output(spec.output(Path("dxf") / PLATES_DXF)) as handle:
+        handle.write(drawing_text(result.plate_nesting.sheets, parts))
+    with atomic_output(spec.output(PLATES_CUTLIST)) as handle:
+        handle.write(cutlist_csv(result.plate_nesting, parts))
 
 
 def _survey(result: JobResult, say: Say) -> None:

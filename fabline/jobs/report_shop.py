@@ -43,7 +43,10 @@ def bill_of_materials(result: Any) -> dict | None:
     from fabline.mechanics.materials import get_material
 
     lamella = result.spec.lamella
-    return bom(result.nesting, result.partset, get_material(lamella["material"], lamella.get("materials_file")))
+    plates = result.partset.plates
+    return bom(result.nesting, result.partset, get_material(lamella["material"], lamella.get("materials_file")),
+               getattr(result, "plate_nesting", None),
+               get_material(plates.material, lamella.get("materials_file")) if plates else None)
 
 
 def summary_block(data: dict[str, Any]) -> str:
@@ -109,12 +112,26 @@ def bom_section(bom: dict | None) -> str:
     cost = (f" At {bom['price_per_kg']:g} {e(totals['currency'])}/kg the sheets cost {totals['cost']:,.2f} "
             f"{e(totals['currency'])}." if totals["cost"] is not None else
             " No price: add price_per_kg to the material (docs/unrolling.md, Structural check: materials) for the cost.")
-    hardware = "".join(f"<tr><td>{e(h['item'])}</td><td>{h['count']}</td><td>{e(h['per'])}</td></tr>"
-                       for h in bom["hardware"])
+    def cell(value: Any, form: str = "{:g}") -> str:
+        return "" if value is None else form.format(value)
+
+    items = "".join(f"<tr><td>{e(i['kind'])}</td><td>{e(i['item'])}</td><td>{e(i['size'])}</td>"
+                    f"<td>{cell(i['length_mm'], '{:.1f}')}</td><td>{i['count']}</td>"
+                    f"<td>{cell(i['total_mass_kg'], '{:.2f}')}</td><td>{e(i['per'])}</td></tr>"
+                    for i in bom.get("items", []) if i["kind"] != "sheet")
+    cables = bom.get("cables")
+    cable_text = (f" {cables['runs']} bracing cables ({e(cables['cable'])}): {cables['geometric_length_m']:.1f} m "
+                  f"geometric, {cables['cut_length_m']:.1f} m cut, {mass(cables['mass_kg'])}." if cables else "")
+    plates = bom.get("plates")
+    plate_text = (f" {plates['supports']} supports: {plates['parts']} plates on {len(plates['sheets'])} sheet(s) of "
+                  f"{plates['thickness_mm']:g} mm {e(plates['material'])} ({mass(plates['mass_kg'])}), drawn in "
+                  "dxf/plates.dxf with their cut list plates-cutlist.csv, no G-code: the job's machine is set up for "
+                  "the strips." if plates else "")
     return (f"<h2>Bill of materials</h2><p>{bom['thickness_mm']:g} mm {e(bom['material'])} at "
-            f"{bom['density_kg_m3']:g} kg/m3: {mass(totals['mass_kg'])} of sheet.{cost} The cut list with every "
-            f"part's sheet and position is cutlist.csv beside this report.</p><table id=bom>{head}{rows}</table>"
-            f"<p></p><table id=hardware><tr><th>hardware</th><th>count</th><th>per</th></tr>{hardware}</table>")
+            f"{bom['density_kg_m3']:g} kg/m3: {mass(totals['mass_kg'])} of sheet.{cost}{cable_text}{plate_text} The cut list with "
+            f"every part's sheet and position is cutlist.csv, the whole bill bom.csv, beside this report.</p>"
+            f"<table id=bom>{head}{rows}</table><p></p><table id=hardware><tr><th>kind</th><th>item</th><th>size</th>"
+            f"<th>length mm</th><th>count</th><th>mass kg</th><th>per</th></tr>{items}</table>")
 
 
 def picture_source(path: Path, folder: Path, media_type: str) -> str:

@@ -47,6 +47,13 @@ class UnrollOptions:
     strict: bool = False                # structural warnings become errors
     edge_members: bool = False          # the boundary curves as flat curved bars, top and bottom (unroll.edges)
     edge_width: float | None = None     # width of an edge member's bar; default the lamella height h
+    cable_pretension: float = 1.0       # cables are cut this much short per metre (mm/m), so tensioning fits them
+    cable_end_allowance: float = 80.0   # cable beyond each end clamp's centre: its outer hole and the end stop
+    supports: bool = False              # brackets (fin and base plate) at the support nodes, cut from plate
+    support_plate: float = 6.0          # their plate thickness (the thesis's 6 mm)
+    support_material: str = "steel-s235"  # their plate material (a materials file name)
+    support_height: float = 150.0       # from a support's bolt down to its footing, vertically
+    couplers: int = 0                   # shear blocks in this many node intervals from each support (0: none)
 
     @property
     def slot(self) -> float:
@@ -94,7 +101,7 @@ class UnrollOptions:
         """Raise a FablineError naming, as `name(field)` gives it, the first setting that cannot work (the command
         line's option by default; a job file names its own keys, which are these fields' names)."""
         positive = ("overlap", "screw_hole", "sheet_length", "text_height", "bolt_square", "slot_width", "end_length",
-                    "straight_tolerance", "edge_width")
+                    "straight_tolerance", "edge_width", "cable_end_allowance", "support_plate", "support_height")
         for key in positive:
             value = {"slot_width": self.slot, "end_length": self.end,
                      "edge_width": self.profile.h if self.edge_width is None else self.edge_width}.get(key, getattr(self, key))
@@ -121,6 +128,12 @@ class UnrollOptions:
             raise FablineError(f"{name('screw_hole')}: {self.screw_hole:g} mm does not fit a seam of the "
                                f"{self.profile.h:g} mm strip with a {self.shortest_overlap:g} mm overlap "
                                f"(at most min(h/4, min overlap/6) = {largest_hole:g} mm)")
+        if not 0 <= self.couplers <= 1000:
+            raise FablineError(f"{name('couplers')}: {self.couplers} node intervals from each support: use 0 (none) "
+                               "to 1000")
+        if not 0 <= self.cable_pretension < 100:
+            raise FablineError(f"{name('cable_pretension')}: {self.cable_pretension:g} mm/m must be at least 0 and "
+                               "under 100 mm/m (10 %)")
         if self.singularity not in SINGULARITY_MODES:
             raise FablineError(f"{name('singularity')}: {self.singularity!r}: use one of {', '.join(SINGULARITY_MODES)}")
         if not 0 < self.min_crossing_angle <= 90:

@@ -19,7 +19,7 @@ from fabline.fileio import MAX_MM, read_json, write_json
 from fabline.unroll.collector import collector_paused
 
 SCHEMA = "fabline.parts/1"
-PART_KINDS = ("strip", "curved-strip", "washer", "clamp", "joint")
+PART_KINDS = ("strip", "curved-strip", "washer", "clamp", "joint", "support")
 MIN_PART_MM = 0.01
 """A part's outline narrower than this (across its vertices, either way) is smaller than any kerf: it cannot be cut."""
 
@@ -127,6 +127,9 @@ class PartSet:
     material: str = ""
     source: str = ""
     report: dict = field(default_factory=dict)
+    cables: list[dict] = field(default_factory=list)  # bracing cable runs (bought, not cut): `fabline.unroll.cables`
+    plates: "PartSet | None" = None  # parts cut from other plate (supports): their own material and thickness
+    couplers: list[dict] = field(default_factory=list)  # shear blocks between a pair's strips: `fabline.unroll.couplers`
 
 
 def _same_contour(a: np.ndarray, b: np.ndarray) -> bool:
@@ -174,6 +177,10 @@ def parts_to_dict(partset: PartSet, arrays: bool = False) -> dict[str, Any]:
         "profile": partset.profile,
         "material": partset.material,
         "report": partset.report,
+        "cables": partset.cables,
+        "couplers": partset.couplers,
+        **({"plates": {"material": partset.plates.material, "profile": partset.plates.profile,
+                       "parts": parts_to_dict(partset.plates, arrays)["parts"]}} if partset.plates else {}),
         "parts": [
             {
                 "id": p.id, "kind": p.kind, "lamella": p.lamella, "label": p.label, "grain": p.grain,
@@ -274,8 +281,11 @@ def parts_from_dict(data: Any, source: str = "parts") -> PartSet:
             marks=pool.polylines(marks), text=pool.polylines(text),
             nodes=_field_list(raw, "nodes", where), meta=_field(raw, "meta", dict, where),
         ))
+    plates = _field(data, "plates", dict, source)
     return PartSet(parts, _field(data, "profile", dict, source), str(data.get("material", "")),
-                   str(data.get("source", "")), _field(data, "report", dict, source))
+                   str(data.get("source", "")), _field(data, "report", dict, source), _field(data, "cables", list, source),
+                   parts_from_dict({**plates, "schema": SCHEMA}, f"{source}: plates") if plates else None,
+                   _field(data, "couplers", list, source))
 
 
 class _ContourPool:

@@ -16,7 +16,9 @@ from fabline.geometry.offsets import OffsetCurve
 from fabline.model.network import Network
 from fabline.progress import progress
 from fabline.unroll.batch import straight_flags, straight_parts
+from fabline.unroll.cables import CableSettings, cable_runs, cable_summary, clamp_lift
 from fabline.unroll.collector import collector_paused
+from fabline.unroll.couplers import add_couplers
 from fabline.unroll.hardware import (HardwareSizes, checkerboard, clamp, clamp_ids, singularity_joints, washer_ids,
                                      washer_keys, washers)
 from fabline.mechanics.structure import check_lamellas, limits, structural_verdict
@@ -25,6 +27,7 @@ from fabline.unroll.parts import Part, PartSet
 from fabline.unroll.pieces import is_seam, segment_part
 from fabline.unroll.seams import Segment, split_strip
 from fabline.unroll.stations import Strip, singular_nodes, strip_stations
+from fabline.unroll.supports import support_parts
 
 
 def unroll_network(network: Network, options: UnrollOptions | None = None,
@@ -54,13 +57,20 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
         segments.extend(pieces)
         strip_rows.append(_strip_row(strip, pieces, seams, options))
     parts = _segment_parts(segments, options)
+    couplers, uncoupled = add_couplers(parts, geometry.network, options.couplers, sizes.bolt_hole, options.profile.h,
+                            options.pair_spacing, options.profile.t)
     checks = check_lamellas(list(geometry.lamellas.values()), options.material, options.profile)
     warnings = [line for check in checks for line in check.warnings]
     if options.strict and warnings:
         more = f" (and {len(warnings) - 1} more warnings)" if len(warnings) > 1 else ""
         raise FablineError(warnings[0] + more)
+    cables = None
     if options.hardware:
-        parts.extend(hardware_parts(geometry, options, sizes))
+        hardware = hardware_parts(geometry, options, sizes)
+        parts.extend(hardware)
+        cables = cable_runs(geometry.network, {p.meta["node"] for p in hardware if p.kind == "clamp"},
+                            clamp_lift(options.profile.h, options.profile.t, sizes),
+                            CableSettings(options.cable_pretension, options.cable_end_allowance))
     edges = None
     if options.edge_members:
         from fabline.unroll.edges import edge_parts
@@ -68,6 +78,15 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
         edge_list, edges = edge_parts(geometry.network, options, sizes.bolt_hole)
         parts.extend(edge_list)
         warnings = warnings + edges["warnings"]
+    plates = None
+    if options.supports:
+        plates = PartSet(support_parts(geometry.network, sizes.bolt_hole, options.profile.h, options.profile.t,
+                                       options.support_plate, options.support_height, options.text_height),
+                         {"t": options.support_plate, "name": f"{options.support_plate:g} mm plate"},
+                         options.support_material, network.name)
+        if not plates.parts:
+            raise FablineError("supports: the model marks no node as a support (node kind 'support': import with "
+                               "--supports, or leave supports off)")
     lamella_rows = [check.summary(options.material, options.profile) for check in checks]
     report = {
         "summary": _summary(parts, lamella_rows, strip_rows, warnings),
@@ -81,8 +100,13 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
     }
     if edges is not None:
         report["edges"] = edges
+    if options.couplers:
+        report["couplers"] = {"intervals_from_support": options.couplers, "placed": len(couplers),
+                              "skipped": uncoupled}
+    if cables is not None:
+        report["cables"] = cable_summary(cables, options, clamp_lift(options.profile.h, options.profile.t, sizes))
     profile = {"h": options.profile.h, "t": options.profile.t, "name": str(options.profile)}
-    return PartSet(parts, profile, options.material.name, network.name, report)
+    return PartSet(parts, profile, options.material.name, network.name, report, cables or [], plates, couplers)
 
 
 def _segment_parts(segments: list[Segment], options: UnrollOptions) -> list[Part]:
@@ -204,4 +228,7 @@ def _options_row(options: UnrollOptions) -> dict:
         "singularity": options.singularity, "hardware": options.hardware, "text_height_mm": options.engrave_height,
         "min_crossing_angle_deg": options.min_crossing_angle, "edge_members": options.edge_members,
         "edge_width_mm": (options.profile.h if options.edge_width is None else options.edge_width) if options.edge_members else None,
+        "cable_pretension_mm_per_m": options.cable_pretension, "cable_end_allowance_mm": options.cable_end_allowance,
+        "supports": options.supports, "support_plate_mm": options.support_plate if options.supports else None,
+        "support_height_mm": options.support_height if options.supports else None, "couplers": options.couplers,
     }

@@ -189,6 +189,13 @@ def test_report_starts_with_a_summary_and_lists_materials_hardware_and_cut_order
     with open(run["dir"] / "cutlist.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
     assert [r["part"] for r in rows] == [p.part for s in nesting.sheets for p in s.placements]
+    with open(run["dir"] / "bom.csv", newline="") as handle:  # the bill beside the report, as its JSON has it
+        bill = list(csv.DictReader(handle))
+    assert len(bill) == len(data["bill_of_materials"]["items"])
+    sheets = sum(int(r["count"]) for r in bill if r["kind"] == "sheet")
+    assert sheets == len(nesting.sheets)
+    washers = sum(1 for p in parts.parts if p.kind == "washer")
+    assert sum(int(r["count"]) for r in bill if r["item"].startswith("carriage bolt")) == washers // 2
 
 
 def test_structural_check_matches_the_closed_form(run):

@@ -67,6 +67,14 @@ def _write(tmp_path: Path, extra: str) -> Path:
     ("[nest]\ngap = '3 furlongs'", "job.toml: nest.gap: unknown unit 'furlongs' (use mm, cm, m, in, ft, pt or px)"),
     ("[nest]\nmargin = 10\nsheet_margin = 10", "job.toml: nest.margin: the old name of nest.sheet_margin"),
     ("[export]\nspeed = 3", "job.toml: export.speed: unknown key"),
+    ("[unroll]\ncable_pretension = 'tight'", "job.toml: unroll.cable_pretension: expected a strain as '1 mm/m'"),
+    ("[unroll]\ncable_pretension = [1]", "job.toml: unroll.cable_pretension: expected a strain"),
+    ("[unroll]\ncable_pretension = '20 %'", "job.toml: unroll.cable_pretension: '20 %' must be at least 0 and under"),
+    ("[unroll]\ncable_end_allowance = -1", "job.toml: unroll.cable_end_allowance: must be positive, got -1"),
+    ("[unroll]\ncouplers = -1", "job.toml: unroll.couplers: -1 node intervals from each support"),
+    ("[unroll]\nsupport_material = 'gold'", "job.toml: unroll.support_material: unknown material 'gold'"),
+    ("[unroll]\nsupport_plate = '0 mm'", "job.toml: unroll.support_plate: must be positive, got 0"),
+    ("[stock]\nplate_sheet = 'big'", "job.toml: stock.plate_sheet:"),
 ])
 def test_bad_stage_options_are_one_line_naming_file_and_key(tmp_path, extra, message):
     with pytest.raises(FablineError) as err:
@@ -77,6 +85,7 @@ def test_bad_stage_options_are_one_line_naming_file_and_key(tmp_path, extra, mes
 def test_the_example_job_makes_double_lamellas_25_mm_apart_with_twist_compensation():
     spec = load_job_file(REPO / "jobs" / "pavilion.toml")
     assert spec.unroll["pair_spacing"] == 25.0 and spec.unroll["compensate_twist"] is True
+    assert spec.unroll["supports"] is True and spec.unroll["couplers"] == 2 and spec.unroll["support_plate"] == 6.0
 
 
 def _enneper_line(c: float, fixed: float, along: np.ndarray, family: str) -> dict[str, np.ndarray]:
