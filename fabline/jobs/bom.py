@@ -6,7 +6,8 @@ holes and inner cuts) over the sheet's. Hardware is counted from what parts.json
 (`meta.node`) is one crossing node with one carriage bolt and nut; a singularity joint's plates share a bolt per
 bolt hole; strips meet at seams (`meta.joins`), screwed through the holes of the seam's overlap; a clamp has a
 square bolt hole and a cable hole at each arm's end; an edge member's node is one bolt through its top and bottom
-bars and a spacer tube between them (the thesis's edge detail).
+bars (the node's carriage bolt where it has washers: one bolt per axis) and a lamella end's end-fix holes take a
+bolt and a square tube cleat (the thesis's edge detail).
 
 `items` is the same bill as rows of one table, also written as bom.csv beside the report (`BOM_COLUMNS`): the sheets,
 the cut parts by kind, every fastener by size and length (`fabline.jobs.fasteners`), and each cable run with its
@@ -25,7 +26,8 @@ import numpy as np
 import shapely
 
 from fabline.fileio import atomic_output
-from fabline.jobs.fasteners import bolt_row, edge_fasteners, fastener_rows, hole_across
+from fabline.jobs.fasteners import (bolt_row, edge_fasteners, end_fix_count, end_fix_fasteners, fastener_rows,
+                                    hole_across)
 from fabline.mechanics.hardware import Catalogue, load_catalogue
 from fabline.mechanics.materials import Material
 from fabline.nest.layout import Nesting
@@ -44,31 +46,46 @@ def net_area(part: Part) -> float:
 
 
 def hardware(parts: list[Part], screw_hole_mm: float | None) -> list[dict[str, Any]]:
-    """The fasteners the parts call for: rows of item, count, and what one is per."""
+    """The fasteners the parts call for: rows of item, count, and what one is per. Each bolt axis counts once: at a
+    lamella end on the edge members the node's carriage bolt is the edge bolt, longer, through both bars."""
     washer_nodes = {p.meta.get("node") for p in parts if p.kind == "washer"}
     joint_bolts = {p.meta.get("node"): len(p.holes) for p in parts if p.kind == "joint"}
     seams = sum(1 for p in parts for join in ((p.meta.get("joins") or {}).get("start"),)
                 if join and join.get("kind") == "seam")
-    screw_holes = sum(1 for p in parts if p.kind in ("strip", "curved-strip") for h in p.holes
-                      if screw_hole_mm is None or abs(float(np.ptp(np.asarray(h)[:, 0])) - screw_hole_mm) < 0.05)
+    strips = [p for p in parts if p.kind in ("strip", "curved-strip")]
+    screw_holes = sum(1 for p in strips for h in p.holes if _screw(h, screw_hole_mm))
+    end_fixes = end_fix_count(parts)
     clamps = [p for p in parts if p.kind == "clamp"]
     cable_holes = sum(len(p.holes) - 1 for p in clamps)
-    bolts = len(washer_nodes) + sum(joint_bolts.values())
+    # one bolt per edge node, also where two edge members meet at a corner node (through all four bars)
+    edge_nodes = {node["id"] for p in parts if p.meta.get("member") == "edge" for node in p.nodes}
+    carriage = washer_nodes - edge_nodes
+    bolts = len(carriage) + sum(joint_bolts.values())
     rows = [{"item": "carriage bolt with nut", "count": bolts,
-             "per": f"1 per crossing node ({len(washer_nodes)} nodes with star washers)"
+             "per": f"1 per crossing node ({len(carriage)} nodes with star washers"
+                    + (" and no edge bolt)" if edge_nodes else ")")
                     + (f", {sum(joint_bolts.values())} in {len(joint_bolts)} singularity joints" if joint_bolts else "")},
             {"item": "seam screw with nut", "count": screw_holes // 2,
              "per": f"{screw_holes // 2 / seams:g} per seam ({seams} seams)" if seams else "no seams"},
             {"item": "cable clamp", "count": len(clamps),
              "per": f"{cable_holes / len(clamps):g} cable holes each: the two diagonal cables pass through it"
              if clamps else "no clamps"}]
-    # one bolt per edge node, also where two edge members meet at a corner node (through all four bars)
-    edge_nodes = {node["id"] for p in parts if p.meta.get("member") == "edge" for node in p.nodes}
     if edge_nodes:
+        shared = len(edge_nodes & washer_nodes)
         rows.append({"item": "edge bolt with nut and spacer tube", "count": len(edge_nodes),
-                     "per": "1 per lamella end on the edge members: through the top bars, a spacer tube and the "
-                            "bottom bars"})
+                     "per": "1 per edge member bar hole, through the top bars, a spacer tube and the bottom bars"
+                            + (f"; at {shared} nodes with star washers it is the node's carriage bolt, longer"
+                               if shared else "")})
+    if end_fixes:
+        rows.append({"item": "end-fix bolt with nut and square tube cleat", "count": end_fixes,
+                     "per": "1 per lamella end: through the end-fix holes of its strips and the tube between them, "
+                            "which the edge bars clamp"})
     return rows
+
+
+def _screw(hole: np.ndarray, screw_hole_mm: float | None) -> bool:
+    """Whether a strip's hole is a seam screw's (its diameter within 0.05 mm; every hole when the size is unknown)."""
+    return screw_hole_mm is None or abs(float(np.ptp(np.asarray(hole)[:, 0])) - screw_hole_mm) < 0.05
 
 
 def edge_members(parts: list[Part], thickness: float, kg_per_mm3: float) -> dict[str, Any] | None:
@@ -123,6 +140,7 @@ def bill_of_materials(nesting: Nesting, partset: PartSet, material: Material, pl
     items = (sheet_items(sheets) + part_items(partset.parts, thickness, kg_per_mm3)
              + fastener_rows(partset.parts, h, thickness, screw_hole, catalogue, fins)
              + edge_fasteners(partset.parts, h, thickness, catalogue, fins)
+             + end_fix_fasteners(partset.parts, h, thickness, catalogue)
              + cable_items(partset.cables, catalogue) + coupler_items(partset.couplers, thickness, catalogue))
     plate_entry = None
     if plates and plate_nesting is not None and plate_material is not None:

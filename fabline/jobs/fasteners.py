@@ -8,8 +8,11 @@ The stack-ups (docs/unrolling.md, "Fasteners"), h x t the profile, every hardwar
 - singularity joint: a hex bolt through each bolt hole of the top plate, between the pair, through the bottom
   plate: grip h + 2t;
 - seam: a button head screw through the two overlapping strips, a washer and a nut: grip 2t;
-- edge node: a hex bolt through the edge bars at the node and a spacer tube of length h between the top and bottom
-  bars (`edge_fasteners`, kept apart: the edge members decide how their bolts are counted).
+- edge bolt: a hex bolt through the edge bars at each bar hole and a spacer tube filling the gap between the top and
+  bottom bars (which lie on top of the washers' layer); where the bar hole is a node with washers, the node's carriage
+  bolt is the edge bolt, longer (one bolt per axis), and washers and lamella fill the gap (`edge_fasteners`);
+- lamella end: a hex bolt through the end-fix holes of the pair's two strips and the square tube cleat between them,
+  which the edge bars clamp (`end_fix_fasteners`).
 Sizes come from the parts' own holes (`fabline.mechanics.hardware`: the largest size whose clearance fits).
 """
 
@@ -60,7 +63,8 @@ def fastener_rows(parts: list[Part], h: float, t: float, screw_hole_mm: float | 
         square = hole_across(washers[0].holes[0])
         edge_nodes = {node["id"] for p in parts if p.meta.get("member") == "edge" for node in p.nodes}
         fin = {n: v for n, v in (fins or {}).items() if n not in edge_nodes}
-        counts = Counter((p.meta.get("node") in clamped, fin.get(p.meta.get("node"), 0.0)) for p in washers)
+        counts = Counter((p.meta.get("node") in clamped, fin.get(p.meta.get("node"), 0.0)) for p in washers
+                         if p.meta.get("node") not in edge_nodes)  # there the edge bolt is the node's bolt
         rows.extend(_grouped("carriage bolt with nut", "crossing node: ", [
             (catalogue.bolt("carriage", square, h + 2.0 * t + (t if with_clamp else 0.0) + plate, square=True), count,
              "through washer, h, washer" + (", clamp" if with_clamp else "") + (f", {plate:g} mm support fin" if plate else ""))
@@ -82,25 +86,67 @@ def fastener_rows(parts: list[Part], h: float, t: float, screw_hole_mm: float | 
 
 def edge_fasteners(parts: list[Part], h: float, t: float, catalogue: Catalogue,
                    fins: dict[str, float] | None = None) -> list[dict[str, Any]]:
-    """The edge nodes' bolts and spacer tubes: per node a hex bolt through every edge bar listing the node, a tube of
-    length h between the top and bottom bars and, at a support node, the support's fin (`fins`: its thickness);
-    grouped by bolt length."""
+    """The edge members' bolts and spacer tubes: per bar hole a hex bolt through every edge bar listing it, the gap
+    between the top and bottom bars (the bars' offsets less their thickness) and, at a support node, the support's fin
+    (`fins`: its thickness); a spacer tube fills the gap except at a node with washers. Grouped by bolt length."""
     bars = [p for p in parts if p.meta.get("member") == "edge"]
     if not bars:
         return []
+    offsets = [float(p.meta["offset_mm"]) for p in bars]
+    gap = max(offsets) - min(offsets) - t
+    washer_nodes = {p.meta.get("node") for p in parts if p.kind == "washer"}
     layers = Counter(node["id"] for p in bars for node in p.nodes)
     fins = fins or {}
-    stacks = Counter((count, fins.get(node, 0.0)) for node, count in layers.items())
-    hole = hole_across(bars[0].holes[0])
-    rows = _grouped("edge bolt with nut", "edge node: ", [
-        (catalogue.bolt("hex", hole, h + count * t + plate), nodes,
-         f"through {count} bars and the spacer tube" + (f" and a {plate:g} mm support fin" if plate else ""))
-        for (count, plate), nodes in sorted(stacks.items())])
-    size = catalogue.size_for_hole(hole)
-    outer, wall = size.d + 4.0, 1.5  # a 1.5 mm wall tube the bolt passes (bore d + 1 mm)
-    tube_g = np.pi / 4.0 * (outer ** 2 - (outer - 2 * wall) ** 2) * h * catalogue.density * 1e-6
-    rows.append({"item": f"spacer tube {outer:g} x {wall:g} for {size.name}", "kind": "fastener",
-                 "size": f"{outer:g}x{wall:g}", "length_mm": h, "count": len(layers),
-                 "unit_mass_kg": round(tube_g / 1000.0, 5), "total_mass_kg": round(tube_g * len(layers) / 1000.0, 3),
-                 "per": "edge node: between the top and bottom edge bars", "grip_mm": None})
+    stacks = Counter((count, fins.get(node, 0.0), node in washer_nodes) for node, count in layers.items())
+    hole = max(hole_across(hole) for p in bars for hole in p.holes)  # the bolt holes (the seams' screw holes are smaller)
+    rows = _grouped("edge bolt with nut", "edge bar hole: ", [
+        (catalogue.bolt("hex", hole, gap + count * t + plate), nodes,
+         f"through {count} bars and " + ("the node's washers and lamellas (its carriage bolt)" if washers else
+                                         "the spacer tube") + (f" and a {plate:g} mm support fin" if plate else ""))
+        for (count, plate, washers), nodes in sorted(stacks.items())])
+    tubes = sum(1 for node in layers if node not in washer_nodes)
+    if tubes:
+        size = catalogue.size_for_hole(hole)
+        outer, wall = size.d + 4.0, 1.5  # a 1.5 mm wall tube the bolt passes (bore d + 1 mm)
+        tube_g = np.pi / 4.0 * (outer ** 2 - (outer - 2 * wall) ** 2) * gap * catalogue.density * 1e-6
+        rows.append({"item": f"spacer tube {outer:g} x {wall:g} for {size.name}", "kind": "fastener",
+                     "size": f"{outer:g}x{wall:g}", "length_mm": round(gap, 2), "count": tubes,
+                     "unit_mass_kg": round(tube_g / 1000.0, 5), "total_mass_kg": round(tube_g * tubes / 1000.0, 3),
+                     "per": "edge bar hole: between the top and bottom edge bars", "grip_mm": None})
+    return rows
+
+
+def end_fix_count(parts: list[Part]) -> int:
+    """The lamella ends fixed to the edge: per lamella its end-fix holes on one strip of the pair (a bolt passes both)."""
+    holes: Counter = Counter()
+    for p in parts:
+        if p.meta.get("end_fixes"):
+            holes[(p.lamella, p.meta.get("side"))] += p.meta["end_fixes"]
+    per_lamella: dict[str, int] = {}
+    for (lamella, _), count in holes.items():
+        per_lamella[lamella] = max(per_lamella.get(lamella, 0), count)
+    return sum(per_lamella.values())
+
+
+def end_fix_fasteners(parts: list[Part], h: float, t: float, catalogue: Catalogue) -> list[dict[str, Any]]:
+    """Per lamella end a hex bolt through its end-fix holes and a square tube cleat between the pair's strips (side:
+    their gap), as tall as the gap between the edge bars that clamp it (h where there are none)."""
+    ends = end_fix_count(parts)
+    if not ends:
+        return []
+    fixed = [p for p in parts if p.meta.get("end_fixes")]
+    offsets = [float(p.meta.get("offset_mm") or 0.0) for p in fixed]
+    spacing = max(offsets) - min(offsets)
+    hole = min(hole_across(hole) for p in fixed for hole in p.holes[-p.meta["end_fixes"]:])
+    bars = [float(p.meta["offset_mm"]) for p in parts if p.meta.get("member") == "edge"]
+    tall = max(bars) - min(bars) - t if bars else h
+    bolt = catalogue.bolt("hex", hole, spacing + t)
+    rows = [bolt_row("end-fix hex bolt with nut", bolt, ends, "lamella end: through strip, cleat, strip")]
+    if spacing > t:
+        side, wall = spacing - t, 1.5
+        cleat_g = (side ** 2 - (side - 2 * wall) ** 2) * tall * catalogue.density * 1e-6
+        rows.append({"item": f"square tube cleat {side:g} x {wall:g}", "kind": "fastener", "size": f"{side:g}x{wall:g}",
+                     "length_mm": round(tall, 2), "count": ends, "unit_mass_kg": round(cleat_g / 1000.0, 5),
+                     "total_mass_kg": round(cleat_g * ends / 1000.0, 3),
+                     "per": "lamella end: between the pair's strips, clamped by the edge bars", "grip_mm": None})
     return rows

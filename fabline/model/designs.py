@@ -365,4 +365,59 @@ def design_surface(network: Network) -> tuple[AsymptoticSurface, dict[str, tuple
     return surface, params, 2 * np.pi if meta["design"] == "catenoid" else None
 
 
+# a domain boundary's norm of normalised parameters (a / half_a, b / half_b): 1 on the boundary, 1-homogeneous
+DOMAIN_NORMS = {"ellipse": lambda x, y: np.hypot(x, y), "diamond": lambda x, y: np.abs(x) + np.abs(y),
+                "rectangle": lambda x, y: np.maximum(np.abs(x), np.abs(y))}
+DOMAIN_CORNERS = {"ellipse": (), "diamond": (0.0, 0.5, 1.0, 1.5), "rectangle": (0.25, 0.75, 1.25, 1.75)}  # x pi
+
+
+@dataclass(frozen=True)
+class DomainBoundary:
+    """The boundary curve of a built-in design's (a, b) domain (an ellipse, diamond or rectangle about the origin),
+    on its exact surface (metres): where its lamellas end. `at(theta, rho)` is the point of the boundary scaled by
+    rho in the direction theta of the normalised plane (a / half_a, b / half_b); corners at `corners` (radians)."""
+
+    surface: AsymptoticSurface
+    shape: str
+    half_a: float
+    half_b: float
+
+    @property
+    def corners(self) -> np.ndarray:
+        return np.pi * np.array(DOMAIN_CORNERS[self.shape])
+
+    def norm(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """1 on the boundary, below inside, rho on the boundary scaled by rho."""
+        return DOMAIN_NORMS[self.shape](np.asarray(a) / self.half_a, np.asarray(b) / self.half_b)
+
+    def at(self, theta: np.ndarray, rho: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """Parameters (a, b) of the scaled boundary at the angles theta."""
+        c, s = np.cos(theta), np.sin(theta)
+        r = rho / DOMAIN_NORMS[self.shape](c, s)
+        return r * c * self.half_a, r * s * self.half_b
+
+    def angle(self, a: float, b: float) -> float:
+        """The angle theta (0 .. 2 pi) of parameters (a, b)."""
+        return float(np.arctan2(b / self.half_b, a / self.half_a) % (2.0 * np.pi))
+
+    def meeting(self, a: float, b: float, da: float, db: float, rho: float = 1.0) -> float:
+        """How far (in steps (da, db)) the parameter line from (a, b) runs until it meets the scaled boundary."""
+        if self.norm(a, b) >= rho:
+            return 0.0
+        far = 1.0
+        while self.norm(a + far * da, b + far * db) < rho:
+            far *= 2.0
+        return float(brentq(lambda x: float(self.norm(a + x * da, b + x * db)) - rho, 0.0, far, xtol=1e-14))
+
+
+def design_boundary(network: Network) -> DomainBoundary | None:
+    """The domain boundary of a built-in design whose lamellas end inside a curved domain (Enneper), None for any
+    other network (the catenoid's and helicoid's ends lie on their domain's edges: their nodes are the boundary)."""
+    exact = design_surface(network)
+    meta = network.meta
+    if exact is None or meta.get("design") != "enneper" or meta.get("boundary") not in DOMAIN_NORMS:
+        return None
+    return DomainBoundary(exact[0], meta["boundary"], float(meta["domain"]["u"]), float(meta["domain"]["v"]))
+
+
 DESIGNS = {"enneper": enneper_network, "catenoid": catenoid_network, "helicoid": helicoid_network}

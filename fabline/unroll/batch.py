@@ -170,6 +170,13 @@ def straight_parts(segments: list[Segment], options: UnrollOptions) -> list[Part
             slot_list[s0:s1], Polylines(mark_points[2 * n0:2 * n1], mark_starts[n0:n1]),
             Polylines(text[text_point_at[k]:text_point_at[k + 1]], text_starts[t0:t1]), node_rows[n0:n1],
             labels[k], True, segment_meta(segment, None)))
+        fixes = segment.strip.fix_x
+        if len(fixes):  # end-fix holes on the centreline (y = 0), x from the segment's start
+            fixes = fixes[(fixes > segment.start) & (fixes < segment.end)]
+            parts[-1].holes = parts[-1].holes + circles(np.column_stack([fixes - segment.start, 0.0 * fixes]),
+                                                        options.bolt_square / 2.0)
+            if len(fixes):
+                parts[-1].meta["end_fixes"] = len(fixes)
     return parts
 
 

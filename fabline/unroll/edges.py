@@ -7,12 +7,16 @@ strip the unroller already makes when the conormal is given as the strip's "norm
 then the boundary's geodesic curvature k_g, its weak-axis bending the normal curvature k_n, its twist the
 geodesic torsion; so the same stations, seams, parts and structural check serve, with node holes and no slots.
 
-The boundary: every lamella end (the first and last node of each lamella) lies on it. Ends at most NEIGHBOUR_HOPS
-node intervals apart along the lamellas are neighbours on one boundary; each group is ordered into the shortest tour
-(nearest neighbour, then 2-opt), closed unless exactly one step joins ends that are not neighbours, and split into
-separate bars at corners where it turns more than CORNER_TURN_DEG. Between the ends the curve is the exact surface's for
-the built-in designs (a cubic spline through the nodes' parameters), else a spline through the nodes and their
-normals. Two copies, top and bottom, sit (h + t)/2 either side of the surface along its normal.
+The boundary of a built-in design whose grid ends inside a curved domain (Enneper) is that domain's boundary on the
+exact surface (`domain_edge`), scaled just clear of the nodes; its lamellas run on along their grid lines to it
+(`extend_to_edge`), and the bars hold each there. Any other network's boundary runs through its lamella ends (the
+first and last node of each lamella): ends at most NEIGHBOUR_HOPS node intervals apart along the lamellas are
+neighbours on one boundary; each group is ordered into the shortest tour (nearest neighbour, then 2-opt), closed
+unless exactly one step joins ends that are not neighbours, and split into separate bars at corners where it turns
+more than CORNER_TURN_DEG; between the ends the curve is the exact surface's for the catenoid and helicoid (a cubic
+spline through the nodes' parameters), else a spline through the nodes and their normals. Two copies, top and
+bottom, sit on the node washers (`layer_offset`) either side of the surface along its normal, each developed by its
+own offset curve's geodesic curvature (`offset_turning`).
 """
 
 from __future__ import annotations
@@ -24,13 +28,14 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from fabline.errors import FablineError
 from fabline.geometry.darboux import CurveFit, LamellaGeometry
 from fabline.geometry.offsets import OffsetCurve
 from fabline.mechanics.materials import Profile
 from fabline.mechanics.structure import check_lamellas
-from fabline.model.designs import design_surface
+from fabline.model.designs import SAMPLE_STEP_M, DomainBoundary, design_boundary, design_surface
 from fabline.model.network import Lamella, Network
 from fabline.unroll.options import UnrollOptions
 from fabline.unroll.parts import Part
@@ -43,6 +48,8 @@ NEIGHBOUR_HOPS = 3        # boundary neighbours: lamella ends at most this many 
 CORNER_TURN_DEG = 60.0    # a boundary turning more than this at a node is split there into two bars
 SAMPLE_MM = 20.0          # sample spacing of a boundary curve (every node is a sample)
 LAYERS = (("T", -1.0), ("B", 1.0))  # top (+n side) and bottom bars; the sign of their offset along u' = -n
+NODE_CLEARANCE = 15.0     # mm from a bar's edge to any node's bolt axis: a carriage bolt's head (M8: 20 across) + 5
+DENSE = 20000             # samples of a domain boundary for distances and arc lengths (3 mm apart on the pavilion)
 
 
 @dataclass
@@ -181,12 +188,114 @@ def _corners(chain: list[str], closed: bool, network: Network) -> list[tuple[lis
     return [(chain[a:b + 1], False) for a, b in zip(corners[:-1], corners[1:]) if b > a]
 
 
-def boundary_curves(network: Network) -> list[BoundaryCurve]:
-    """Every edge member's curve of the network (mm), ids E1, E2, ...: on the exact surface of a built-in design,
-    else a cubic spline through the boundary nodes and their normals."""
+def boundary_curves(network: Network, options: UnrollOptions | None = None) -> list[BoundaryCurve]:
+    """Every edge member's curve of the network (mm), ids E1, E2, ...: a built-in design with a curved domain
+    (Enneper) has its domain's boundary on the exact surface (`domain_edge`), split at the domain's corners, through
+    the points where the lamellas meet it; other built-ins the exact surface through their end nodes; else a cubic
+    spline through the boundary nodes and their normals."""
+    edge = domain_edge(network, options or UnrollOptions())
+    if edge is not None:
+        return domain_curves(edge)
     exact = design_surface(network)
     mm = _in_mm(network)
     return [_sample(f"E{k}", chain, closed, mm, exact) for k, (chain, closed) in enumerate(boundary_chains(network), 1)]
+
+
+@dataclass
+class DomainEdge:
+    """A built-in design's edge: its domain boundary scaled by `rho` (1, or just over where a node would lie under a
+    bar or closer than NODE_CLEARANCE to its edge), and where each lamella's grid line meets it: per (lamella, end
+    0 or -1) the meeting point's id (the lamella's id, .1 at its first end, .2 at its last) and parameters (a, b)."""
+
+    boundary: DomainBoundary
+    rho: float
+    meetings: dict[tuple[str, int], tuple[str, float, float]]
+
+
+def domain_edge(network: Network, options: UnrollOptions) -> DomainEdge | None:
+    """The edge of a built-in design with a curved domain (`designs.design_boundary`), for bars `edge_options`
+    wide; None for any other network."""
+    boundary = design_boundary(network)
+    if boundary is None:
+        return None
+    params = design_surface(network)[1]
+    width = edge_options(options).profile.h
+    xyz = np.array([boundary.surface.point(*params[nid]) for nid in network.nodes]) * 1000.0
+    need = width / 2.0 + NODE_CLEARANCE
+    theta = np.linspace(0.0, 2.0 * np.pi, DENSE, endpoint=False)
+
+    def clearance(rho: float) -> float:
+        """The nearest node's distance (mm) from the boundary scaled by rho."""
+        return float(cKDTree(boundary.surface.point(*boundary.at(theta, rho)) * 1000.0).query(xyz)[0].min())
+
+    rho = 1.0
+    if clearance(1.0) < need:  # every node lies inside: the distance grows with rho
+        low, high = 1.0, 1.01
+        while clearance(high) < need:
+            low, high = high, 1.0 + 2.0 * (high - 1.0)
+        for _ in range(30):
+            low, high = (low, (low + high) / 2.0) if clearance((low + high) / 2.0) >= need else ((low + high) / 2.0, high)
+        rho = high
+    meetings = {}
+    for lam in network.lamellas:
+        for end, inner, mark in ((0, 1, 1), (-1, -2, 2)):
+            (a, b), (pa, pb) = params[lam.nodes[end]], params[lam.nodes[inner]]
+            run = boundary.meeting(a, b, a - pa, b - pb, rho)
+            meetings[(lam.id, end)] = (f"{lam.id}.{mark}", a + run * (a - pa), b + run * (b - pb))
+    return DomainEdge(boundary, rho, meetings)
+
+
+def extend_to_edge(network: Network, options: UnrollOptions) -> Network:
+    """The network with every lamella's centreline run on along its grid line, on the exact surface, from its end
+    nodes to where it meets the `domain_edge` (the same nodes); the network itself when it has no such edge."""
+    edge = domain_edge(network, options)
+    if edge is None:
+        return network
+    surface, params = edge.boundary.surface, design_surface(network)[1]
+    to_units = 1.0 / network.mm_per_unit * 1000.0  # the surface's metres in the network's units
+    lamellas = []
+    for lam in network.lamellas:
+        pieces = []
+        for end in (0, -1):
+            (a, b), (_, ma, mb) = params[lam.nodes[end]], edge.meetings[(lam.id, end)]
+            chord = np.linalg.norm(surface.point(ma, mb) - surface.point(a, b))
+            t = np.linspace(0.0, 1.0, max(2, int(np.ceil(chord / SAMPLE_STEP_M))) + 1)[1:]
+            t = t[::-1] if end == 0 else t   # the start's run from the meeting towards the node
+            pa, pb = a + t * (ma - a), b + t * (mb - b)
+            pieces.append((surface.point(pa, pb) * to_units, surface.normal(pa, pb)))
+        (start, start_n), (stop, stop_n) = pieces
+        lamellas.append(dataclasses.replace(lam, curve=np.vstack([start, lam.curve, stop]),
+                                            normals=np.vstack([start_n, lam.normals, stop_n])))
+    return Network(network.units, network.nodes, lamellas, network.name, dict(network.meta))
+
+
+def domain_curves(edge: DomainEdge) -> list[BoundaryCurve]:
+    """The edge members along a `domain_edge` (mm): one closed loop round a domain without corners (from the
+    meeting of the smallest id, the lap one meeting interval past it each way), else one bar per side from corner to
+    corner, the corners nodes that both bars hold (the lamella end that meets the edge there, else K1, K2, ... by
+    angle). Each through its meetings in order, counter-clockwise in the parameter plane, sampled as `_sample` does."""
+    boundary = edge.boundary
+    ids = {mid: boundary.angle(a, b) for mid, a, b in edge.meetings.values()}
+    stops = sorted(ids.items(), key=lambda item: (item[1], item[0]))
+    if not len(boundary.corners):
+        names, angles = [n for n, _ in stops], np.array([a for _, a in stops])
+        first = names.index(min(names))
+        names, angles = names[first:] + names[:first], np.concatenate([angles[first:], angles[:first] + 2 * np.pi])
+        loop = np.concatenate([[angles[-1] - 2 * np.pi], angles, [angles[0] + 2 * np.pi]])
+        knots = np.concatenate([[angles[-1] - 2 * np.pi], angles, angles[:2] + 2 * np.pi])  # a lap each way
+        return [_domain_sample("E1", names + names[:1], True, knots, boundary, edge.rho)]
+    corners = boundary.corners
+    # a corner's bolt: the lamella end that meets the edge there, if one does
+    at_corner = [next((n for n, a in stops if abs((a - c + np.pi) % (2 * np.pi) - np.pi) < 1e-9), f"K{k}")
+                 for k, c in enumerate(corners, 1)]
+    curves = []
+    for k, (lo, hi) in enumerate(zip(corners, np.append(corners[1:], corners[0] + 2 * np.pi)), 1):
+        inside = [(n, a if a >= lo else a + 2 * np.pi) for n, a in stops if n not in at_corner]
+        inside = sorted((item for item in inside if lo < item[1] < hi), key=lambda item: item[1])
+        names = [at_corner[k - 1]] + [n for n, _ in inside] + [at_corner[k % len(corners)]]
+        curves.append(_domain_sample(f"E{k}", names, False, np.array([lo] + [a for _, a in inside] + [hi]),
+                                     boundary, edge.rho))
+    return curves
 
 
 def _sample(curve_id: str, chain: list[str], closed: bool, network: Network, exact) -> BoundaryCurve:
@@ -236,6 +345,32 @@ def _sample(curve_id: str, chain: list[str], closed: bool, network: Network, exa
     return BoundaryCurve(curve_id, list(chain), closed, points, normals, tangents, rows)
 
 
+def _domain_sample(curve_id: str, names: list[str], closed: bool, knots: np.ndarray, boundary: DomainBoundary,
+                   rho: float) -> BoundaryCurve:
+    """A boundary curve on the scaled domain boundary through the angles `knots` (a closed loop's first and last
+    knot one interval past its ends): every node a sample, at most SAMPLE_MM between samples, all on the exact
+    surface with its normals, the tangents from the closed form (one-sided at the ends, where corners are)."""
+    fine = np.union1d(np.linspace(knots[0], knots[-1], DENSE), knots)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(
+        boundary.surface.point(*boundary.at(fine, rho)) * 1000.0, axis=0), axis=1))])
+    at = np.interp(knots, fine, arc)
+    pieces = [np.linspace(lo, hi, max(2, int(np.ceil((hi - lo) / SAMPLE_MM))) + 1)[:-1] for lo, hi in zip(at[:-1], at[1:])]
+    s = np.concatenate(pieces + [at[-1:]])
+    theta = np.interp(s, arc, fine)
+    a, b = boundary.at(theta, rho)
+    step = 1e-7
+    ahead, behind = np.minimum(theta + step, knots[-1]), np.maximum(theta - step, knots[0])
+    (a1, b1), (a0, b0) = boundary.at(ahead, rho), boundary.at(behind, rho)
+    xa, xb = boundary.surface.partials(a, b)
+    tangents = xa * ((a1 - a0) / (ahead - behind))[:, None] + xb * ((b1 - b0) / (ahead - behind))[:, None]
+    tangents /= np.linalg.norm(tangents, axis=1)[:, None]
+    normals = boundary.surface.normal(a, b)
+    normals = normals - np.einsum("ij,ij->i", normals, tangents)[:, None] * tangents
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    rows = np.searchsorted(s, (at[1:-1] if closed else at) - 1e-9)
+    return BoundaryCurve(curve_id, names, closed, boundary.surface.point(a, b) * 1000.0, normals, tangents, rows)
+
+
 def edge_geometry(curve: BoundaryCurve) -> LamellaGeometry:
     """The boundary as a strip whose "normal" is the conormal u = n x t: its frame's in-plane curvature k_n is the
     boundary's geodesic curvature, its k_g minus the normal curvature (weak-axis bending), its tau_g the twist."""
@@ -248,6 +383,13 @@ def edge_geometry(curve: BoundaryCurve) -> LamellaGeometry:
                            fit.s_at_samples[curve.node_rows], frame["t"][curve.node_rows])
 
 
+def layer_offset(options: UnrollOptions, bar_thickness: float) -> float:
+    """How far the bars' centre planes lie from the surface (mm): on the lamellas' edges (h/2), on top of the node's
+    star washer there (one sheet thickness t, cut with the strips), plus half the bar's own thickness. The edge nodes
+    get no cable clamp (the cables end at the edge bars), so nothing else lies between washer and bar."""
+    return options.profile.h / 2.0 + options.profile.t + bar_thickness / 2.0
+
+
 def edge_options(options: UnrollOptions) -> UnrollOptions:
     """The options an edge bar is cut with: the lamella's thickness at the edge width (default the lamella height)."""
     width = options.edge_width if options.edge_width is not None else options.profile.h
@@ -257,22 +399,53 @@ def edge_options(options: UnrollOptions) -> UnrollOptions:
 
 def edge_strips(curves: list[BoundaryCurve], offset: float) -> tuple[list[Strip], list[LamellaGeometry]]:
     """Top and bottom strips of every edge member, `offset` from the surface either side along its normal, each bar
-    bent in plane by the boundary's turning over its own arc length (k_g ds / ds_offset); and the centre geometries."""
+    developed by its own offset curve's geodesic curvature (`offset_turning`); and the centre geometries."""
     strips, geometries = [], []
     for curve in curves:
         geo = edge_geometry(curve)
         geometries.append(geo)
         for side, sign in LAYERS:
             layer = OffsetCurve.of(geo, sign * offset)
-            bent = dataclasses.replace(geo, k_n=geo.k_n / layer.ratio)
+            bent = dataclasses.replace(geo, k_n=offset_turning(geo, sign * offset) / layer.ratio)
             layer = dataclasses.replace(layer, geometry=bent)
             strips.append(Strip(bent, side, layer, list(curve.node_ids), layer.s_at_samples[curve.node_rows]))
     return strips, geometries
 
 
-def edge_parts(network: Network, options: UnrollOptions, bolt_hole: float) -> tuple[list[Part], dict]:
-    """The edge members of a network: `curve_parts` of its `boundary_curves`."""
-    return curve_parts(boundary_curves(network), options, bolt_hole)
+def offset_turning(geo: LamellaGeometry, offset: float) -> np.ndarray:
+    """The turning per centre arc length (1/mm) of the curve p = c + o u in its own face plane, at the samples.
+
+    The bar's face is the plane (t, n) of the edge frame (n the conormal) carried along p; p' = (1 - o k_g) t +
+    o tau_g n, so p's tangent is turned from t by the skew angle phi = atan(o tau_g / (1 - o k_g)) in that plane,
+    and its geodesic curvature in its own tangent plane is (k_n + dphi/ds) ds / ds_o: the centre curve's turning
+    plus the change of skew angle (the surface's k_n and tau_g about the surface normal, in the surface's terms).
+    """
+    phi = np.arctan2(offset * geo.tau_g, 1.0 - offset * geo.k_g)
+    return geo.k_n + np.gradient(phi, geo.s)
+
+
+def end_fixes(strips: list[Strip], options: UnrollOptions, to_edge: bool) -> None:
+    """Give every lamella strip its end-fix holes (`Strip.fix_x`): one on the centreline at each end, halfway between
+    its outermost slot, node or edge crossing and its end, for the bolt through the pair's two strips and the square
+    tube cleat between them that the edge bars clamp (the thesis's detail; one per lamella end, in the bill of
+    materials). `to_edge`: the lamellas run on to the edge (`extend_to_edge`), which crosses them at their curves'
+    ends (`Strip.edge_x`), where the edge bolt passes between the pair."""
+    for strip in strips:
+        if to_edge:
+            strip.edge_x = np.array([0.0, strip.curve.length])
+        xs = np.concatenate([strip.node_x, strip.slot_x, strip.edge_x])
+        strip.fix_x = np.array([xs.min() - options.end / 2.0, xs.max() + options.end / 2.0])
+
+
+def nodes_near(curves: list[BoundaryCurve], network: Network, reach: float) -> set[str]:
+    """The nodes of a network within `reach` (mm) of an edge member's curve (measured to its samples, so within
+    reach plus half a sample spacing: never fewer)."""
+    if not curves:
+        return set()
+    mm = _in_mm(network)
+    ids = list(mm.nodes)
+    distance, _ = cKDTree(np.vstack([c.points for c in curves])).query(np.array([mm.nodes[n].xyz for n in ids]))
+    return {nid for nid, d in zip(ids, distance) if d < reach + SAMPLE_MM / 2.0}
 
 
 def curve_parts(curves: list[BoundaryCurve], options: UnrollOptions, bolt_hole: float) -> tuple[list[Part], dict]:
@@ -283,8 +456,7 @@ def curve_parts(curves: list[BoundaryCurve], options: UnrollOptions, bolt_hole: 
         bar.check()
     except FablineError as exc:
         raise FablineError(f"edge members ({bar.profile.h:g} x {bar.profile.t:g} mm bars): {exc}") from None
-    # the bars lie on the lamellas' top and bottom edges: h/2 from the surface, plus half their own thickness
-    strips, geometries = edge_strips(curves, (options.profile.h + bar.profile.t) / 2.0)
+    strips, geometries = edge_strips(curves, layer_offset(options, bar.profile.t))
     parts, rows, avoid = [], [], {}
     for strip in strips:
         taken = avoid.setdefault(strip.lamella, set())

@@ -72,10 +72,16 @@ def segment_part(segment: Segment, options: UnrollOptions, node_hole: float = 0.
     holes = circles(_seam_holes(centre, segment, options), options.screw_hole / 2.0)
     if node_hole and len(marks_at):
         holes += circles(centre.place(marks_at, 0.0, 0.0), node_hole / 2.0)
+    fixes = strip.fix_x[(strip.fix_x > a) & (strip.fix_x < b)]
+    if len(fixes):
+        holes += circles(centre.place(fixes, 0.0, 0.0), options.bolt_square / 2.0)
     nodes = [{"id": nid, "s": round(x - a, 4)} for nid, x in in_nodes]
     kind = "strip" if centre.straight else "curved-strip"
+    meta = segment_meta(segment, _radius(centre))
+    if len(fixes):
+        meta["end_fixes"] = len(fixes)
     return Part(segment.id, kind, outline, lamella=strip.lamella, holes=holes, slots=slots, marks=marks,
-                text=Polylines.of(text), nodes=nodes, label=label, grain=True, meta=segment_meta(segment, _radius(centre)))
+                text=Polylines.of(text), nodes=nodes, label=label, grain=True, meta=meta)
 
 
 def segment_meta(segment: Segment, radius: float | None) -> dict:

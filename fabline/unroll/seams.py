@@ -55,8 +55,8 @@ class Segment:
 
 
 def strip_extent(strip: Strip, options: UnrollOptions) -> tuple[float, float]:
-    """Arc-length range of the whole strip: its outermost node or slot plus the end length at both ends."""
-    xs = np.concatenate([strip.node_x, strip.slot_x])
+    """Arc-length range of the whole strip: its outermost node, slot or edge crossing plus the end length at both ends."""
+    xs = np.concatenate([strip.node_x, strip.slot_x, strip.edge_x])
     return float(xs.min() - options.end), float(xs.max() + options.end)
 
 

@@ -39,6 +39,8 @@ class Strip:
     slot_x: np.ndarray = field(default_factory=lambda: np.zeros(0))
     slot_edges: list[str] = field(default_factory=list)
     joint_nodes: set[str] = field(default_factory=set)
+    fix_x: np.ndarray = field(default_factory=lambda: np.zeros(0))  # end-fix holes (edges.end_fixes), sorted
+    edge_x: np.ndarray = field(default_factory=lambda: np.zeros(0))  # where edge members cross it (edges.end_fixes)
 
     @property
     def lamella(self) -> str:

@@ -39,12 +39,25 @@ def unroll_network(network: Network, options: UnrollOptions | None = None,
 
 def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry | None) -> PartSet:
     """`unroll_network` with checked options."""
+    edges_module = None
+    if options.edge_members:
+        from fabline.unroll import edges as edges_module
+
+        if geometry is None:  # a built-in design's lamellas run on to the edge of its domain
+            network = edges_module.extend_to_edge(network, options)
     geometry = geometry if geometry is not None else analyse(network)
     for lam_id, geo in geometry.lamellas.items():
         if geo.length < options.overlap:
             raise FablineError(f"lamella {lam_id}: {geo.length:.1f} mm long (nodes {geo.node_ids[0]}..{geo.node_ids[-1]}), "
                                f"shorter than one {options.overlap:g} mm seam overlap")
     strips = strip_stations(geometry, options)
+    curves, unclamped = [], set()
+    if edges_module is not None:
+        curves = edges_module.boundary_curves(geometry.network, options)
+        edges_module.end_fixes(strips, options, edges_module.domain_edge(geometry.network, options) is not None)
+        unclamped = edges_module.nodes_near(curves, geometry.network, edges_module.edge_options(options).profile.h / 2.0
+                                            + HardwareSizes.of(options.profile, options.pair_spacing,
+                                                               options.bolt_square).clamp_reach)
     sizes = HardwareSizes.of(options.profile, options.pair_spacing, options.bolt_square)
     segments: list[Segment] = []
     strip_rows = []
@@ -66,16 +79,14 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
         raise FablineError(warnings[0] + more)
     cables = None
     if options.hardware:
-        hardware = hardware_parts(geometry, options, sizes)
+        hardware = hardware_parts(geometry, options, sizes, unclamped)
         parts.extend(hardware)
         cables = cable_runs(geometry.network, {p.meta["node"] for p in hardware if p.kind == "clamp"},
                             clamp_lift(options.profile.h, options.profile.t, sizes),
                             CableSettings(options.cable_pretension, options.cable_end_allowance))
     edges = None
-    if options.edge_members:
-        from fabline.unroll.edges import edge_parts
-
-        edge_list, edges = edge_parts(geometry.network, options, sizes.bolt_hole)
+    if edges_module is not None:
+        edge_list, edges = edges_module.curve_parts(curves, options, sizes.bolt_hole)
         parts.extend(edge_list)
         warnings = warnings + edges["warnings"]
     plates = None
@@ -117,8 +128,10 @@ def _segment_parts(segments: list[Segment], options: UnrollOptions) -> list[Part
             for segment, flag in zip(progress(segments, "parts", total=len(segments)), straight)]
 
 
-def hardware_parts(geometry: NetworkGeometry, options: UnrollOptions, sizes: HardwareSizes) -> list[Part]:
-    """Washers (two per crossing node), clamps (checkerboard nodes) and hexagonal joints (singularities, joint mode).
+def hardware_parts(geometry: NetworkGeometry, options: UnrollOptions, sizes: HardwareSizes,
+                   unclamped: set[str] = frozenset()) -> list[Part]:
+    """Washers (two per crossing node), clamps (checkerboard nodes but `unclamped`, where the edge bars would lie on
+    them: the cables end at the bars) and hexagonal joints (singularities, joint mode).
 
     The arm angles of all nodes and their washer keys come from whole-array operations; per node only the
     Part objects are made, from shapes shared by every node of the same (rounded) angles.
@@ -131,7 +144,7 @@ def hardware_parts(geometry: NetworkGeometry, options: UnrollOptions, sizes: Har
         for a, b in zip(geo.node_ids[:-1], geo.node_ids[1:]):
             neighbours.setdefault(a, []).append(b)
             neighbours.setdefault(b, []).append(a)
-    clamped = checkerboard(sorted(neighbours), neighbours)
+    clamped = checkerboard(sorted(neighbours), neighbours) - set(unclamped)
     singular = singular_nodes(geometry)
     arms = np.bincount(node_of, minlength=len(index))
     crossing = sorted(nid for nid, count in zip(index, arms.tolist()) if count >= 2)

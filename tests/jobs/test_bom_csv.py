@@ -95,3 +95,26 @@ def test_bom_csv_reads_back_with_totals_counted_from_parts_json(pavilion):
             assert float(r["total_mass_kg"]) == pytest.approx(int(r["count"]) * float(r["unit_mass_kg"]), rel=2e-3,
                                                               abs=0.01)
     assert bom["cables"]["runs"] == 36 and bom["cables"]["cut_length_m"] == pytest.approx(cut / 1000, abs=1e-3)
+
+
+def test_edge_and_end_fix_fasteners_from_the_edge_stack_up_by_hand(enneper):
+    # the bars lie on the washers: offsets +-(h/2 + t + t/2) = +-52.25, so 103 mm between them (h + 2t): the spacer
+    # tube's length; edge bolt grip 103 + 2 bars = 106 + nut 6.8 + 2.5 = 115.3 -> 120. End fix: strip, cleat (the
+    # pair's gap 25 - 1.5 = 23.5), strip: grip 26.5 + 9.3 = 35.8 -> 40; one per lamella end, two per lamella
+    partset = unroll_network(enneper, UnrollOptions(edge_members=True, pair_spacing=25.0))
+    items = bill_of_materials(Nesting([], "p.json"), partset, get_material("stainless"))["items"]
+    row = {i["item"]: i for i in items}
+    ends = 2 * len(enneper.lamellas)
+    assert row["end-fix hex bolt with nut M8x40"]["count"] == ends
+    assert row["square tube cleat 23.5 x 1.5"]["count"] == ends
+    assert row["square tube cleat 23.5 x 1.5"]["length_mm"] == pytest.approx(103.0)
+    tube = next(i for i in items if i["item"].startswith("spacer tube"))
+    assert tube["length_mm"] == pytest.approx(103.0)
+    edge_bolts = [i for i in items if i["item"].startswith("edge bolt")]
+    bar_holes = {n["id"] for p in partset.parts if p.meta.get("member") == "edge" for n in p.nodes}
+    assert sum(i["count"] for i in edge_bolts) == tube["count"] == len(bar_holes)
+    assert "edge bolt with nut M8x120" in row
+    # one bolt per axis: no carriage bolt is counted at an edge bar's hole
+    carriage = sum(i["count"] for i in items if i["item"].startswith("carriage bolt"))
+    washer_nodes = {p.meta["node"] for p in partset.parts if p.kind == "washer"}
+    assert carriage == len(washer_nodes - bar_holes)

@@ -96,14 +96,17 @@ def test_plates_go_through_parts_json_nest_on_their_own_sheets_and_read_back_fro
     assert anchors["size"] == "M12" and anchors["count"] == 4 * 18
 
 
-def test_a_support_bolt_through_edge_bars_and_the_fin_is_sized_for_both(enneper):
-    partset = unroll_network(enneper, UnrollOptions(supports=True, edge_members=True, hardware=False))
+def test_a_support_fin_is_on_its_node_s_carriage_bolt_sized_for_it(enneper):
+    # the lamellas run on past their end nodes to the edge, so a support node is a crossing node: its carriage bolt
+    # passes the fin too. Grip washer + h + washer + fin = 1.5 + 100 + 1.5 + 6 = 109 (+1.5 under a clamp):
+    # + nut 6.8 + two pitches 2.5 = 118.3 (119.8) -> the standard 120
+    partset = unroll_network(enneper, UnrollOptions(supports=True, edge_members=True))
     bom = bill_of_materials(Nesting([], "p.json"), partset, get_material("stainless"))
-    stacks = " ".join(i["per"] for i in bom["items"] if i["item"].startswith("edge bolt"))
-    assert "and a 6 mm support fin" in stacks
-    # 2 bars, tube h, fin 6: 109 + nut 6.8 + 2.5 = 118.3 -> 120; 4 bars and the fin 112 + 9.3 = 121.3 -> 130
-    lengths = {i["length_mm"] for i in bom["items"] if i["item"].startswith("edge bolt")}
-    assert lengths <= {120.0, 130.0}
+    carriage = [i for i in bom["items"] if i["item"].startswith("carriage bolt")]
+    on_fins = [(row, part) for row in carriage for part in row["per"].split("; ") if "support fin" in part]
+    assert sum(int(part.split(": ")[-1].split()[0]) for _, part in on_fins) == 18
+    assert {row["length_mm"] for row, _ in on_fins} == {120.0}
+    assert not any("support fin" in i["per"] for i in bom["items"] if i["item"].startswith("edge bolt"))
 
 
 def test_supports_need_support_nodes_and_a_sloping_surface(enneper):
