@@ -127,7 +127,7 @@ def _structure_table(structure: dict[str, Any]) -> str:
         return "<h2>Strips and structural check</h2><p>No unroll stage in this job.</p>"
     head = ("<tr><th>lamella</th><th>length m</th><th>min radius mm</th><th>max twist rad/m</th>"
             "<th>allowed twist rad/m</th><th>bending %</th><th>shear %</th><th>helix %</th><th>combined %</th>"
-            "<th>governing</th><th>verdict</th></tr>")
+            "<th>governing</th><th>verdict</th><th>at a slot %</th><th>slot node</th></tr>")
     body = []
     for row in rows:
         css = "ok" if row["passes"] else "fail"
@@ -137,13 +137,24 @@ def _structure_table(structure: dict[str, Any]) -> str:
         body.append(f"<tr class={css}><td>{html.escape(row['lamella'])}</td><td>{row['length_mm'] / 1000:.3f}</td>"
                     f"<td>{radius}</td><td>{row['max_twist_rad_per_m']:.3f}</td>"
                     f"<td>{row['allowed_twist_at_radius_rad_per_m']:.3f}</td>{cells}"
-                    f"<td>{row['governing']}</td><td>{'passes' if row['passes'] else 'exceeds yield'}</td></tr>")
+                    f"<td>{row['governing']}</td><td>{'passes' if row['passes'] else 'exceeds yield'}</td>"
+                    f"{_slot_cells(row)}</tr>")
     lines = verdict_lines(structure["verdict"])
     said = "".join(f"<p class=note>{html.escape(line.strip())}</p>" for line in lines[1:])
     return (f"<h2>Strips and structural check</h2><p id=verdict class={'ok' if structure['passes'] else 'fail'}>"
             f"{html.escape(lines[0].removeprefix('structure: '))}</p>{said}<p class=note>Rule: "
             f"{html.escape(structure['rule'])} The allowed twist is the combined limit at the bending radius of the "
-            f"lamella's worst interval.</p><table id=strips>{head}{''.join(body)}</table>")
+            f"lamella's worst interval. At a slot: the net section left at the lamella's worst slot node (its "
+            f"bending and twist shear scaled by h / h_net, the helix stress by the fibres' distance from the twist "
+            f"axis); over 100 % is local yielding at the joint.</p><table id=strips>{head}{''.join(body)}</table>")
+
+
+def _slot_cells(row: dict[str, Any]) -> str:
+    """A lamella's slot columns: the net section's utilisation at its worst slot node, and that node."""
+    if row.get("slot_node") is None:
+        return "<td>no slots</td><td></td>"
+    css = "fail" if row["slot_utilisation"] > 1.0 else "ok"
+    return f"<td class={css}>{percent(row['slot_utilisation'])[:-2]}</td><td>{html.escape(row['slot_node'])}</td>"
 
 
 def _edge_table(edges: dict[str, Any] | None) -> str:
