@@ -40,7 +40,7 @@ def partition(network: Network, count: int | None = None, max_size_mm: float | N
     ids = sorted(network.nodes)
     most = min(len(ids), MAX_SEGMENTS)
     if count is not None and not 1 <= count <= most:
-        raise FablineError(f"assembly: segments: {count} for {len(ids)} nodes: use 1 to {most}")
+        raise FablineError(f"assembly: {count} segments for {len(ids)} nodes: use 1 to {most}")
     if max_size_mm is not None and not 0 < max_size_mm < math.inf:
         raise FablineError(f"assembly: max_segment: must be a positive length, got {max_size_mm:g} mm")
     space = {nid: np.asarray(network.nodes[nid].xyz, dtype=float) * network.mm_per_unit for nid in ids}

@@ -76,6 +76,7 @@ def report_data(result: Any) -> dict[str, Any]:
                    "lines": sum(s["lines"] for s in result.stream),
                    "executed": sum(s["executed"] for s in result.stream),
                    "finished": bool(result.stream) and all(s["outcome"] == "finished" for s in result.stream)},
+        "assembly": getattr(result, "assembly", None),
         "survey": result.survey,
         "timings_s": result.timings,
     }
@@ -107,6 +108,7 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
     parts.append(report_shop.bom_section(data["bill_of_materials"]))
     parts.append(_structure_table(data["structure"]))
     parts.append(_edge_table(data["edge_members"]))
+    parts.append(_assembly_section(data["assembly"], folder))
     estimates = {s["id"]: s["time_s"] for s in data["nesting"]["sheets"] if "time_s" in s} if data["nesting"] else {}
     parts.append(report_shop.stream_table(data["stream"], estimates))
     parts.append(_survey_section(data["survey"], folder))
@@ -177,6 +179,31 @@ def _edge_table(edges: dict[str, Any] | None) -> str:
             f"a {edges['bolt_hole_mm']:g} mm bolt hole at every lamella end; bent on site about their weak axis by the "
             f"normal curvature and twisted by the geodesic torsion. Over a limit is a warning, as the thesis bent them "
             f"regardless ({len(edges['warnings'])} warnings).</p><table id=edges>{head}{''.join(body)}</table>")
+
+
+def _assembly_section(plan: dict[str, Any] | None, folder: Path) -> str:
+    """The assembly plan: the segments table and links to the overview and to every lamella's page."""
+    if not plan:
+        return ""
+    e = html.escape
+    head = ("<tr><th>segment</th><th>nodes</th><th>pieces</th><th>lamellas</th><th>extent m</th><th>strip m</th>"
+            "<th>crossings on site</th><th>seams on site</th><th>order</th></tr>")
+    body = []
+    for row in plan["segments"]:
+        order = "; ".join(f"{s['step']}. {s['lamella']}" for s in row["steps"])
+        body.append(f"<tr><td>{row['segment']}</td><td>{row['nodes']}</td><td>{row['pieces']}</td>"
+                    f"<td>{row['lamellas']}</td><td>{row['extent_mm'] / 1000.0:.2f}</td>"
+                    f"<td>{row['strip_length_m']:.1f}</td><td>{row['site_crossings']}</td><td>{row['site_seams']}</td>"
+                    f"<td style=\"text-align:left\">{e(order)}</td></tr>")
+    pages = [Path(p) for p in plan["pages"]]
+    links = " ".join(f'<a href="{report_shop.picture_source(p, folder, "image/svg+xml")}">'
+                     f'{e(p.stem.removeprefix("lamella-"))}</a>' for p in pages[1:])
+    return (f"<h2 id=assembly>Assembly</h2><p>{len(plan['segments'])} segments built flat, then joined on site: "
+            f"{len(plan['site_crossings'])} crossings and {len(plan['site_seams'])} seams are made on site between "
+            f"segments. Rule: {e(plan['rule'])}.</p>"
+            f"<p><a href=\"{report_shop.picture_source(pages[0], folder, 'image/svg+xml')}\">Overview page</a> (the segments "
+            f"numbered). A printable page per lamella (SVG, A3 landscape): {links}</p>"
+            f"<table id=assembly-segments>{head}{''.join(body)}</table>")
 
 
 def _survey_section(survey: dict[str, Any] | None, folder: Path) -> str:
