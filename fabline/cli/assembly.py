@@ -69,6 +69,7 @@ def run_assembly(args: argparse.Namespace) -> int:
         print(f"{row['segment']:>7}{row['nodes']:>7}{row['pieces']:>8}{row['lamellas']:>10}"
               f"{row['extent_mm'] / 1000.0:>10.2f}{row['strip_length_m']:>9.1f}{row['site_crossings']:>8}"
               f"{row['site_seams']:>12}")
-    print(f"{args.output}: {len(pages) - 1} lamella pages and the overview (SVG), {len(plan.segments)} segments; "
+    count = len(plan.segments)
+    print(f"{args.output}: {len(pages) - 1} lamella pages and the overview (SVG), {count} segment{'s' * (count != 1)}; "
           f"{len(summary['site_crossings'])} crossings and {len(summary['site_seams'])} seams made on site")
     return 0
