@@ -97,8 +97,11 @@ def check_slots(geometry, slot_nodes: list[str], material: Material, profile: Pr
                      slot_utilisations(material, profile, slot_depth, k_g, tau_g))
 
 
-def slot_verdict(checks: dict[str, SlotCheck]) -> dict:
-    """The slots' part of the structural verdict: how many lamellas yield locally at a joint, the worst one."""
+def slot_verdict(checks: dict[str, SlotCheck]) -> dict | None:
+    """The slots' part of the structural verdict: how many lamellas yield locally at a joint, the worst one (None
+    where no lamella has a slot)."""
+    if not any(check.node_ids for check in checks.values()):
+        return None
     over = [lamella for lamella, check in checks.items() if check.utilisation > 1.0]
     worst = max(checks, key=lambda lamella: checks[lamella].utilisation)
     check = checks[worst]
@@ -118,7 +121,7 @@ def slot_lines(slots: dict) -> tuple[str, str]:
                 f"  at the joints: every lamella's net section at its slots ({net}) is within yield (largest "
                 f"{largest}, {where}); nominal net-section stresses, the star washers' restraint ignored (conservative)")
     over = len(slots["over"])
-    return (f"at the slots {over} of {slots['lamellas']} lamellas yield locally (largest {largest})",
+    return (f"at the slots {over} of {slots['lamellas']} lamellas exceed yield locally (largest {largest})",
             f"  at the joints: {over} of {slots['lamellas']} lamellas exceed yield in the net section at a slot ({net}; "
             f"largest {largest}, {where}): local yielding of the lamella at the joints, where the slot leaves about "
             f"half its height, not of the lamella between the joints (the combined check above); nominal net-section "

@@ -71,7 +71,7 @@ def test_the_slot_governs_a_bent_ring_and_the_verdict_says_local_yielding():
     verdict = parts.report["verdict"]
     assert verdict["passes"] is True and verdict["slots"]["over"] == ["A-000"]
     lines = verdict_lines(verdict)
-    assert "all 6 lamellas pass the combined check" in lines[0] and "at the slots 1 of 6 lamellas yield locally" in lines[0]
+    assert "all 6 lamellas pass the combined check" in lines[0] and "at the slots 1 of 6 lamellas exceed yield locally" in lines[0]
     assert "local yielding of the lamella at the joints" in lines[1] and "washers' restraint ignored" in lines[1]
     assert any("slot at node" in w and "local yielding at the joint" in w for w in parts.report["warnings"])
     with pytest.raises(FablineError, match="slot at node"):
@@ -97,3 +97,17 @@ def test_a_passing_slot_verdict_is_said_within_yield():
     assert parts.report["verdict"]["slots"]["passes"] is True
     assert "at the slots within yield" in lines[0] and "every lamella's net section at its slots" in lines[1]
     assert not any("slot at node" in w for w in parts.report["warnings"])
+
+
+def test_lamellas_without_slots_have_no_slot_verdict():
+    """One straight lamella crosses nothing: no slot node, no slot line in the verdict."""
+    from networks import network_of
+
+    x = np.linspace(0.0, 2000.0, 41)
+    points = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    network = network_of([("A-000", "A", points, np.tile([0.0, 0.0, 1.0], (41, 1)), [0, 20, 40])])
+    parts = unroll_network(network, UnrollOptions(pair_spacing=0.0))
+    row = parts.report["lamellas"][0]
+    assert row["slot_nodes"] == 0 and row["slot_node"] is None and row["slot_passes"] is True
+    assert parts.report["verdict"]["slots"] is None
+    assert len(verdict_lines(parts.report["verdict"])) == 1 and "slot" not in verdict_lines(parts.report["verdict"])[0]
