@@ -147,7 +147,7 @@ def _polyline(points: np.ndarray, colour: str, width: float) -> str:
 
 def overview_svg(plan: AssemblyPlan, keyplan: _KeyPlan) -> str:
     """The segments numbered on the key plan, the crossings made on site ringed, and the segments table."""
-    w, h = PAGE
+    _, h = PAGE
     to_page = keyplan.box(MARGIN, 24.0, 260.0, h - 36.0)
     body = [_text(MARGIN, 14.0, f"{plan.network.name or 'network'}: assembly in {len(plan.segments)} segments",
                   6.0, weight="bold"),
