@@ -22,7 +22,7 @@ FLOORS = [
     ("unroll",),
     ("nest",),
     ("export",),
-    ("link", "survey"),
+    ("link", "survey", "assembly"),  # assembly: the site's plan, from the model and the unroll's parts
     ("jobs",),
     ("cli",),
 ]

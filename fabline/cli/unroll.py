@@ -151,12 +151,13 @@ def _print_table(rows: list[dict]) -> None:
     from fabline.mechanics.structure import percent
 
     print(f"{'lamella':<10}{'length m':>10}{'min r m':>10}{'twist /m':>10}{'sigma_b':>9}{'tau':>8}{'sigma_H':>9}"
-          f"{'util %':>8}{'helix top/bot mm':>18}")
+          f"{'util %':>8}{'slot %':>8}{'helix top/bot mm':>18}")
     for r in rows:
         radius = f"{r['min_radius_mm'] / 1000:.3f}" if r["min_radius_mm"] else "inf"
         print(f"{r['lamella']:<10}{r['length_mm'] / 1000:>10.3f}{radius:>10}{r['max_twist_rad_per_m']:>10.3f}"
               f"{r['max_bending_stress']:>9.1f}{r['max_shear_stress']:>8.1f}{r['max_helix_stress']:>9.1f}"
-              f"{percent(r['utilisation'])[:-2]:>8}{r['helix_top_edge_extension_mm']:>9.1f}/{r['helix_bottom_edge_extension_mm']:.1f}")
+              f"{percent(r['utilisation'])[:-2]:>8}{percent(r['slot_utilisation'])[:-2] if r['slot_node'] else '-':>8}"
+              f"{r['helix_top_edge_extension_mm']:>9.1f}/{r['helix_bottom_edge_extension_mm']:.1f}")
 
 
 def run_limits(args: argparse.Namespace) -> int:

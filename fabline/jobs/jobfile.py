@@ -25,7 +25,7 @@ if TYPE_CHECKING:  # the nesting stage pulls in shapely; a job file is read befo
     from fabline.nest.nester import NestOptions
     from fabline.unroll.options import UnrollOptions
 
-STAGES = ("unroll", "nest", "export", "stream", "survey", "report")
+STAGES = ("unroll", "assembly", "nest", "export", "stream", "survey", "report")
 """Pipeline stages after the model, in the order they run; a job lists the ones it wants."""
 
 DEFAULT_STAGES = ("unroll", "nest", "export", "stream", "report")
@@ -87,6 +87,8 @@ SCHEMA: dict[str, Any] = {
     "machine": {"profile": Key(str, default="grbl-laser"), "port": Key(str), "ports": Key(list),
                 "time_scale": Key(float, default=1.0)},
     "output": {"folder": Key(str, required=True), "report": Key(str, default="report.html")},
+    # the assembly plan (fabline.assembly): `segments` of them, or the fewest no larger than `max_segment`
+    "assembly": {"segments": Key(int), "max_segment": Length()},
     "survey": {"result": Key(str), "simulate": Key(bool, default=False), "photos": Key(int), "resolution": Key(str),
                "coverage": Key(float), "sag_mm": Length(), "seed": Key(int), "tolerance_mm": Length(),
                "reference": Key(str), "scale_bars": Key(int)},
@@ -118,6 +120,7 @@ class JobSpec:
     survey: dict[str, Any] = field(default_factory=dict)
     unroll: dict[str, Any] = field(default_factory=dict)
     export: dict[str, Any] = field(default_factory=dict)
+    assembly: dict[str, Any] = field(default_factory=dict)
 
     def output(self, relative: str | os.PathLike) -> Path:
         """An output path inside the job's output folder; a path that would leave it is a FablineError."""
@@ -129,7 +132,7 @@ class JobSpec:
                 "model": self.model, "lamella": self.lamella, "stock": self.stock, "unroll": self.unroll,
                 "nest": self.nest, "export": self.export,
                 "machine": self.machine, "output": {"folder": str(self.output_folder), "report": self.report_name},
-                "survey": self.survey}
+                "survey": self.survey, "assembly": self.assembly}
 
 
 def inside(folder: Path, relative: str | os.PathLike, where: str) -> Path:
@@ -172,6 +175,7 @@ def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
     if ("survey" in stages) != survey["simulate"]:
         raise FablineError(f"{where}: stages: 'survey' needs survey.simulate = true" if "survey" in stages else
                            f"{where}: survey.simulate: true but 'survey' is not in stages")
+    assembly = _check_assembly(data["assembly"], "assembly" in stages, where)
     data["machine"]["ports"] = _check_ports(data["machine"], where)
     if data["machine"]["profile"].endswith(".toml"):
         data["machine"]["profile"] = str(_existing(base, data["machine"]["profile"], f"{where}: machine.profile"))
@@ -182,7 +186,7 @@ def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
     spec = JobSpec(path=path.resolve(), name=data["name"], description=data["description"], stages=stages, model=model,
                    lamella=data["lamella"], stock=data["stock"], nest=data["nest"], machine=data["machine"],
                    output_folder=folder.resolve(), report_name=data["output"]["report"], survey=survey,
-                   unroll=data["unroll"], export=data["export"])
+                   unroll=data["unroll"], export=data["export"], assembly=assembly)
     if spec.nest["stock_out"] is not None:
         spec.output(spec.nest["stock_out"])  # refused here if it would leave the output folder
     _check_port_files(spec, where)
@@ -270,7 +274,7 @@ def _check_stages(stages: list, where: str) -> tuple[str, ...]:
             raise FablineError(f"{where}: stages[{k}]: unknown stage {stage!r} (use some of {', '.join(STAGES)})")
     if len(set(stages)) != len(stages):
         raise FablineError(f"{where}: stages: a stage is listed twice")
-    for stage, needs in (("nest", "unroll"), ("export", "nest"), ("stream", "export")):
+    for stage, needs in (("assembly", "unroll"), ("nest", "unroll"), ("export", "nest"), ("stream", "export")):
         if stage in stages and needs not in stages:
             raise FablineError(f"{where}: stages: '{stage}' needs '{needs}' in the same job")
     return tuple(s for s in STAGES if s in stages)
@@ -316,6 +320,27 @@ def _check_survey(survey: dict[str, Any], where: str) -> dict[str, Any]:
     if checked["reference"] not in ("all", "supports"):
         raise FablineError(f"{where}: survey.reference: {checked['reference']!r} must be 'all' or 'supports'")
     return checked
+
+
+DEFAULT_MAX_SEGMENT_MM = 5000.0
+"""The assembly stage's largest segment when the job names neither a count nor a size (`fabline assembly`'s)."""
+
+
+def _check_assembly(assembly: dict[str, Any], staged: bool, where: str) -> dict[str, Any]:
+    """`assembly.segments` (a count) or `assembly.max_segment` (a length), only with the assembly stage; neither
+    takes the default size."""
+    given = [key for key, value in assembly.items() if value is not None]
+    if given and not staged:
+        raise FablineError(f"{where}: assembly.{given[0]}: only with 'assembly' in stages")
+    if len(given) > 1:
+        raise FablineError(f"{where}: assembly: give assembly.segments (how many) or assembly.max_segment (how large), "
+                           "not both")
+    count, size = assembly["segments"], assembly["max_segment"]
+    if count is not None and not 1 <= count <= 1000:
+        raise FablineError(f"{where}: assembly.segments: must be 1 to 1000, got {count}")
+    if size is not None and not 0 < size < math.inf:
+        raise FablineError(f"{where}: assembly.max_segment: must be a positive length, got {size:g} mm")
+    return {"segments": count, "max_segment": size if size is not None or count is not None else DEFAULT_MAX_SEGMENT_MM}
 
 
 def _check_ports(machine: dict[str, Any], where: str) -> list[str]:

@@ -44,6 +44,7 @@ class JobResult:
     sheet_files: list[dict] = field(default_factory=list)
     stream: list[dict] = field(default_factory=list)
     stream_wall_s: float | None = None  # the stream stage's wall time: the machines cut in parallel, never summed
+    assembly: dict | None = None  # the assembly plan's summary and its pages (`fabline.assembly`)
     survey: dict | None = None  # the report's survey entry (fabline.jobs.survey_stage.survey_entry)
     timings: dict[str, float] = field(default_factory=dict)
     report_path: Path | None = None
@@ -87,7 +88,7 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
              PLATES_NESTING, PLATES_CUTLIST)
     with OutputSet():  # a stage refused (or Ctrl-C) removes what every stage before it wrote: the folder is as it was
         check_outputs(files=[spec.output(name) for name in names],
-                      folders=[spec.output(name) for name in ("dxf", "gcode", "sheets")],
+                      folders=[spec.output(name) for name in ("dxf", "gcode", "sheets", ASSEMBLY_FOLDER)],
                       inputs=(spec.path, spec.model.get("file")))
         result = JobResult(spec, network=_timed(timings, "model", lambda: build_network(spec)), timings=timings)
         save_network(result.network, spec.output("network.json"))
@@ -98,6 +99,11 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
             say(f"unroll: {len(result.partset.parts)} parts -> {spec.output('parts.json')}")
             for line in structure_lines(result):
                 say(line)
+        if "assembly" in spec.stages:
+            _timed(result.timings, "assembly", lambda: _assembly(result))
+            plan = result.assembly
+            say(f"assembly: {len(plan['segments'])} segments, {len(plan['pages']) - 1} lamella pages -> "
+                f"{spec.output(ASSEMBLY_FOLDER)}")
         if "nest" in spec.stages:
             _timed(result.timings, "nest", lambda: _nest(result))
             say(f"nest: {len(result.nesting.sheets)} sheet(s) -> {spec.output('nesting.json')}")
@@ -196,6 +202,24 @@ def _unroll(result: JobResult) -> None:
         write_previews(result.partset, spec.output("previews"))
     result.structure = [{k: v for k, v in row.items() if k != "intervals"}
                         for row in result.partset.report.get("lamellas", [])]
+
+
+ASSEMBLY_FOLDER = "assembly"
+
+
+def _assembly(result: JobResult) -> None:
+    """The assembly plan of the unrolled parts: its pages into the output folder's assembly/, its figures kept for
+    the report."""
+    from fabline.assembly import plan_assembly
+    from fabline.assembly.sheets import write_pages
+
+    spec = result.spec
+    try:
+        plan = plan_assembly(result.network, result.partset, spec.assembly["segments"], spec.assembly["max_segment"])
+    except FablineError as exc:
+        raise FablineError(f"{spec.path.name}: {exc}") from None
+    pages = write_pages(plan, spec.output(ASSEMBLY_FOLDER))
+    result.assembly = {**plan.summary(), "pages": [str(p) for p in pages]}
 
 
 def _nest(result: JobResult) -> None:

@@ -76,6 +76,7 @@ def report_data(result: Any) -> dict[str, Any]:
                    "lines": sum(s["lines"] for s in result.stream),
                    "executed": sum(s["executed"] for s in result.stream),
                    "finished": bool(result.stream) and all(s["outcome"] == "finished" for s in result.stream)},
+        "assembly": getattr(result, "assembly", None),
         "survey": result.survey,
         "timings_s": result.timings,
     }
@@ -107,6 +108,7 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
     parts.append(report_shop.bom_section(data["bill_of_materials"]))
     parts.append(_structure_table(data["structure"]))
     parts.append(_edge_table(data["edge_members"]))
+    parts.append(_assembly_section(data["assembly"], folder))
     estimates = {s["id"]: s["time_s"] for s in data["nesting"]["sheets"] if "time_s" in s} if data["nesting"] else {}
     parts.append(report_shop.stream_table(data["stream"], estimates))
     parts.append(_survey_section(data["survey"], folder))
@@ -127,7 +129,7 @@ def _structure_table(structure: dict[str, Any]) -> str:
         return "<h2>Strips and structural check</h2><p>No unroll stage in this job.</p>"
     head = ("<tr><th>lamella</th><th>length m</th><th>min radius mm</th><th>max twist rad/m</th>"
             "<th>allowed twist rad/m</th><th>bending %</th><th>shear %</th><th>helix %</th><th>combined %</th>"
-            "<th>governing</th><th>verdict</th></tr>")
+            "<th>governing</th><th>verdict</th><th>at a slot %</th><th>slot node</th></tr>")
     body = []
     for row in rows:
         css = "ok" if row["passes"] else "fail"
@@ -137,13 +139,24 @@ def _structure_table(structure: dict[str, Any]) -> str:
         body.append(f"<tr class={css}><td>{html.escape(row['lamella'])}</td><td>{row['length_mm'] / 1000:.3f}</td>"
                     f"<td>{radius}</td><td>{row['max_twist_rad_per_m']:.3f}</td>"
                     f"<td>{row['allowed_twist_at_radius_rad_per_m']:.3f}</td>{cells}"
-                    f"<td>{row['governing']}</td><td>{'passes' if row['passes'] else 'exceeds yield'}</td></tr>")
+                    f"<td>{row['governing']}</td><td>{'passes' if row['passes'] else 'exceeds yield'}</td>"
+                    f"{_slot_cells(row)}</tr>")
     lines = verdict_lines(structure["verdict"])
     said = "".join(f"<p class=note>{html.escape(line.strip())}</p>" for line in lines[1:])
     return (f"<h2>Strips and structural check</h2><p id=verdict class={'ok' if structure['passes'] else 'fail'}>"
             f"{html.escape(lines[0].removeprefix('structure: '))}</p>{said}<p class=note>Rule: "
             f"{html.escape(structure['rule'])} The allowed twist is the combined limit at the bending radius of the "
-            f"lamella's worst interval.</p><table id=strips>{head}{''.join(body)}</table>")
+            f"lamella's worst interval. At a slot: the net section left at the lamella's worst slot node (its "
+            f"bending and twist shear scaled by h / h_net, the helix stress by the fibres' distance from the twist "
+            f"axis); over 100 % is local yielding at the joint.</p><table id=strips>{head}{''.join(body)}</table>")
+
+
+def _slot_cells(row: dict[str, Any]) -> str:
+    """A lamella's slot columns: the net section's utilisation at its worst slot node, and that node."""
+    if row.get("slot_node") is None:
+        return "<td>no slots</td><td></td>"
+    css = "fail" if row["slot_utilisation"] > 1.0 else "ok"
+    return f"<td class={css}>{percent(row['slot_utilisation'])[:-2]}</td><td>{html.escape(row['slot_node'])}</td>"
 
 
 def _edge_table(edges: dict[str, Any] | None) -> str:
@@ -166,6 +179,31 @@ def _edge_table(edges: dict[str, Any] | None) -> str:
             f"a {edges['bolt_hole_mm']:g} mm bolt hole at every lamella end; bent on site about their weak axis by the "
             f"normal curvature and twisted by the geodesic torsion. Over a limit is a warning, as the thesis bent them "
             f"regardless ({len(edges['warnings'])} warnings).</p><table id=edges>{head}{''.join(body)}</table>")
+
+
+def _assembly_section(plan: dict[str, Any] | None, folder: Path) -> str:
+    """The assembly plan: the segments table and links to the overview and to every lamella's page."""
+    if not plan:
+        return ""
+    e = html.escape
+    head = ("<tr><th>segment</th><th>nodes</th><th>pieces</th><th>lamellas</th><th>extent m</th><th>strip m</th>"
+            "<th>crossings on site</th><th>seams on site</th><th>order</th></tr>")
+    body = []
+    for row in plan["segments"]:
+        order = "; ".join(f"{s['step']}. {s['lamella']}" for s in row["steps"])
+        body.append(f"<tr><td>{row['segment']}</td><td>{row['nodes']}</td><td>{row['pieces']}</td>"
+                    f"<td>{row['lamellas']}</td><td>{row['extent_mm'] / 1000.0:.2f}</td>"
+                    f"<td>{row['strip_length_m']:.1f}</td><td>{row['site_crossings']}</td><td>{row['site_seams']}</td>"
+                    f"<td style=\"text-align:left\">{e(order)}</td></tr>")
+    pages = [Path(p) for p in plan["pages"]]
+    links = " ".join(f'<a href="{report_shop.picture_source(p, folder, "image/svg+xml")}">'
+                     f'{e(p.stem.removeprefix("lamella-"))}</a>' for p in pages[1:])
+    return (f"<h2 id=assembly>Assembly</h2><p>{len(plan['segments'])} segments built flat, then joined on site: "
+            f"{len(plan['site_crossings'])} crossings and {len(plan['site_seams'])} seams are made on site between "
+            f"segments. Rule: {e(plan['rule'])}.</p>"
+            f"<p><a href=\"{report_shop.picture_source(pages[0], folder, 'image/svg+xml')}\">Overview page</a> (the segments "
+            f"numbered). A printable page per lamella (SVG, A3 landscape): {links}</p>"
+            f"<table id=assembly-segments>{head}{''.join(body)}</table>")
 
 
 def _survey_section(survey: dict[str, Any] | None, folder: Path) -> str:

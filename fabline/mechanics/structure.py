@@ -429,14 +429,23 @@ def verdict_lines(verdict: dict) -> list[str]:
     limit = (f"combined limit for {what}: twist {lim['twist_at_radius_rad_per_m']:.3f} rad/m at {worst}'s bending "
              f"({radius}), {at_twist}; in pure twist {lim['twist_straight_rad_per_m']:.3f} rad/m (shear alone would allow "
              f"{lim['shear_alone_twist_rad_per_m']:.3f}), in pure bending radius {lim['radius_untwisted_mm']:.0f} mm")
+    slots = None
+    if verdict.get("slots"):
+        from fabline.mechanics.slots import slot_lines
+
+        slots = slot_lines(verdict["slots"])
     if verdict["passes"]:
-        return [f"structure: all {verdict['lamellas']} lamellas pass the combined check (largest {percent(verdict['max_utilisation'])}, "
-                f"{at}: twist {verdict['twist_rad_per_m']:.3f} rad/m, {radius}); {limit}"]
+        lines = [f"structure: all {verdict['lamellas']} lamellas pass the combined check (largest {percent(verdict['max_utilisation'])}, "
+                 f"{at}: twist {verdict['twist_rad_per_m']:.3f} rad/m, {radius}); {limit}"]
+        return [lines[0] + f"; {slots[0]}", slots[1]] if slots else lines
     failing = verdict["failing"]
     names = ", ".join(failing[:12]) + (f" and {len(failing) - 12} more" if len(failing) > 12 else "")
     lines = [f"structure: {len(failing)} of {verdict['lamellas']} lamellas exceed yield by the combined check: {names} "
              f"(largest {percent(verdict['max_utilisation'])}, {at}: twist {verdict['twist_rad_per_m']:.3f} rad/m, {radius})",
              f"  {limit}"]
+    if slots:
+        lines[0] += f"; {slots[0]}"
+        lines.insert(1, slots[1])
     r = verdict["remedies"]
     k_max = math.floor(r["k_max_per_m"] * 1000.0) / 1000.0
     of = "k_max" if r["k_max_of"] == "design" else "largest twist"

@@ -21,6 +21,7 @@ from fabline.unroll.collector import collector_paused
 from fabline.unroll.couplers import add_couplers
 from fabline.unroll.hardware import (HardwareSizes, checkerboard, clamp, clamp_ids, singularity_joints, washer_ids,
                                      washer_keys, washers)
+from fabline.mechanics.slots import SlotCheck, check_slots, slot_verdict, slot_warning
 from fabline.mechanics.structure import check_lamellas, limits, structural_verdict
 from fabline.unroll.options import UnrollOptions
 from fabline.unroll.parts import Part, PartSet
@@ -73,7 +74,10 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
     couplers, uncoupled = add_couplers(parts, geometry.network, options.couplers, sizes.bolt_hole, options.profile.h,
                             options.pair_spacing, options.profile.t)
     checks = check_lamellas(list(geometry.lamellas.values()), options.material, options.profile)
+    slot_checks = _slot_checks(geometry, strips, options)
     warnings = [line for check in checks for line in check.warnings]
+    warnings += [line for lamella, slot in slot_checks.items()
+                 if (line := slot_warning(lamella, slot, options.profile)) is not None]
     if options.strict and warnings:
         more = f" (and {len(warnings) - 1} more warnings)" if len(warnings) > 1 else ""
         raise FablineError(warnings[0] + more)
@@ -98,7 +102,8 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
         if not plates.parts:
             raise FablineError("supports: the model marks no node as a support (node kind 'support': import with "
                                "--supports, or leave supports off)")
-    lamella_rows = [check.summary(options.material, options.profile) for check in checks]
+    lamella_rows = [{**check.summary(options.material, options.profile), **slot_checks[check.lamella].summary()}
+                    for check in checks]
     report = {
         "summary": _summary(parts, lamella_rows, strip_rows, warnings),
         "limits": limits(options.material, options.profile),
@@ -109,6 +114,8 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
         "strips": strip_rows,
         "warnings": warnings,
     }
+    if report["verdict"] is not None:
+        report["verdict"]["slots"] = slot_verdict(slot_checks)
     if edges is not None:
         report["edges"] = edges
     if options.couplers:
@@ -118,6 +125,15 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
         report["cables"] = cable_summary(cables, options, clamp_lift(options.profile.h, options.profile.t, sizes))
     profile = {"h": options.profile.h, "t": options.profile.t, "name": str(options.profile)}
     return PartSet(parts, profile, options.material.name, network.name, report, cables or [], plates, couplers)
+
+
+def _slot_checks(geometry: NetworkGeometry, strips: list[Strip], options: UnrollOptions) -> dict[str, SlotCheck]:
+    """The net section at every node where a lamella's strips have slots (`fabline.mechanics.slots`)."""
+    slotted: dict[str, set[str]] = {}
+    for strip in strips:
+        slotted.setdefault(strip.lamella, set()).update(strip.slot_nodes)
+    return {lam_id: check_slots(geo, sorted(slotted.get(lam_id, ())), options.material, options.profile,
+                                options.slot_depth) for lam_id, geo in geometry.lamellas.items()}
 
 
 def _segment_parts(segments: list[Segment], options: UnrollOptions) -> list[Part]:

@@ -18,7 +18,7 @@ def test_example_job_parses_with_defaults_filled_in():
     assert spec.name == "pavilion"
     assert spec.model == {"design": "enneper", "options": {"size": (9.0, 12.0), "spacing": 0.35, "k_max": 1.05}}
     assert spec.machine["ports"] == [f"sim://grbl-{k}" for k in range(1, 7)]
-    assert spec.stages == ("unroll", "nest", "export", "stream", "survey", "report")
+    assert spec.stages == ("unroll", "assembly", "nest", "export", "stream", "survey", "report")
     assert spec.survey == {"result": None, "simulate": True, "photos": 12, "resolution": "3600x2400", "coverage": 0.7,
                            "sag_mm": 40.0, "seed": 1, "tolerance_mm": 20.0, "reference": "all", "scale_bars": 2}
     assert spec.output_folder == (REPO / "out" / "pavilion").resolve()

@@ -141,18 +141,23 @@ def test_a_twist_whose_helix_stress_alone_exceeds_yield_has_no_thinner_strip():
 
 def test_design_unroll_run_and_report_say_the_same_verdict(small, tmp_path, cli):
     network, checks, verdict = small
-    said = verdict_lines(verdict)
+    design_said = verdict_lines(verdict)
     assert not verdict["passes"]
     quality = quality_report(network, material="stainless", profile="100x1.5")
     assert quality["structure"] == verdict
     lines = summary_lines(quality, "m")
-    assert lines[-3:] == said
+    assert lines[-3:] == design_said
     assert f"combined limit there {verdict['limits']['twist_at_radius_rad_per_m']:.3f} rad/m" in lines[-5]
 
     model = tmp_path / "small.network.json"
     save_network(network, model)
     code, out, _ = cli("unroll", model, "-o", tmp_path / "parts.json", "--material", "stainless", "--no-hardware")
-    assert code == 0 and out.splitlines()[-3:] == said
+    unrolled = json.loads((tmp_path / "parts.json").read_text())["report"]["verdict"]
+    verdict = {**verdict, "slots": unrolled["slots"]}  # the slots are unroll's (their depth is its choice)
+    said = verdict_lines(verdict)
+    assert said[0].startswith(design_said[0] + "; at the slots ") and said[1].startswith("  at the joints: ")
+    assert said[2:] == design_said[1:]
+    assert code == 0 and out.splitlines()[-4:] == said
 
     job = tmp_path / "small.toml"
     job.write_text('name = "small"\nstages = ["unroll", "report"]\n[model]\ndesign = "enneper"\n[model.options]\n'
@@ -160,10 +165,10 @@ def test_design_unroll_run_and_report_say_the_same_verdict(small, tmp_path, cli)
                    '[lamella]\nmaterial = "stainless"\nprofile = "100x1.5"\n[output]\nfolder = "out"\n', encoding="utf-8")
     code, out, _ = cli("run", job)
     printed = out.splitlines()
-    assert code == 0 and printed[printed.index(said[0]) + 1:printed.index(said[0]) + 3] == said[1:]
-    assert printed[-4:-1] == said  # the summary at the end says it again, above the report's path
+    assert code == 0 and printed[printed.index(said[0]) + 1:printed.index(said[0]) + 4] == said[1:]
+    assert printed[-5:-1] == said  # the summary at the end says it again, above the report's path
     data = json.loads((tmp_path / "out" / "report.json").read_text())
-    assert data["structure"]["verdict"] == json.loads(json.dumps(verdict))
+    assert verdict_lines(data["structure"]["verdict"]) == said
     page = (tmp_path / "out" / "report.html").read_text()
     import html
 
