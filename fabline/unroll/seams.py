@@ -1,8 +1,9 @@
-"""Cutting a strip into pieces a sheet can hold: seams midway between two joints, and ends at singularity joints.
+"""Cutting a strip into pieces a sheet can hold: seams between two joints, and ends at singularity joints.
 
-A strip longer than the usable sheet length is split at seams. A seam lies midway between two
-neighbouring nodes; the two segments overlap there by `overlap` and are screwed together through six
-holes (domain.md 1). Seams go as far along as a sheet allows (greedy), and the second strip of a pair
+A strip longer than the usable sheet length is split at seams. A seam lies between two neighbouring
+nodes, clear of their marks and slots; the two segments overlap there by `overlap` and are screwed
+together through six holes (domain.md 1). Seams go as far along as a sheet allows (greedy, anywhere in
+an interval, so a segment fills its row on the sheet), and the second strip of a pair
 avoids the node intervals its partner's seams use, so the two seams of a pair are staggered. In the
 separate-joint mode a strip also ends `setback` before each singularity node and starts again after it.
 """
@@ -138,30 +139,35 @@ def _greedy(strip: Strip, options: UnrollOptions, start: float, end: float, join
     return segments
 
 
-SEAM_SHIFTS = (0.0, -0.125, 0.125, -0.25, 0.25)  # where a seam may go: the interval's middle, else shifted this much
+SEAM_SHIFTS = np.linspace(-0.45, 0.45, 37)  # where in its interval a seam may go, as a share of the interval
 OVERLAP_STEPS = 5  # overlaps tried from `overlap` down to `min_overlap`
 
 
 def seam_candidates(strip: Strip, options: UnrollOptions, start: float, end: float,
                     extended: bool = False) -> tuple[np.ndarray, np.ndarray, list[tuple[str, str]]]:
-    """Per node interval inside (start, end) where a seam fits: its centre, half its overlap, and the interval's node
-    pair (arrays rather than Join objects: a strip has many candidates, few seams). The seam sits in the middle of
-    the interval with the full overlap; `extended` also tries it shifted by up to a quarter of the interval
-    (SEAM_SHIFTS) and its overlap shortened down to `min_overlap`, longest overlap and nearest the middle first."""
+    """Every place inside (start, end) where a seam fits: its centre, half its overlap, and its node interval's node
+    pair, in order along the strip (arrays rather than Join objects: a strip has many candidates, few seams). A seam
+    may lie anywhere in its interval clear of the node marks, ids and slots (SEAM_SHIFTS), so that a segment can
+    run nearly a whole sheet length and fill its row; with the full overlap, and `extended` also with the overlap
+    shortened down to `min_overlap` where no full one fits in the interval (the longest that does)."""
     x, ids = strip.node_x, strip.node_ids  # in order along the strip (stations checks it)
     length, middle = np.diff(x), (x[1:] + x[:-1]) / 2.0
     overlaps = np.linspace(options.overlap, options.shortest_overlap, OVERLAP_STEPS) if extended else [options.overlap]
-    best, best_half = np.full(len(length), np.nan), np.full(len(length), np.nan)
+    rows = np.arange(len(length))
+    done = np.zeros(len(length), dtype=bool)
+    found: list[tuple[float, float, int]] = []
     for overlap in dict.fromkeys(float(o) for o in overlaps):
-        for shift in SEAM_SHIFTS if extended else (0.0,):
-            todo = np.flatnonzero(np.isnan(best))
-            if not todo.size:
-                break
+        todo = rows[~done]
+        if not todo.size:
+            break
+        for shift in SEAM_SHIFTS:
             centre = middle[todo] + shift * length[todo]
-            fits = _seam_problem_codes(strip, options, centre, start, end, todo, overlap) == 0
-            best[todo[fits]], best_half[todo[fits]] = centre[fits], overlap / 2.0
-    chosen = np.flatnonzero(~np.isnan(best))
-    return best[chosen], best_half[chosen], [(ids[k], ids[k + 1]) for k in chosen.tolist()]
+            fits = _seam_problem_codes(strip, options, centre, start, end, todo, overlap, clear=not extended) == 0
+            found.extend((c, overlap / 2.0, k) for c, k in zip(centre[fits].tolist(), todo[fits].tolist()))
+            done[todo[fits]] = True
+    found.sort()
+    return (np.array([c for c, _, _ in found]), np.array([h for _, h, _ in found]),
+            [(ids[k], ids[k + 1]) for _, _, k in found])
 
 
 SEAM_PROBLEMS = {
@@ -170,15 +176,17 @@ SEAM_PROBLEMS = {
     3: "a node id would have no room beside its mark, outside the overlap",
     4: "an overlap end would cut within {web:g} mm (the web) of a slot",
     5: "a screw hole would come within {web:g} mm of a slot",
+    6: "the overlap would reach over a slot",
 }
 
 
 def _seam_problem_codes(strip: Strip, options: UnrollOptions, centre: np.ndarray, start: float,
-                        end: float, rows: np.ndarray | None = None, overlap: float | None = None) -> np.ndarray:
+                        end: float, rows: np.ndarray | None = None, overlap: float | None = None,
+                        clear: bool = False) -> np.ndarray:
     """Per node interval k (of `rows`, default all; seam centre `centre[k]` between nodes k and k + 1), 0 if a seam
     fits there, else the first SEAM_PROBLEMS code it breaks. The overlap may contain slots (both segments are cut
     from the same strip stations, so their slots line up and the crossing strip goes through both layers), not
-    node marks."""
+    node marks; with `clear` it must lie clear of every slot by the web (a joint's layers stay whole)."""
     x, ids = strip.node_x, strip.node_ids
     rows = np.arange(len(x) - 1) if rows is None else rows
     overlap = options.overlap if overlap is None else overlap
@@ -198,6 +206,10 @@ def _seam_problem_codes(strip: Strip, options: UnrollOptions, centre: np.ndarray
         holes = np.min([_nearest_distance(centre + column * overlap, strip.slot_x)
                         for column in SEAM_HOLE_COLUMNS], axis=0)
         checks += [(4, ends < cut_clear), (5, holes < hole_clear)]
+        if clear:
+            inside = np.searchsorted(strip.slot_x, centre + half + cut_clear) - np.searchsorted(strip.slot_x,
+                                                                                               centre - half - cut_clear)
+            checks.append((6, inside > 0))
     for code, broken in reversed(checks):
         codes[broken] = code
     return codes
@@ -222,7 +234,7 @@ def seam_failure(strip: Strip, options: UnrollOptions, lo: float, hi: float, sta
         described.append(f"{ids[k]}..{ids[k + 1]} ({x[k + 1] - x[k]:.1f} mm): {reason}")
     return (f"every interval there breaks a limit of an overlap of {options.overlap:g} mm shortened down to "
             f"{options.shortest_overlap:g} mm (min overlap) with six {options.screw_hole:g} mm screw holes, shifted "
-            f"up to a quarter interval; widest, at the shortest overlap: " + "; ".join(described)
+            f"up to {SEAM_SHIFTS[-1]:g} of an interval from its middle; widest, at the shortest overlap: " + "; ".join(described)
             + " (lower the min overlap, screw hole or text height, or use a longer sheet)")
 
 

@@ -65,6 +65,28 @@ def test_every_node_on_two_lamellas_and_four_strips(enneper, pavilion):
             assert slots[nid] == 8  # each of four strips: a double slot, one per strip of the crossing pair
 
 
+def test_full_overlap_seams_keep_clear_of_slots_and_segments_run_nearly_a_sheet_length(pavilion):
+    """A seam may go anywhere in its interval, so a segment ending in one runs nearly a sheet length (with every seam
+    in the middle of its interval they averaged 88 % of it); a full overlap holds no slot (a joint's layers stay
+    whole): read off the parts' own slot outlines and seam records."""
+    opts = UnrollOptions()
+    clear = opts.web  # from the slot's own outline
+    seam_ended = []
+    for part in (p for p in pavilion.parts if p.kind in STRIP_KINDS):
+        slot_x = np.array([x for slot in part.slots for x in flatten_contour(slot.outline)[:, 0]])
+        for side in ("start", "end"):
+            join = part.meta["joins"][side]
+            if not join or join["kind"] != "seam" or join["overlap_mm"] < opts.overlap:
+                continue
+            lo, hi = join["seam_mm"] - opts.overlap / 2.0 - clear, join["seam_mm"] + opts.overlap / 2.0 + clear
+            assert not np.any((slot_x > lo) & (slot_x < hi)), (part.id, side)
+        if part.meta["joins"]["end"] and part.meta["joins"]["end"]["kind"] == "seam":
+            seam_ended.append(part.meta["length_mm"])
+    assert len(seam_ended) > 100
+    assert max(seam_ended) <= opts.usable_length
+    assert np.mean(seam_ended) > 0.93 * opts.usable_length
+
+
 def test_seams_overlap_staggered_and_screwed(pavilion):
     opts = UnrollOptions()
     by_strip = defaultdict(list)

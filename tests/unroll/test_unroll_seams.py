@@ -77,4 +77,6 @@ def test_when_no_seam_fits_the_error_names_the_limit(helicoid):
         unroll_network(helicoid, UnrollOptions(min_overlap=150.0, hardware=False))
     message = str(error.value)
     assert "no seam fits" in message and "shortened down to 150 mm (min overlap)" in message
-    assert "would cut within 3 mm (the web) of a slot" in message and "\n" not in message
+    # the helicoid's 152.8 mm intervals at B-005 hold no 150 mm overlap clear of its node marks by 1.5 mm each side
+    assert "lamella B-005" in message and "N005-000..N005-001 (152.8 mm)" in message
+    assert "the overlap would cover a node mark" in message and "\n" not in message
