@@ -27,9 +27,10 @@ lamella crossing at angle a over t / sin a of its width: 2 t at 30 degrees, the 
 ROUGH_TILT_DEG = 5.0
 """A step whose chord leaves the tangent plane by more than this: the normal field is too rough to trust there
 (an asymptotic curve's chord lies in it to second order; the network check allows 10 degrees)."""
-BEND_WINDOW = 0.25
-"""The curve's turning (geodesic curvature) is averaged over this fraction of the strip's smallest radius, so
-the noise of one step's direction does not stop it and a tight loop stops within a step or two."""
+BEND_WINDOW = 1.0
+"""The curve's turning (geodesic curvature) is averaged over this many radians at the stop limit (an arc of the
+smallest radius the tracer allows), so the noise of a step's direction (8 degrees at a noisy edge) does not stop
+it, and a tight loop (a designer's mesh: 5 to 9 mm radius) stops within a few steps."""
 STOP_REASONS = {
     "edge": "reaches the edge", "closed": "closes on itself", "length": "reaches the tracing length",
     "K>=0": "reaches a region where K >= 0 (synclastic or parabolic: no asymptotic lines)",
