@@ -30,7 +30,7 @@ ROUGH_TILT_DEG = 5.0
 BEND_WINDOW = 1.0
 """The curve's turning (geodesic curvature) is averaged over this many radians at the stop limit (an arc of the
 smallest radius the tracer allows), so the noise of a step's direction (8 degrees at a noisy edge) does not stop
-it, and a tight loop (a designer's mesh: 5 to 9 mm radius) stops within a few steps."""
+it, while a tight loop does within a few steps (a 7 mm loop pushes the average over after about 7 mm of it)."""
 STOP_REASONS = {
     "edge": "reaches the edge", "closed": "closes on itself", "length": "reaches the tracing length",
     "K>=0": "reaches a region where K >= 0 (synclastic or parabolic: no asymptotic lines)",
