@@ -14,8 +14,8 @@ from fabline.design.field import Region, flat_curvature, special_regions
 from fabline.errors import FablineError
 from fabline.model.importers.surface import mesh_from_arrays, read_mesh_arrays
 from fabline.model.network import UNIT_TO_MM, Network
-from fabline.design.layout import (CROSSING_TOLERANCE_MM, SupportRule, build_network, check_on_surface, check_seed,
-                                   default_seed, rail_layout)
+from fabline.design.layout import (CROSSING_TOLERANCE_MM, Layout, SupportRule, build_network, check_on_surface,
+                                   check_seed, default_seed, rail_layout)
 from fabline.design.mesh import SmoothMesh, xyz_text
 from fabline.design.nurbs import NurbsPatch, read_nurbs
 from fabline.design.quality import quality_report
@@ -161,7 +161,7 @@ def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarra
     return AsymptoticDesign(network, regions, stop_lines(layout, units), surface, notes)
 
 
-def stop_lines(layout, units: str) -> list[str]:
+def stop_lines(layout: Layout, units: str) -> list[str]:
     """The early stops as a designer reads them: per reason, how many curve ends and one place (model units);
     then the curves dropped (too short to carry two crossings, or refused by the network check)."""
     lines = []

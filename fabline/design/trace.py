@@ -36,8 +36,8 @@ STOP_REASONS = {
     "K>=0": "reaches a region where K >= 0 (synclastic or parabolic: no asymptotic lines)",
     "merging": f"reaches where the two asymptotic directions merge (they cross at under {MIN_CROSSING_DEG:g} degrees)",
     "flat": "reaches a flat region (both curvatures near zero: the directions are noise)",
-    "bend": "turns tighter than the strip can bend",
-    "twist": "twists more than the strip can",
+    "bend": "turns tighter than the strip can bend (under half its smallest radius)",
+    "twist": "twists more than the strip can (over twice its largest twist)",
     "rough": "meets a normal field too rough to trust (the curve would leave the surface)",
 }
 """Why a traced curve ends, as a designer reads it."""

@@ -104,7 +104,8 @@ def test_a_strip_that_cannot_twist_that_much_is_refused_on_one_line_saying_what_
     code, _, stderr = cli("design", "asymptotic", "--surface", path, "--units", "m", "--spacing", "0.07",
                           "--profile", "100x20", "-o", out)
     assert code == 2 and len(stderr.strip().splitlines()) == 1, stderr
-    assert "twists more than the strip can near (" in stderr and ") m" in stderr and "--profile" in stderr
+    assert "twists more than the strip can (over twice its largest twist) near (" in stderr and ") m" in stderr
+    assert "--profile" in stderr
     assert not out.exists()
 
 
@@ -120,3 +121,15 @@ def test_covered_area_is_the_area_of_the_cells():
                  for i in range(4)]
     cells, area = covered_area(validate(Network("m", nodes, lamellas)))
     assert cells == 6 and area == pytest.approx(1.5)
+
+
+@pytest.mark.parametrize("name", ["folded-centre", "hole"])
+def test_a_hard_mesh_goes_on_to_nested_parts(tmp_path, cli, name):
+    path, units = mesh_file(tmp_path, name)
+    code, _, stderr = cli("design", "asymptotic", "--surface", path, "--units", units, "--spacing", "0.07",
+                          "-o", tmp_path / "net.json")
+    assert code == 0, stderr
+    code, _, stderr = cli("unroll", tmp_path / "net.json", "-o", tmp_path / "parts.json")
+    assert code == 0, stderr
+    code, stdout, stderr = cli("nest", tmp_path / "parts.json", "-o", tmp_path / "nesting.json")
+    assert code == 0 and (tmp_path / "nesting.json").exists(), stderr
