@@ -1,7 +1,7 @@
 """Design from surfaces: traced asymptotic networks against the closed forms, tracing speed, minimal-surface speed.
 
 Usage: python benchmarks/design_bench.py [--sizes 5000,20000,80000] [--noisy 20000] [--noise 0.5] [--big 100000]
-       [--minimal 20000] [--dir DIR]
+       [--minimal 20000] [--hard 0.07,0.035] [--dir DIR]
 Table 1: for the pavilion's Enneper patch (9 x 12 m, k_max 1.1 1/m), a catenoid patch (waist 1 m) and a
 helicoid (pitch 6 m), each meshed irregularly at every size, the traced network (spacing 0.35 m, seed
 as the closed form's) against the closed-form rail grid: node count, mean and max node distance, max
@@ -9,7 +9,12 @@ k_n along the curves, smallest crossing angle; then the same at the `--noisy` si
 normal noise on the vertices (goal: 2 mm mean, 10 mm max). Table 2: the whole `design_asymptotic` on a
 `--big`-triangle Enneper mesh (goal < 10 s). Table 3: `minimal_surface` from two coaxial circles
 (radius 1 m, 1 m apart) at about `--minimal` triangles (goal < 30 s) and its distance to the catenoid, then
-three circles (an outer one with two openings) at the same count.
+three circles (an outer one with two openings) at the same count. Table 4 (`--hard` spacings, m): the hard
+family of tests/meshes.py (flat folded centre, dome in a saddle, saddle next to a dome, a hole, a thin neck,
+noisy, coarse, in mm), default seed: valid or refused, lamellas, nodes, covered fraction of the area, the
+area left out (K >= 0 or flat), early stops by reason, curves dropped, node error against the closed form
+where there is one (the hypar's asymptotic lines are its straight rulings: the largest distance of a
+lamella from the line through its ends, mm), time.
 Wall time depends on what else runs on the machine, so this process's CPU time is printed too.
 """
 
@@ -25,6 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the hard mesh family
 
 from fabline.design import design_asymptotic  # noqa: E402
 from fabline.design.samples import closed_form_cases, rail_grid  # noqa: E402
@@ -78,17 +84,58 @@ def main() -> None:
     parser.add_argument("--noisy", default="20000", help="triangle counts for the noisy accuracy table (empty: skip)")
     parser.add_argument("--noise", type=float, default=0.5, help="standard deviation of the noisy table's normal noise, mm")
     parser.add_argument("--minimal", type=int, default=20_000, help="triangles of the minimal surface run (0: skip)")
+    parser.add_argument("--hard", default="0.07,0.035", help="spacings (m) for the hard mesh table (empty: skip)")
     parser.add_argument("--dir", help="folder for the meshes (default: a temporary one)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(args.dir or scratch)
         folder.mkdir(parents=True, exist_ok=True)
+        if args.hard:
+            hard_table([float(s) for s in args.hard.split(",")], folder)
         accuracy_table([int(s) for s in args.sizes.split(",")], folder)
         if args.noisy:
             accuracy_table([int(s) for s in args.noisy.split(",")], folder, args.noise)
         speed_table(args.big, folder)
         if args.minimal:
             minimal_table(args.minimal, folder)
+
+
+def hard_table(spacings: list[float], folder: Path) -> None:
+    from collections import Counter
+
+    from meshes import HARD_MESHES, hard_mesh, hypar, write_mesh
+
+    from fabline.errors import FablineError
+
+    print(f"{'hard mesh':<20}{'vertices':>9}{'spacing':>8}{'result':>8}{'lams':>6}{'nodes':>6}{'covered':>8}{'left out':>9}"
+          f"{'dropped':>8}{'ruling mm':>10}{'wall s':>7}  stops")
+    for name in HARD_MESHES:
+        vertices, faces, units = hard_mesh(name)
+        path = write_mesh(folder / f"{name}.obj", vertices, faces)
+        scale = 1000.0 if units == "mm" else 1.0
+        for spacing in spacings:
+            try:
+                design, wall, _ = timed(design_asymptotic, path, spacing * scale, units=units)
+            except FablineError as exc:
+                print(f"{name:<20}{len(vertices):>9}{spacing:>8g}{'refused':>8}  {exc}")
+                continue
+            network = design.network
+            coverage = network.meta["quality"]["coverage"]
+            error = "-"
+            if HARD_MESHES[name][0] is hypar:  # z = 0.3 (x^2 - y^2) is doubly ruled: its asymptotic lines are straight
+                error = f"{max(_off_straight(lam.curve) for lam in network.lamellas) / scale * 1000:.3f}"
+            stops = Counter(stop["reason"] for stop in network.meta["stops"])
+            print(f"{name:<20}{len(vertices):>9}{spacing:>8g}{'valid':>8}{len(network.lamellas):>6}{len(network.nodes):>6}"
+                  f"{coverage['fraction'] * 100:>7.1f}%{coverage['left_out'] / coverage['surface_area'] * 100:>8.1f}%"
+                  f"{network.meta['dropped']['curves']:>8}{error:>10}{wall:>7.2f}  "
+                  + ", ".join(f"{k} {v}" for k, v in sorted(stops.items())))
+
+
+def _off_straight(curve: np.ndarray) -> float:
+    """The largest distance of a curve's points from the straight line through its ends."""
+    axis = (curve[-1] - curve[0]) / np.linalg.norm(curve[-1] - curve[0])
+    offset = curve - curve[0]
+    return float(np.linalg.norm(offset - np.outer(offset @ axis, axis), axis=1).max())
 
 
 def minimal_table(triangles: int, folder: Path) -> None:

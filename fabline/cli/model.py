@@ -102,14 +102,14 @@ def run_asymptotic(args: argparse.Namespace) -> int:
     report = network.meta["quality"]
     if args.json:
         print(json.dumps({"output": args.output, "notes": design.notes, "regions": network.meta["regions"],
-                          "stops": design.stops, "quality": report}, indent=1))
+                          "stops": network.meta["stops"], "dropped": network.meta["dropped"], "quality": report}, indent=1))
         return 0
     for note in design.notes:
         print(f"note: {note}")
     print(f"{args.output}: asymptotic network on {args.surface}, {len(network.nodes)} nodes, {len(network.lamellas)} lamellas "
           f"(units {network.units})")
     for region in design.regions:
-        print(f"found: {region.describe()}")
+        print(f"found: {region.describe(network.units)}")
     for stop in design.stops:
         print(f"found: {stop}")
     for line in summary_lines(report, network.units):

@@ -7,24 +7,35 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from scipy.spatial import cKDTree
 
 from fabline.design.curves import declared_or_given
-from fabline.design.field import Region, special_regions
+from fabline.design.field import Region, flat_curvature, special_regions
 from fabline.errors import FablineError
 from fabline.model.importers.surface import mesh_from_arrays, read_mesh_arrays
 from fabline.model.network import UNIT_TO_MM, Network
-from fabline.design.layout import (CROSSING_TOLERANCE_MM, SupportRule, build_network, check_on_surface, check_seed,
-                                   default_seed, rail_layout)
+from fabline.design.layout import (CROSSING_TOLERANCE_MM, Layout, SupportRule, build_network, check_on_surface,
+                                   check_seed, default_seed, rail_layout)
 from fabline.design.mesh import SmoothMesh, xyz_text
 from fabline.design.nurbs import NurbsPatch, read_nurbs
 from fabline.design.quality import quality_report
+from fabline.design.trace import MIN_CROSSING_DEG, STOP_REASONS, StopRule
 from fabline.mechanics.materials import get_material, parse_profile
+from fabline.mechanics.structure import combined_radius_limit, combined_twist_limit
 from fabline.model_units import Length, model_length
 
 DEGENERATE_AREA = 1e-10  # a face smaller than this fraction of the mean edge length squared has no area
 NODE_SPACING_MM = (10.0, 10_000.0)
 """Node spacings a gridshell (or its scale model) can have: outside, a number is taken for another unit."""
 TRACING_STEP_MM = (0.1, 10_000.0)
+STRIP_STOP = 2.0
+"""The tracer stops where a curve turns or twists this many times more than the strip's limit (the combined rule
+with the other effect zero): no strip of the profile follows it there. Up to that, the curve goes on and the
+structural check's combined verdict reports the overload with its remedies: the reference pavilion itself
+twists 1.10 rad/m against 1.117 (its jets read a little more), and a designer's minimal surface often bends
+under the default strip's 670 mm somewhere."""
+SEED_ROOM = 0.5
+"""A default seed moved out of where asymptotic lines end keeps this fraction of the largest clearance there is."""
 MAX_LAMELLAS = 10_000
 """Lamellas a traced network may have at most (the reference pavilion, 9 x 12 m at 0.3 m, has about 70)."""
 MAX_TRACED_POINTS = 1_000_000
@@ -113,7 +124,7 @@ def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarra
         if length is not None and not (0 < number < np.inf):
             raise FablineError(f"{name} must be a positive number, got {number:g}")
     rule = SupportRule.parse(supports) if supports else None
-    get_material(material), parse_profile(profile)  # a mistake there is refused before the work, not after
+    strip = (get_material(material), parse_profile(profile))  # a mistake there is refused before the work, not after
     surface, units, notes = load_surface(path, units)
     spacing = model_length(spacing, units, "--spacing", NODE_SPACING_MM, "a node spacing")
     step = None if step is None else model_length(step, units, "--step", TRACING_STEP_MM, "a tracing step")
@@ -126,22 +137,66 @@ def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarra
         raise FablineError(f"{source}: K >= 0 everywhere (synclastic or flat, no asymptotic directions; the most "
                            f"anticlastic point ({xyz_text(surface.vertices[worst])}) has K = {k1[worst] * k2[worst]:.3g})")
     regions = special_regions(surface.vertices, surface.faces, k1, k2)
+    mm = UNIT_TO_MM[units]
+    stop_rule = StopRule(flat_curvature(k1, k2), STRIP_STOP * mm / combined_radius_limit(*strip, 0.0),
+                         STRIP_STOP * combined_twist_limit(*strip, 0.0) * mm)
     curves = tuple(np.asarray(c, dtype=float) for c in seed_curves or ())
     for k, curve in enumerate(curves):
         check_on_surface(surface, curve, f"{source}: seed curve {k + 1}")
     if seed is None:
-        seed = _middle(curves[0]) if curves else default_seed(surface)
+        seed = _middle(curves[0]) if curves else traceable_seed(surface, default_seed(surface), k1, k2, stop_rule, spacing, units,
+                                                                         notes)
     seed = check_seed(surface, np.asarray(seed, dtype=float), source)
-    layout = rail_layout(surface, seed, spacing, step, CROSSING_TOLERANCE_MM / UNIT_TO_MM[units], source, curves)
+    layout = rail_layout(surface, seed, spacing, step, CROSSING_TOLERANCE_MM / mm, source, curves, stop_rule, units)
     meta = {"design": "asymptotic", "surface": Path(source).name, "spacing": spacing, "seed": seed.round(9).tolist(),
             "seed_curves": len(curves),
             "step": step, "supports": str(rule) if rule else None}
     network = build_network(surface, layout, spacing, units, rule, Path(source).stem.split(".")[0], meta, source)
     network.meta["regions"] = [{"kind": r.kind, "centre": r.centre.round(6).tolist(), "vertices": r.vertices,
-                                "extent": r.extent} for r in regions]
-    network.meta["stops"] = layout.stops
+                                "extent": r.extent, "area": r.area} for r in regions]
+    network.meta["stops"] = layout.stop_records
+    network.meta["dropped"] = {"curves": layout.dropped, "refused": layout.rejected}
     network.meta["quality"] = quality_report(network, surface, spacing, material, profile)
-    return AsymptoticDesign(network, regions, layout.stops, surface, notes)
+    network.meta["quality"]["coverage"]["left_out"] = float(sum(r.area for r in regions))
+    return AsymptoticDesign(network, regions, stop_lines(layout, units), surface, notes)
+
+
+def stop_lines(layout: Layout, units: str) -> list[str]:
+    """The early stops as a designer reads them: per reason, how many curve ends and one place (model units);
+    then the curves dropped (too short to carry two crossings, or refused by the network check)."""
+    lines = []
+    reasons = [r["reason"] for r in layout.stop_records]
+    for reason in dict.fromkeys(reasons):
+        first = next(r for r in layout.stop_records if r["reason"] == reason)
+        lines.append(f"{reasons.count(reason)} curve end(s) stop where the curve {STOP_REASONS[reason]}, e.g. "
+                     f"{first['curve']} near ({xyz_text(np.array(first['xyz']))}) {units}")
+    if layout.dropped:
+        lines.append(f"{layout.dropped} traced curve(s) dropped: too short to carry two crossings"
+                     + (f" or refused by the network check ({len(layout.rejected)}: {layout.rejected[0]})" if layout.rejected else ""))
+    return lines
+
+
+def traceable_seed(surface: SmoothMesh | NurbsPatch, seed: np.ndarray, k1: np.ndarray, k2: np.ndarray, rule: StopRule,
+                   spacing: float, units: str, notes: list[str]) -> np.ndarray:
+    """The default seed where the curves can start: `seed` (the centre) if every vertex within a spacing of it lets
+    the tracer go on (anticlastic, not flat, the families crossing at MIN_CROSSING_DEG or more, a twist the strip
+    takes), else the nearest such vertex with room around it (a note says so): a spacing, or SEED_ROOM of the
+    largest room there is if more, so the seed lies well inside the largest anticlastic part, not in a pocket."""
+    angle = 2.0 * np.degrees(np.arctan(np.sqrt(np.maximum(k1, 0) / np.maximum(-k2, 1e-300))))
+    good = (k1 > 0) & (k2 < 0) & (np.maximum(np.abs(k1), np.abs(k2)) >= rule.flat) & \
+        (np.minimum(angle, 180 - angle) >= MIN_CROSSING_DEG) & (np.sqrt(np.maximum(-k1 * k2, 0)) <= rule.max_twist)
+    if good.all() or not good.any():
+        return seed
+    bad = cKDTree(surface.vertices[~good])
+    clearance = np.where(good, bad.query(surface.vertices)[0], 0.0)
+    if bad.query(seed)[0] >= spacing:
+        return seed
+    room = min(max(spacing, SEED_ROOM * clearance.max()), clearance.max())
+    ok = np.flatnonzero(clearance >= room)
+    nearest = ok[np.argmin(np.linalg.norm(surface.vertices[ok] - seed, axis=1))]
+    notes.append(f"the surface's centre ({xyz_text(seed)}) {units} lies near where asymptotic lines end: "
+                 f"seed moved to ({xyz_text(surface.vertices[nearest])}) {units} (give --seed to choose)")
+    return surface.vertices[nearest]
 
 
 def check_tracing_size(across: float, spacing: float, step: float, units: str, step_given: bool) -> None:

@@ -45,17 +45,26 @@ class Region:
     centre: np.ndarray
     vertices: int
     extent: float
+    area: float = 0.0
 
-    def describe(self) -> str:
-        return (f"{self.kind} region of {self.vertices} vertices around ({', '.join(f'{v:.3f}' for v in self.centre)}), "
-                f"{self.extent:.3f} across")
+    def describe(self, units: str = "") -> str:
+        unit = f" {units}" if units else ""
+        return (f"{self.kind} region of {self.vertices} vertices around ({', '.join(f'{v:.3f}' for v in self.centre)}){unit}, "
+                f"{self.extent:.3f}{unit} across, area {self.area:.3g}{unit}2: no asymptotic network there, left out")
+
+
+def flat_curvature(k1: np.ndarray, k2: np.ndarray) -> float:
+    """The curvature both principal curvatures stay under at a flat point: FLAT_FRACTION of the largest |k|."""
+    return FLAT_FRACTION * (float(np.max(np.abs(np.r_[k1, k2]))) or 1.0)
 
 
 def special_regions(vertices: np.ndarray, faces: np.ndarray, k1: np.ndarray, k2: np.ndarray) -> list[Region]:
-    """Connected vertex regions where K >= 0 (synclastic or parabolic) or both curvatures are near zero (flat)."""
-    scale = float(np.max(np.abs(np.r_[k1, k2]))) or 1.0
-    flat = np.maximum(np.abs(k1), np.abs(k2)) < FLAT_FRACTION * scale
+    """Connected vertex regions where K >= 0 (synclastic or parabolic) or both curvatures are near zero (flat),
+    with their area (a third of each face at a member vertex)."""
+    flat = np.maximum(np.abs(k1), np.abs(k2)) < flat_curvature(k1, k2)
     synclastic = ~flat & (k1 * k2 >= 0)
+    corner = np.linalg.norm(np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]]), axis=1) / 6
+    vertex_area = np.bincount(faces.ravel(), np.repeat(corner, 3), minlength=len(vertices))
     regions = []
     for kind, mask in (("flat", flat), ("synclastic", synclastic)):
         if not mask.any():
@@ -68,6 +77,7 @@ def special_regions(vertices: np.ndarray, faces: np.ndarray, k1: np.ndarray, k2:
         for lab in np.unique(label[mask]):
             members = np.flatnonzero(mask & (label == lab))
             points = vertices[members]
-            regions.append(Region(kind, points.mean(axis=0), len(members), float(np.linalg.norm(np.ptp(points, axis=0)))))
+            regions.append(Region(kind, points.mean(axis=0), len(members), float(np.linalg.norm(np.ptp(points, axis=0))),
+                                  float(vertex_area[members].sum())))
     regions.sort(key=lambda r: -r.vertices)
     return regions

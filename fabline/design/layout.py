@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 from fabline.design.field import asymptotic_directions
 from fabline.design.mesh import SmoothMesh, xyz_text
 from fabline.design.nurbs import NurbsPatch
-from fabline.design.trace import TracedCurve, trace_family
+from fabline.design.trace import STOP_REASONS, StopRule, TracedCurve, trace_family
 from fabline.errors import FablineError
 from fabline.model.importers.crossings import find_crossings
 from fabline.model.network import UNIT_TO_MM, Lamella, Network, Node, validate
@@ -32,6 +32,17 @@ CROSSING_TOLERANCE_MM = 1.0  # traced curves of the two families that pass this 
 SAMPLES_PER_STEP = 4  # output samples per tracing step (cubic spline through the traced points, projected)
 END_MERGE_FRACTION = 0.1  # a crossing this fraction of the spacing from a lamella's end becomes that end
 MAX_EXTENSIONS = 200  # passes of `_extend` at most (each continues one family along one curve)
+REPORTED_STOPS = ("K>=0", "merging", "flat", "bend", "twist", "rough")
+"""Curve ends worth telling the designer (the edge, a closed curve and the other family's curve nearby are not)."""
+REMEDIES = {
+    "K>=0": "move --seed into the anticlastic part (K < 0) or cut the synclastic region away",
+    "merging": "move --seed away from where the surface turns synclastic, or cut that region away",
+    "flat": "move --seed away from the flat region, or cut it away (a flat point needs a singular joint)",
+    "bend": "give the --profile and --material of the strip (a thinner strip bends tighter) or smooth the surface there",
+    "twist": "give the --profile and --material of the strip (a thinner strip twists more) or flatten the surface there",
+    "rough": "smooth or remesh the surface there, or give a larger --step",
+}
+"""What a designer can change where curves stop for each reason."""
 
 
 @dataclass
@@ -69,19 +80,22 @@ class Layout:
     curves: list[np.ndarray]
     families: list[str]
     indices: list[int]
-    stops: list[str] = field(default_factory=list)
+    rule: StopRule = field(default_factory=StopRule)
+    stop_records: list[dict] = field(default_factory=list)
+    rejected: list[str] = field(default_factory=list)
+    dropped: int = 0
     closed_runs: set[tuple[int, int]] = field(default_factory=set)
 
     def add(self, family: str, index: int, curve: TracedCurve, step: float) -> None:
         self.curves.append(_dense(curve, step)[0])
         self.families.append(family)
         self.indices.append(index)
-        self.stops += [f"{family} curve {index}: stops where K >= 0 near ({xyz_text(curve.points[end])})"
-                       for end, why in zip((0, -1), curve.stops) if why == "K>=0"]
+        self.stop_records += [{"curve": f"{family} {index}", "reason": why, "xyz": curve.points[end].round(9).tolist()}
+                              for end, why in zip((0, -1), curve.stops) if why in REPORTED_STOPS]
 
 
 def rail_layout(surface: TracingSurface, seed: np.ndarray, spacing: float, step: float, tolerance: float, source: str,
-                seed_curves: tuple[np.ndarray, ...] = ()) -> Layout:
+                seed_curves: tuple[np.ndarray, ...] = (), rule: StopRule = StopRule(), units: str = "") -> Layout:
     """Rail through the seed, the other family's curves at equal spacing along it, then the first family at equal
     spacing along the middle one of those (the one through the seed).
 
@@ -94,22 +108,24 @@ def rail_layout(surface: TracingSurface, seed: np.ndarray, spacing: float, step:
         rail_points, rail_seed = _given(surface, seed_curves[0], seed, step, f"{source}: seed curve 1")
         across = _transverse_family(surface, rail_points)
     else:
-        rail = trace_family(surface, seed[None], "A", step, reach)[0]
+        rail = trace_family(surface, seed[None], "A", step, reach, rule)[0]
         rail_points, rail_seed = _dense(rail, step)
         across = "B"
     along = "A" if across == "B" else "B"
-    starts, index_across = _spaced(rail_points, rail_seed, spacing, along, source)
-    curves_across = trace_family(surface, starts, across, step, reach)
+    starts, index_across = _spaced(rail_points, rail_seed, spacing, along, source, _ends(rail, units))
+    curves_across = trace_family(surface, starts, across, step, reach, rule)
     if len(seed_curves) > 1:
         middle_points, middle_seed = _given(surface, seed_curves[1], seed, step, f"{source}: seed curve 2")
     else:
-        middle_points, middle_seed = _dense(curves_across[index_across.tolist().index(0)], step)
-    starts, index_along = _spaced(middle_points, middle_seed, spacing, across, source)
+        middle = curves_across[index_across.tolist().index(0)]
+        middle_points, middle_seed = _dense(middle, step)
+    starts, index_along = _spaced(middle_points, middle_seed, spacing, across, source,
+                                  "" if len(seed_curves) > 1 else _ends(middle, units))
     reuse = index_along == 0 if rail is not None else np.zeros(len(index_along), dtype=bool)
-    traced_along = dict(zip(index_along[~reuse].tolist(), trace_family(surface, starts[~reuse], along, step, reach)))
+    traced_along = dict(zip(index_along[~reuse].tolist(), trace_family(surface, starts[~reuse], along, step, reach, rule)))
     if reuse.any():
         traced_along[0] = rail
-    layout = Layout([], [], [])
+    layout = Layout([], [], [], rule)
     for family, traced in ((along, sorted(traced_along.items())), (across, list(zip(index_across.tolist(), curves_across)))):
         for index, curve in traced:
             layout.add(family, index, curve, step)
@@ -158,7 +174,7 @@ def _extend(surface: TracingSurface, layout: Layout, spacing: float, step: float
         taken = {i for f, i in zip(layout.families, layout.indices) if f == family}
         kin = cKDTree(np.vstack([c for c, f in zip(layout.curves, layout.families) if f == family]))
         added = False
-        for start_index, curve in zip(index + side * trend * steps, trace_family(surface, starts, family, step, reach)):
+        for start_index, curve in zip(index + side * trend * steps, trace_family(surface, starts, family, step, reach, layout.rule)):
             piece = _apart(curve, kin, 0.5 * spacing)
             if piece is None:
                 continue
@@ -244,44 +260,82 @@ def _dense(curve: TracedCurve, step: float) -> tuple[np.ndarray, int]:
     return dense, int(np.searchsorted(t, seed_chord))
 
 
-def _spaced(points: np.ndarray, seed: int, spacing: float, family: str, source: str) -> tuple[np.ndarray, np.ndarray]:
+def _ends(curve: TracedCurve | None, units: str) -> str:
+    """Where and why a traced curve's ends stopped, for a refusal ("" for a designer's curve)."""
+    if curve is None:
+        return ""
+    ends = [f"{STOP_REASONS[why]} near ({xyz_text(curve.points[end])}) {units}" for end, why in zip((0, -1), curve.stops)]
+    remedy = next((REMEDIES[why] for why in curve.stops if why in REMEDIES), "lower --spacing")
+    return f": it {' and '.join(ends)}; {remedy}"
+
+
+def _spaced(points: np.ndarray, seed: int, spacing: float, family: str, source: str, ends: str = ""
+            ) -> tuple[np.ndarray, np.ndarray]:
     """Points at arc lengths k * spacing from the seed along a dense polyline, and their signed indices k."""
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
     s -= s[seed]
     ks = np.arange(int(np.ceil(s[0] / spacing - 1e-9)), int(np.floor(s[-1] / spacing + 1e-9)) + 1)
     ks = ks[(ks * spacing > s[0] + 1e-9 * spacing) & (ks * spacing < s[-1] - 1e-9 * spacing) | (ks == 0)]
     if len(ks) < 2:
-        raise FablineError(f"{source}: spacing {spacing:g} is larger than the surface: the family {family} curve "
-                           f"through the seed is {s[-1] - s[0]:.3g} long (lower --spacing)")
+        raise FablineError(f"{source}: spacing {spacing:g} is longer than the family {family} curve through the seed, "
+                           f"{s[-1] - s[0]:.3g} long" + (ends or " (lower --spacing)"))
     starts = np.stack([np.interp(ks * spacing, s, points[:, i]) for i in range(3)], axis=1)
     return starts, ks
 
 
 def build_network(surface: TracingSurface, layout: Layout, spacing: float, units: str, supports: SupportRule | None,
                   name: str, meta: dict, source: str) -> Network:
-    """Nodes at the crossings of the traced curves, lamellas through them to the edge, validated."""
+    """Nodes at the crossings of the traced curves, lamellas through them to the edge, validated.
+
+    A curve that carries fewer than two crossings (with curves that carry two) holds nothing and is dropped, as is
+    one the network check would refuse (each is checked alone, so one bad curve never rejects the design);
+    `layout.dropped` counts them. Where nothing is left: refused, saying where the curves stopped and why.
+    """
     first = {f: min(i for g, i in zip(layout.families, layout.indices) if g == f) for f in set(layout.families)}
     number = [i - first[f] for f, i in zip(layout.families, layout.indices)]
     ids = [f"{f}-{n:03d}" for f, n in zip(layout.families, number)]
     tolerance = CROSSING_TOLERANCE_MM / UNIT_TO_MM[units]
     crossings = find_crossings(layout.curves, layout.families, ids, tolerance, source)
-    if len(crossings.xyz) == 0:
-        raise FablineError(f"{source}: the traced curves do not cross (spacing {spacing:g} too large for the surface?)")
-    normals = surface.project(crossings.xyz).normal
-    nodes: dict[str, Node] = {}
-    per_curve: list[list[tuple[float, str]]] = [[] for _ in layout.curves]
+    normals = surface.project(crossings.xyz).normal if len(crossings.xyz) else np.empty((0, 3))
+    names = []
     for k, members in enumerate(crossings.members):
         by_family = {layout.families[c]: number[c] for c, _ in members}
         nid = f"N{by_family['B']:03d}-{by_family['A']:03d}"
-        nid = nid if nid not in nodes else f"{nid}-{k}"
-        nodes[nid] = Node(nid, crossings.xyz[k], normals[k], "grid" if len(members) == 2 else "singularity")
-        for c, arc in members:
-            per_curve[c].append((arc, nid))
-    lamellas = []
-    for c, points in enumerate(layout.curves):
-        if not per_curve[c]:
-            continue
-        lamellas.append(_lamella(surface, ids[c], layout.families[c], points, sorted(per_curve[c]), nodes, spacing))
+        names.append(nid if nid not in names else f"{nid}-{k}")
+    alive = np.ones(len(layout.curves), dtype=bool)
+    while True:
+        held = _held(crossings.members, alive)
+        nodes: dict[str, Node] = {}
+        per_curve: list[list[tuple[float, str]]] = [[] for _ in layout.curves]
+        for k, members in enumerate(crossings.members):
+            if held[k] < 2:
+                continue
+            nodes[names[k]] = Node(names[k], crossings.xyz[k], normals[k], "grid" if held[k] == 2 else "singularity")
+            for c, arc in members:
+                if alive[c]:
+                    per_curve[c].append((arc, names[k]))
+        enough = np.array([len(found) >= 2 for found in per_curve], dtype=bool)
+        if (alive & ~enough).any():
+            alive &= enough
+            continue  # a curve fell below two crossings: its crossings go, so others may follow
+        lamellas, refused = [], False
+        for c in np.flatnonzero(alive):
+            lamella = _lamella(surface, ids[c], layout.families[c], layout.curves[c], sorted(per_curve[c]), nodes, spacing)
+            try:
+                validate(Network(units, {nid: nodes[nid] for nid in lamella.nodes}, [lamella]), source)
+            except FablineError as exc:
+                layout.rejected.append(f"{layout.families[c]} curve {layout.indices[c]} near "
+                                       f"({xyz_text(lamella.curve[len(lamella.curve) // 2])}) {units}: "
+                                       f"{str(exc).split(': ', 2)[-1]}")
+                alive[c], refused = False, True
+                continue
+            lamellas.append(lamella)
+        if not refused:
+            break
+    layout.dropped = int(len(layout.curves) - alive.sum())
+    if not {lam.family for lam in lamellas} >= {"A", "B"}:
+        raise FablineError(f"{source}: no network of two asymptotic families at spacing {spacing:g} {units}: "
+                           + no_network_reason(layout, units))
     used = {nid for lam in lamellas for nid in lam.nodes}
     nodes = {nid: node for nid, node in sorted(nodes.items()) if nid in used}
     if supports is not None:
@@ -291,6 +345,22 @@ def build_network(surface: TracingSurface, layout: Layout, spacing: float, units
         for node in chosen:
             node.kind = "support"
     return validate(Network(units, nodes, sorted(lamellas, key=lambda lam: (lam.family, lam.id.split("-", 1)[1])), name, meta), source)
+
+
+def _held(members: list[list[tuple[int, float]]], alive: np.ndarray) -> np.ndarray:
+    """How many live curves pass each crossing."""
+    return np.array([sum(bool(alive[c]) for c, _ in found) for found in members], dtype=int)
+
+
+def no_network_reason(layout: Layout, units: str) -> str:
+    """Why no network came out, for the refusal: where the traced curves stopped and why, and what to change."""
+    if layout.stop_records:
+        reasons = [r["reason"] for r in layout.stop_records]
+        common = max(set(reasons), key=reasons.count)
+        where = next(r for r in layout.stop_records if r["reason"] == common)
+        return (f"the curves stop within two crossings, most where they {STOP_REASONS[common]} (e.g. near "
+                f"({xyz_text(np.array(where['xyz']))}) {units}); {REMEDIES[common]}")
+    return "the traced curves do not cross twice; lower the spacing or move the seed into the anticlastic part"
 
 
 def _lamella(surface: TracingSurface, lamella_id: str, family: str, points: np.ndarray, crossings: list[tuple[float, str]],
@@ -336,6 +406,10 @@ def check_seed(surface: TracingSurface, seed: np.ndarray, source: str) -> np.nda
     """The seed on the surface; refused when it lies off the surface, beyond its edge, or where K >= 0."""
     _, foot, squared = surface.closest(seed[None])
     distance = float(np.sqrt(squared[0]))
+    if distance <= max(2.0 * surface.edge_length, 1e-6) and surface.outside(seed[None])[0] and \
+            distance < 1e-3 * surface.edge_length:
+        raise FablineError(f"{source}: seed ({xyz_text(seed)}) lies on the surface's edge: the curves need room both "
+                           "ways; give a point inside")
     if distance > max(2.0 * surface.edge_length, 1e-6) or surface.outside(seed[None])[0]:
         raise FablineError(f"{source}: seed ({xyz_text(seed)}) lies {distance:.4g} off the surface (closest surface point "
                            f"({xyz_text(foot[0])})); give a point on the surface")

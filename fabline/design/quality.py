@@ -59,7 +59,45 @@ def quality_report(network: Network, surface=None, spacing: float | None = None,
         points = np.vstack([lam.curve for lam in network.lamellas])
         distance = np.linalg.norm(surface.project(points).xyz - points, axis=1) * unit_mm
         report["distance_to_surface_mm"] = {"mean": float(distance.mean()), "max": float(distance.max())}
+        cells, area = covered_area(network)
+        report["coverage"] = {"cells": cells, "area": area, "surface_area": float(surface.mesh.area),
+                              "fraction": area / float(surface.mesh.area)}
     return report
+
+
+def covered_area(network: Network) -> tuple[int, float]:
+    """The network's cells (four crossings joined by consecutive stretches of two A and two B lamellas) and their
+    area in the model's units squared (each cell as two triangles over its corners: its chords' area)."""
+    at = network.lamellas_at()
+    crossing = {nid for nid, lams in at.items() if len(lams) >= 2}
+    along: dict[str, list[str]] = {lam.id: [nid for nid in lam.nodes if nid in crossing] for lam in network.lamellas}
+    family = {lam.id: lam.family for lam in network.lamellas}
+    position = {(lam_id, nid): k for lam_id, chain in along.items() for k, nid in enumerate(chain)}
+
+    def beside(nid: str, lam_id: str) -> list[str]:
+        k, chain = position[(lam_id, nid)], along[lam_id]
+        return [chain[j] for j in (k - 1, k + 1) if 0 <= j < len(chain)]
+
+    def joined(a: str, b: str, fam: str) -> bool:
+        return any(family[lam] == fam and b in beside(a, lam) for lam in at[a])
+
+    cells: dict[frozenset, tuple[str, ...]] = {}
+    for lam_id, chain in along.items():
+        if family[lam_id] != "A":
+            continue
+        for n1, n2 in zip(chain, chain[1:]):
+            for b1 in (lam for lam in at[n1] if family[lam] == "B"):
+                for b2 in (lam for lam in at[n2] if family[lam] == "B" and lam != b1):
+                    for n4 in beside(n1, b1):
+                        for n3 in beside(n2, b2):
+                            if n3 != n4 and joined(n3, n4, "A"):
+                                cells[frozenset((n1, n2, n3, n4))] = (n1, n2, n3, n4)
+    xyz = {nid: network.nodes[nid].xyz for nid in crossing}
+    area = 0.0
+    for n1, n2, n3, n4 in cells.values():
+        area += 0.5 * (np.linalg.norm(np.cross(xyz[n2] - xyz[n1], xyz[n3] - xyz[n1]))
+                       + np.linalg.norm(np.cross(xyz[n3] - xyz[n1], xyz[n4] - xyz[n1])))
+    return len(cells), float(area)
 
 
 def _at_most(check, what: str, material, profile) -> dict:
@@ -71,6 +109,12 @@ def _at_most(check, what: str, material, profile) -> dict:
     limit = (combined_twist_limit(material, profile, k_g) * MM_PER_M if what == "twist"
              else combined_radius_limit(material, profile, tau_g))
     return {"limit" if what == "twist" else "limit_radius_mm": limit, "utilisation": float(check.use["combined"][at])}
+
+
+def percent_area(fraction: float) -> str:
+    """A covered fraction as a percentage, never shown as 100 % unless it is whole."""
+    shown = f"{fraction * 100:.1f} %"
+    return "99.9 %" if shown == "100.0 %" and fraction < 1.0 else shown
 
 
 def _stats(values: np.ndarray) -> dict:
@@ -94,6 +138,11 @@ def summary_lines(report: dict, units: str) -> list[str]:
     if "distance_to_surface_mm" in report:
         d = report["distance_to_surface_mm"]
         lines.append(f"curves off the surface: {d['mean']:.3f} mm mean, {d['max']:.3f} mm max")
+    if "coverage" in report:
+        c = report["coverage"]
+        lines.append(f"covers {percent_area(c['fraction'])} of the surface's area ({c['area']:.4g} of {c['surface_area']:.4g} "
+                     f"{units}2 in {c['cells']} cells)" + (f"; {c['left_out']:.4g} {units}2 has no asymptotic lines (K >= 0 "
+                                                           "or flat), left out" if c.get("left_out") else ""))
     if "structure" not in report:  # a network file from before the combined check: its figures meant otherwise
         lines.append("structural check: not in this file (an older fabline wrote it); `fabline unroll` gives the verdict")
         return lines

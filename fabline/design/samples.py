@@ -70,12 +70,14 @@ def rectangle(a0: float, a1: float, b0: float, b1: float) -> np.ndarray:
 
 def rail_grid(surface: AsymptoticSurface, seed: tuple[float, float], spacing: float,
               inside: Callable[[np.ndarray, np.ndarray], np.ndarray], rail_along_a: bool = True,
-              reach: float = 10.0, samples: int = 200_001) -> np.ndarray:
+              reach: float = 10.0, samples: int = 200_001, held: bool = True) -> np.ndarray:
     """Closed-form nodes of the rail layout: (a_k, b_j) at arc lengths k * spacing along the rail through the seed and
     j * spacing along the middle curve of the other family, kept where inside; positions (N, 3).
 
     The rail is the a-line through the seed (or the b-line with `rail_along_a` False); arc lengths by
     trapezoidal integration of the partials' length on `samples` points over +-`reach` in the parameter.
+    `held`: as the design drops curves that carry fewer than two crossings, the grid lines with fewer than two
+    nodes go, and with them their nodes, until every line left has two.
     """
     a0, b0 = seed
 
@@ -103,6 +105,11 @@ def rail_grid(surface: AsymptoticSurface, seed: tuple[float, float], spacing: fl
         b_values, a_values = stations(a0, b0, False), stations(b0, a0, True)
     a, b = np.meshgrid(a_values, b_values, indexing="ij")
     keep = inside(a, b)
+    while held:
+        short = np.r_[keep.sum(axis=1) < 2][:, None] | np.r_[keep.sum(axis=0) < 2][None, :]
+        if not (keep & short).any():
+            break
+        keep &= ~short
     return surface.point(a[keep], b[keep])
 
 
