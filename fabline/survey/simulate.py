@@ -26,6 +26,11 @@ from fabline.survey.tagmap import TAG_CELLS, TagMap, make_tag_map, save_tag_map,
 TRUTH_SCHEMA = "fabline.survey-truth/1"
 SUPERSAMPLE = 4
 MAX_VIEW_ANGLE_DEG = 70.0
+MAX_CELL_TEXELS = 256
+"""Most texels a tag cell has in its render texture (a 2560 px square): tags up to 640 px a side get one a
+supersampled pixel."""
+FINE_BAND_PX = 2**23
+"""Most supersampled pixels one tag renders at once (32 MB a float32 buffer): bounds memory for tags near the lens."""
 
 
 @dataclass
@@ -169,7 +174,8 @@ def _background(spec: SyntheticSpec, rng: np.random.Generator) -> np.ndarray:
     coarse = rng.uniform(70, 170, size=(max(spec.height // 150, 2), max(spec.width // 150, 2))).astype(np.float32)
     image = cv2.resize(coarse, (spec.width, spec.height), interpolation=cv2.INTER_CUBIC)
     fine = rng.normal(0, 12, size=(spec.height // 8 + 1, spec.width // 8 + 1)).astype(np.float32)
-    return image + cv2.resize(fine, (spec.width, spec.height), interpolation=cv2.INTER_LINEAR)
+    image += cv2.resize(fine, (spec.width, spec.height), interpolation=cv2.INTER_LINEAR)
+    return image
 
 
 def _draw_lamella(photo: np.ndarray, curve_cam: np.ndarray, camera: Camera) -> None:
@@ -191,9 +197,15 @@ def _draw_lamella(photo: np.ndarray, curve_cam: np.ndarray, camera: Camera) -> N
 
 def _render_tag(photo: np.ndarray, tag_id: int, black_corners: np.ndarray, shade: float) -> None:
     """Warp tag `tag_id` (with its white quiet zone) into `photo` so its black square lands on `black_corners` (4, 2) px,
-    in the AprilTag order (`fabline.survey.detect`)."""
+    in the AprilTag order (`fabline.survey.detect`).
+
+    Supersampled 4x from a texture of about one texel per supersampled pixel (bilinear) and area-averaged. Memory is
+    bounded whatever the tag's size in the photo (a tag near the lens spans it): the texture has at most
+    MAX_CELL_TEXELS a cell (a larger tag's edges are then a ramp of a few supersampled pixels, centred on the true
+    edge), and a tag whose supersampled window exceeds FINE_BAND_PX is rendered in bands of rows.
+    """
     side = np.max(np.linalg.norm(black_corners - np.roll(black_corners, 1, axis=0), axis=1))
-    cell = max(4, int(np.ceil(SUPERSAMPLE * side / TAG_CELLS)))
+    cell = min(max(4, int(np.ceil(SUPERSAMPLE * side / TAG_CELLS))), MAX_CELL_TEXELS)
     texture = tag_image(tag_id, cell).astype(np.float32) * (195.0 / 255.0) + 25.0
     source = np.array([[cell, cell], [9 * cell, cell], [9 * cell, 9 * cell], [cell, 9 * cell]], dtype=np.float64) - 0.5
     to_image = cv2.getPerspectiveTransform(source.astype(np.float32), black_corners[APRILTAG_ORDER].astype(np.float32))
@@ -205,14 +217,17 @@ def _render_tag(photo: np.ndarray, tag_id: int, black_corners: np.ndarray, shade
     if x1 <= x0 or y1 <= y0:
         return
     s = SUPERSAMPLE
-    to_fine = np.array([[s, 0, -s * x0 + (s - 1) / 2], [0, s, -s * y0 + (s - 1) / 2], [0, 0, 1]]) @ to_image
-    size = ((x1 - x0) * s, (y1 - y0) * s)
-    fine = cv2.warpPerspective(texture, to_fine, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-    cover = cv2.warpPerspective(np.ones_like(texture), to_fine, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-    fine = cv2.resize(fine, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
-    cover = cv2.resize(cover, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
-    roi = photo[y0:y1, x0:x1]
-    roi[:] = roi * (1 - cover) + fine * shade
+    rows = max(1, FINE_BAND_PX // ((x1 - x0) * s * s))
+    for top in range(y0, y1, rows):
+        bottom = min(top + rows, y1)
+        to_fine = np.array([[s, 0, -s * x0 + (s - 1) / 2], [0, s, -s * top + (s - 1) / 2], [0, 0, 1]]) @ to_image
+        size = ((x1 - x0) * s, (bottom - top) * s)
+        fine = cv2.warpPerspective(texture, to_fine, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        cover = cv2.warpPerspective(np.ones_like(texture), to_fine, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        fine = cv2.resize(fine, (x1 - x0, bottom - top), interpolation=cv2.INTER_AREA)
+        cover = cv2.resize(cover, (x1 - x0, bottom - top), interpolation=cv2.INTER_AREA)
+        roi = photo[top:bottom, x0:x1]
+        roi[:] = roi * (1 - cover) + fine * shade
 
 
 def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: SyntheticSpec | None = None,
@@ -281,6 +296,7 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
             own = label[y0:y1, x0:x1][sub > 0]
             if own.size and np.mean(own == n) > 0.995 and tags[n] not in printed:
                 visible[int(tags[n])] = np.round(quad, 4).tolist()
+        del label  # one photo's buffers at a time: rendered, written, freed
         photo = _degrade(photo, spec, rng)
         name = f"photo-{k:03d}.jpg"
         if spec.exif_model:
@@ -334,14 +350,18 @@ def _degrade(photo: np.ndarray, spec: SyntheticSpec, rng: np.random.Generator) -
     ramp_x = np.linspace(-1, 1, w, dtype=np.float32) * np.float32(tilt[0])
     ramp_y = np.linspace(-1, 1, h, dtype=np.float32) * np.float32(tilt[1])
     photo *= np.float32(gain)
-    photo *= (1 + ramp_y[:, None]) * (1 + ramp_x[None, :])
+    for top in range(0, h, 256):  # the gradient row band by row band: no second whole-image buffer
+        photo[top:top + 256] *= (1 + ramp_y[top:top + 256, None]) * (1 + ramp_x[None, :])
     if spec.blur_sigma > 0:
-        photo = cv2.GaussianBlur(photo, (0, 0), spec.blur_sigma)
+        cv2.GaussianBlur(photo, (0, 0), spec.blur_sigma, dst=photo)
     if spec.noise_sigma > 0:
         noise = np.empty_like(photo)
         cv2.randn(noise, 0.0, spec.noise_sigma)
         photo += noise
-    return np.clip(photo + 0.5, 0, 255).astype(np.uint8)
+        del noise
+    photo += np.float32(0.5)
+    np.clip(photo, 0, 255, out=photo)
+    return photo.astype(np.uint8)
 
 
 def render_plane_photo(texture: np.ndarray, mm_per_texel: float, camera: Camera, rotation: np.ndarray,
