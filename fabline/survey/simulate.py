@@ -120,13 +120,28 @@ def sag_field(design_mm: np.ndarray, kinds: list[str], amplitude_mm: float) -> n
     return deviation
 
 
-def _look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
+def look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
+    """World-to-camera rotation of a camera at `position` looking at `target`, image x level with the ground (the
+    view not vertical), turned by `roll` radians about its axis."""
     forward = (target - position) / np.linalg.norm(target - position)
     right = np.cross(forward, [0.0, 0.0, 1.0])
     right /= np.linalg.norm(right)
     down = np.cross(forward, right)
     c, s = np.cos(roll), np.sin(roll)
     return np.array([c * right + s * down, -s * right + c * down, forward])
+
+
+def tag_centres(model: Network, tag_map: TagMap, positions: np.ndarray | None = None):
+    """The tagged nodes in tag order, their tags' centres (N, 3) mm and the tags' normals (N, 3): tags sit on the top
+    washer, so along the node normal turned upwards, `mount_offset_mm` above the node (`positions`: the nodes' own
+    positions in `model.node_array()` order, default the design's)."""
+    ids, design, normals = model.node_array()
+    index_of = {nid: i for i, nid in enumerate(ids)}
+    tags = sorted(tag_map.node_of_tag)
+    rows = np.array([index_of[tag_map.node_of_tag[t]] for t in tags], dtype=int)
+    up = normals[rows] * np.where(normals[rows][:, 2] < 0, -1.0, 1.0)[:, None]
+    where = design if positions is None else positions
+    return [ids[r] for r in rows], where[rows] + tag_map.mount_offset_mm * up, up
 
 
 def camera_poses(points_mm: np.ndarray, normals: np.ndarray, spec: SyntheticSpec,
@@ -152,7 +167,7 @@ def camera_poses(points_mm: np.ndarray, normals: np.ndarray, spec: SyntheticSpec
         view[2] = max(view[2], 0.35 * np.linalg.norm(view[:2]))
         view /= np.linalg.norm(view)
         position = aim + distance * view
-        rotation = _look_at(position, aim, rng.uniform(-0.15, 0.15))
+        rotation = look_at(position, aim, rng.uniform(-0.15, 0.15))
         poses.append((rotation, -rotation @ position))
     return poses
 
@@ -231,24 +246,24 @@ def _render_tag(photo: np.ndarray, tag_id: int, black_corners: np.ndarray, shade
 
 
 def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: SyntheticSpec | None = None,
-                    tag_map: TagMap | None = None) -> dict:
-    """Render a photo set of the built structure into `out_dir`; return the truth record (also written)."""
+                    tag_map: TagMap | None = None, poses: list[tuple[np.ndarray, np.ndarray]] | None = None) -> dict:
+    """Render a photo set of the built structure into `out_dir`; return the truth record (also written).
+
+    `poses`: the photos' world-to-camera (rotation matrix, translation mm), e.g. a photo plan's stations
+    (`fabline.survey.plan`), instead of the simulator's own placement (`spec.photos` is then unused)."""
     spec = spec or SyntheticSpec()
     rng = np.random.default_rng(spec.seed)
     cv2.setRNGSeed(spec.seed)
     out_dir = Path(out_dir)
     model = network.in_mm()
     tag_map = tag_map or make_tag_map(model, spec.tag_size_mm, spec.mount_offset_mm, spec.every)
-    ids, design, normals = model.node_array()
+    ids, design, _ = model.node_array()
     kinds = [model.nodes[i].kind for i in ids]
     deviation = sag_field(design, kinds, spec.sag_mm)
     built = design + deviation
-    index_of = {nid: i for i, nid in enumerate(ids)}
     tags = sorted(tag_map.node_of_tag)
-    rows = np.array([index_of[tag_map.node_of_tag[t]] for t in tags], dtype=int)
-    facing_up = normals[rows] * np.where(normals[rows][:, 2] < 0, -1.0, 1.0)[:, None]  # tags sit on the top washer
+    _, centres, facing_up = tag_centres(model, tag_map, built)
     frames = _tag_frames(facing_up, rng)
-    centres = built[rows] + tag_map.mount_offset_mm * facing_up
     # the AprilTag frame of each tag: x, y in its face, z into it (the tag image upright to an observer outside)
     apriltag_frames = frames @ np.diag([-1.0, 1.0, -1.0])
     corners_world = centres[:, None, :] + np.einsum("nij,kj->nki", apriltag_frames, tag_object_points(tag_map.tag_size_mm))
@@ -259,7 +274,8 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
     photos_dir = out_dir / "photos"
     photos_dir.mkdir(parents=True, exist_ok=True)
     photo_records = []
-    poses = camera_poses(centres, frames[:, :, 2], spec, rng)
+    own = camera_poses(centres, frames[:, :, 2], spec, rng)  # drawn even when unused: the same noise either way
+    poses = own if poses is None else poses
     for k, (rotation, translation) in enumerate(progress(poses, "rendering photos")):
         photo = _background(spec, rng)
         for lamella in model.lamellas:
