@@ -5,7 +5,8 @@ a grid over or under it where the station clears the shell. Each candidate posit
 over the tags (farthest-point sampling). A tag counts as seen from a station when its face turns to the camera
 within `max_angle_deg`, its black square is at least `min_side_px` on its foreshortened side, its centre is in the
 frame with the whole tag inside, and the ray from it to the camera crosses no triangle of the shell's surface (the
-nodes triangulated in plan, a conservative stand-in for the lamellas) and no other tag (a disc round its corners). A greedy set cover then picks stations
+nodes triangulated in plan, a conservative stand-in for the lamellas) and no other tag (a disc round its corners,
+OCCLUSION_MARGIN_MM wider). A greedy set cover then picks stations
 until every tag that any candidates can see from `views` different positions is seen from that many (two photos
 from one position give no baseline, so they count once). Greedy set cover is within a factor ln(n) of the
 fewest stations, not optimal.
@@ -34,6 +35,8 @@ AIM_POINTS = 16
 CLEARANCE_MM = 1000.0
 """A station over (under) the shell stands at least this far above (below) its surface."""
 RAY_CHUNK = 256
+OCCLUSION_MARGIN_MM = 40.0
+"""Added to a tag's radius as an occluder: the built shell stands up to a tolerance or two off the design."""
 """Rays tested against every triangle at once (bounds the ray test's memory)."""
 
 
@@ -198,7 +201,7 @@ def plan_survey(network: Network, tag_map: TagMap, camera: Camera, options: Plan
     pairs = np.argwhere(usable)
     lifted = centres + 5.0 * normals  # off the tag's own face
     hidden = blocked(lifted[pairs[:, 1]], positions[pairs[:, 0]], design[triangles])
-    outer_radius = tag_map.tag_size_mm * 10 / TAG_CELLS / np.sqrt(2)  # the quiet zone's corners
+    outer_radius = tag_map.tag_size_mm * 10 / TAG_CELLS / np.sqrt(2) + OCCLUSION_MARGIN_MM  # the quiet zone's corners
     rest = np.flatnonzero(~hidden)
     hidden[rest] = blocked_by_discs(lifted[pairs[rest, 1]], positions[pairs[rest, 0]], pairs[rest, 1], centres, normals,
                                     outer_radius)
