@@ -197,17 +197,25 @@ def _calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _resolution(text: str) -> tuple[int, int]:
+    """A `--resolution WxH` in pixels, at least 64 x 64; anything else raises saying so."""
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise FablineError(f"--resolution {text!r}: expected WxH in pixels, e.g. 6000x4000") from None
+    if width < 64 or height < 64:
+        raise FablineError("--resolution must be at least 64x64")
+    return width, height
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from fabline.model import load_network
     from fabline.survey import SyntheticSpec, simulate_survey
     from fabline.survey.photos import check_simulation
 
-    try:
-        width, height = (int(v) for v in args.resolution.lower().split("x"))
-    except ValueError:
-        raise FablineError(f"--resolution {args.resolution!r}: expected WxH in pixels, e.g. 6000x4000") from None
-    if width < 64 or height < 64 or args.photos < 2:
-        raise FablineError("--resolution must be at least 64x64 and --photos at least 2")
+    width, height = _resolution(args.resolution)
+    if args.photos < 2:
+        raise FablineError("--photos must be at least 2")
     check_simulation(width, height, args.photos, args.seed, {"resolution": "--resolution", "photos": "--photos", "seed": "--seed"})
     if not 0 < args.coverage <= 2:
         raise FablineError(f"--coverage must be in (0, 2], got {args.coverage}")
@@ -258,12 +266,9 @@ def _plan_camera(args: argparse.Namespace):
     if not (args.sensor and args.focal_length and args.resolution):
         raise FablineError("--sensor, --focal-length and --resolution go together (e.g. --sensor 36x24mm "
                            "--focal-length 35mm --resolution 6000x4000)")
-    try:
-        width, height = (int(v) for v in args.resolution.lower().split("x"))
-    except ValueError:
-        raise FablineError(f"--resolution {args.resolution!r}: expected WxH in pixels, e.g. 6000x4000") from None
-    if width < 64 or height < 64 or not args.focal_length > 0:
-        raise FablineError("--resolution must be at least 64x64 and --focal-length more than 0")
+    width, height = _resolution(args.resolution)
+    if not args.focal_length > 0:
+        raise FablineError("--focal-length must be more than 0")
     focal = args.focal_length * width / args.sensor[0]
     matrix = np.array([[focal, 0, (width - 1) / 2], [0, focal * (height / args.sensor[1]) / (width / args.sensor[0]),
                                                      (height - 1) / 2], [0, 0, 1]])
