@@ -317,7 +317,10 @@ def _plan(args: argparse.Namespace) -> int:
         unseen = unseen_with_stations(plan, survey)
         print(f"{len(unseen)} node(s) not measured in {args.survey}" + (":" if unseen else ""))
         for nid, why, stations in unseen:
-            where = (f"stations {', '.join(map(str, stations))}" if stations else "no station at this height")
+            if nid not in plan.seen_by:
+                print(f"  {nid} ({why})")
+                continue
+            where = f"stations {', '.join(map(str, stations))}" if stations else "no station at this height"
             print(f"  {nid} ({why}): seen from {where}")
     return 0
 

@@ -274,8 +274,8 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
     photos_dir = out_dir / "photos"
     photos_dir.mkdir(parents=True, exist_ok=True)
     photo_records = []
-    own = camera_poses(centres, frames[:, :, 2], spec, rng)  # drawn even when unused: the same noise either way
-    poses = own if poses is None else poses
+    placed = camera_poses(centres, frames[:, :, 2], spec, rng)  # drawn even when unused: the same noise either way
+    poses = placed if poses is None else poses
     for k, (rotation, translation) in enumerate(progress(poses, "rendering photos")):
         photo = _background(spec, rng)
         for lamella in model.lamellas:
