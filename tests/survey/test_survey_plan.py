@@ -158,3 +158,18 @@ def test_height_takes_units(cli, planned, tmp_path):
                          "--focal-length", "29.25mm", "--resolution", "1600x1200", "--height", "300cm",
                          "-o", tmp_path / "p")
     assert code == 0 and json.loads((tmp_path / "p" / "plan.json").read_text())["height_mm"] == 3000.0
+
+
+def test_a_test_photo_gives_the_camera_by_its_exif(cli, planned, tmp_path):
+    """A photo written with EXIF (35 mm-equivalent focal length in whole mm, as phones write it): the plan's camera
+    has its size and that focal length (1300 px -> 28.1, written 28 mm equivalent -> 1294.3 px at 1600 x 1200)."""
+    from fabline.survey import SyntheticSpec, simulate_survey
+
+    simulate_survey(saddle_network(2.0, 0.5, 3.0), tmp_path / "exif",
+                    SyntheticSpec(photos=2, width=1600, height=1200, focal_px=1300, exif_model="Phone X"))
+    code, out, err = cli("survey", "plan", "--model", planned / "saddle.network.json", "--photo",
+                         tmp_path / "exif" / "photos" / "photo-000.jpg", "--height", "3 m", "-o", tmp_path / "p")
+    assert code == 0, err
+    camera = json.loads((tmp_path / "p" / "plan.json").read_text())["camera"]
+    assert (camera["width"], camera["height"]) == (1600, 1200)
+    assert abs(camera["fx"] - 28 * np.hypot(1600, 1200) / np.hypot(36, 24)) < 1e-6
