@@ -47,8 +47,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     plan.add_argument("--tags", help="tagmap.json (default: ids in model node order, 65 mm tags, 20 mm offset)")
     plan.add_argument("--camera", help="camera.json of the survey camera")
     plan.add_argument("--photo", help="a test photo: its size and EXIF 35 mm-equivalent focal length give the camera")
-    plan.add_argument("--sensor", type=size("mm"), metavar="WxH", help="sensor size, with --focal-length and --resolution")
-    plan.add_argument("--focal-length", type=length_mm, help="lens focal length, with --sensor and --resolution")
+    plan.add_argument("--sensor", type=size("mm"), metavar="WxH", help="sensor size in mm (36x24) or with a unit, with --focal-length and --resolution")
+    plan.add_argument("--focal-length", type=length_mm, help="lens focal length in mm or with a unit, with --sensor and --resolution")
     plan.add_argument("--resolution", metavar="WxH", help="image size in px, with --sensor and --focal-length")
     plan.add_argument("--height", type=length_mm, default=1600.0, help="camera height above the ground (lowest node)")
     plan.add_argument("--max-angle", type=float, default=60.0, metavar="DEG",
