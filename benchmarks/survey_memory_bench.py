@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def watch(arguments: list[str]) -> None:
-    """In the watcher process: run one `fabline` command, print its wall s, CPU s and peak RSS GB."""
+    """In the watcher process: run one `fabline` command, print its wall s, CPU s and peak RSS GiB."""
     started = time.perf_counter()
     subprocess.run([sys.executable, "-m", "fabline", *arguments], check=True, cwd=ROOT,
                    env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.DEVNULL)
@@ -33,7 +33,7 @@ def watch(arguments: list[str]) -> None:
 
 
 def run(arguments: list[str]) -> tuple[float, float, float]:
-    """Wall s, CPU s (user + system) and peak RSS GB of one `fabline` command, measured by its own watcher."""
+    """Wall s, CPU s (user + system) and peak RSS GiB of one `fabline` command, measured by its own watcher."""
     done = subprocess.run([sys.executable, __file__, "--watch", *arguments], check=True, stdout=subprocess.PIPE, text=True)
     return tuple(json.loads(done.stdout.splitlines()[-1]))
 
@@ -63,7 +63,7 @@ def main() -> None:
                                        str(folder / "camera.json"), "--tags", str(folder / "tagmap.json"),
                                        "-o", str(Path(tmp) / f"survey{photos}")])
                 rows.append(("measure", photos, args.resolution, wall, cpu, peak))
-    print(f"{'command':<10}{'photos':>7}  {'resolution':<11}{'wall s':>8}{'CPU s':>8}{'peak RSS GB':>13}")
+    print(f"{'command':<10}{'photos':>7}  {'resolution':<11}{'wall s':>8}{'CPU s':>8}{'peak RSS GiB':>13}")
     for command, photos, resolution, wall, cpu, peak in rows:
         print(f"{command:<10}{photos:>7}  {resolution:<11}{wall:>8.1f}{cpu:>8.1f}{peak:>13.2f}")
 
