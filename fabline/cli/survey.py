@@ -1,4 +1,4 @@
-"""CLI for the as-built survey: `fabline survey tags | detect | calibrate | simulate | measure`."""
+"""CLI for the as-built survey: `fabline survey tags | detect | calibrate | plan | simulate | measure`."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from fabline.cli import hidden_alias
-from fabline.cli.units import length_mm
+from fabline.cli.units import length_mm, size
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
 from fabline.units import mm, parse_length
@@ -42,6 +42,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     calibrate.add_argument("--write-board", metavar="PNG", help="write the board image to print, then stop")
     calibrate.set_defaults(func=_calibrate)
 
+    plan = commands.add_parser("plan", help="camera stations that see every node's tag in two photos (and a drawing)")
+    plan.add_argument("--model", required=True, help="fabline.network/1 model file")
+    plan.add_argument("--tags", help="tagmap.json (default: ids in model node order, 65 mm tags, 20 mm offset)")
+    plan.add_argument("--camera", help="camera.json of the survey camera")
+    plan.add_argument("--photo", help="a test photo: its size and EXIF 35 mm-equivalent focal length give the camera")
+    plan.add_argument("--sensor", type=size("mm"), metavar="WxH", help="sensor size in mm (36x24) or with a unit, with --focal-length and --resolution")
+    plan.add_argument("--focal-length", type=length_mm, help="lens focal length in mm or with a unit, with --sensor and --resolution")
+    plan.add_argument("--resolution", metavar="WxH", help="image size in px, with --sensor and --focal-length")
+    plan.add_argument("--height", type=length_mm, default=1600.0, help="camera height above the ground (lowest node)")
+    plan.add_argument("--max-angle", type=float, default=60.0, metavar="DEG",
+                      help="largest angle between a tag's normal and the ray to the camera, degrees")
+    plan.add_argument("--min-side", type=float, default=16.0, metavar="PX", help="smallest tag side in the photo, px")
+    plan.add_argument("--views", type=int, default=2, help="stations each tag must be seen from")
+    plan.add_argument("--spacing", type=length_mm, default=1500.0, help="spacing of the candidate stations")
+    plan.add_argument("-o", "--output", required=True, help="folder for plan.json and plan.svg")
+    plan.add_argument("--survey", metavar="SURVEY_JSON", help="a survey.json: list its unseen nodes with the stations that see them")
+    plan.set_defaults(func=_plan)
+
     simulate = commands.add_parser("simulate", help="render a synthetic photo set of the built structure with known truth")
     simulate.add_argument("--model", required=True, help="fabline.network/1 model file")
     simulate.add_argument("-o", "--output", required=True, help="folder for photos/, camera.json, tagmap.json, truth.json")
@@ -58,6 +76,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     simulate.add_argument("--coverage", type=float, default=0.45,
                           help="fraction of the model's plan span one photo covers")
     simulate.add_argument("--seed", type=int, default=1, help="random seed of the camera positions and noise")
+    simulate.add_argument("--plan", metavar="PLAN_JSON",
+                          help="photograph from a plan's stations with its camera (`survey plan`) instead of the "
+                               "simulator's own placement (--photos, --resolution and --focal then come from the plan)")
     simulate.set_defaults(func=_simulate)
 
     measure = commands.add_parser("measure", help="measure every tagged node against the design")
@@ -176,27 +197,131 @@ def _calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _resolution(text: str) -> tuple[int, int]:
+    """A `--resolution WxH` in pixels, at least 64 x 64; anything else raises saying so."""
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise FablineError(f"--resolution {text!r}: expected WxH in pixels, e.g. 6000x4000") from None
+    if width < 64 or height < 64:
+        raise FablineError("--resolution must be at least 64x64")
+    return width, height
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from fabline.model import load_network
     from fabline.survey import SyntheticSpec, simulate_survey
     from fabline.survey.photos import check_simulation
 
-    try:
-        width, height = (int(v) for v in args.resolution.lower().split("x"))
-    except ValueError:
-        raise FablineError(f"--resolution {args.resolution!r}: expected WxH in pixels, e.g. 6000x4000") from None
-    if width < 64 or height < 64 or args.photos < 2:
-        raise FablineError("--resolution must be at least 64x64 and --photos at least 2")
+    width, height = _resolution(args.resolution)
+    if args.photos < 2:
+        raise FablineError("--photos must be at least 2")
     check_simulation(width, height, args.photos, args.seed, {"resolution": "--resolution", "photos": "--photos", "seed": "--seed"})
     if not 0 < args.coverage <= 2:
         raise FablineError(f"--coverage must be in (0, 2], got {args.coverage}")
-    check_outputs(folders=(args.output,), inputs=(args.model,))
+    check_outputs(folders=(args.output,), inputs=(args.model, args.plan))
+    poses = None
+    if args.plan:
+        from fabline.survey.plan import load_plan_poses
+
+        planned, poses = load_plan_poses(args.plan)
+        width, height, args.focal, args.photos = planned.width, planned.height, planned.focal_px, len(poses)
+        check_simulation(width, height, args.photos, args.seed, {"resolution": f"{args.plan}: camera", "photos":
+                         f"{args.plan}: stations", "seed": "--seed"})
     spec = SyntheticSpec(photos=args.photos, width=width, height=height, focal_px=args.focal or width * 5 / 6,
                          sag_mm=args.sag, noise_sigma=args.noise, blur_sigma=args.blur, tag_size_mm=args.tag_size,
                          every=args.every, coverage=args.coverage, seed=args.seed)
-    truth = simulate_survey(load_network(args.model), args.output, spec)
+    truth = simulate_survey(load_network(args.model), args.output, spec, poses=poses)
     visible = sum(len(p["visible"]) for p in truth["photos"])
     print(f"{len(truth['photos'])} photos, {visible} tag views written to {args.output}")
+    return 0
+
+
+def _plan_camera(args: argparse.Namespace):
+    """The survey camera from --camera, --photo (size and EXIF), or --sensor, --focal-length and --resolution."""
+    import numpy as np
+
+    from fabline.survey import Camera, load_camera
+
+    given = [name for name, value in (("--camera", args.camera), ("--photo", args.photo),
+                                      ("--sensor", args.sensor or args.focal_length or args.resolution)) if value]
+    if len(given) != 1:
+        raise FablineError("plan needs the camera one way: --camera camera.json, --photo PHOTO (EXIF focal length), or "
+                           "--sensor WxH --focal-length F --resolution WxH")
+    if args.camera:
+        return load_camera(args.camera)
+    if args.photo:
+        from fabline.survey.photos import check_photo, header_size
+        from fabline.survey.selfcal import exif_camera, initial_camera
+
+        check_photo(args.photo)
+        photo_size = header_size(args.photo)
+        if photo_size is None:
+            raise FablineError(f"--photo {args.photo}: not a JPEG or PNG whose size can be read")
+        exif = exif_camera(args.photo)
+        if "focal_35mm" not in exif:
+            raise FablineError(f"--photo {args.photo}: no EXIF 35 mm-equivalent focal length; give --camera or --sensor, "
+                               "--focal-length and --resolution")
+        return initial_camera(photo_size, exif, [], 65.0)[0]
+    if not (args.sensor and args.focal_length and args.resolution):
+        raise FablineError("--sensor, --focal-length and --resolution go together (e.g. --sensor 36x24mm "
+                           "--focal-length 35mm --resolution 6000x4000)")
+    width, height = _resolution(args.resolution)
+    if not args.focal_length > 0:
+        raise FablineError("--focal-length must be more than 0")
+    focal = args.focal_length * width / args.sensor[0]
+    matrix = np.array([[focal, 0, (width - 1) / 2], [0, focal * (height / args.sensor[1]) / (width / args.sensor[0]),
+                                                     (height - 1) / 2], [0, 0, 1]])
+    return Camera(matrix, np.zeros(5), width, height)
+
+
+def _plan(args: argparse.Namespace) -> int:
+    from fabline.fileio import read_json
+    from fabline.model import load_network
+    from fabline.survey import load_tag_map, make_tag_map
+    from fabline.survey.plan import PlanOptions, plan_survey, save_plan, unseen_with_stations, write_plan_svg
+
+    camera = _plan_camera(args)
+    check_outputs(folders=(args.output,), inputs=(args.model, args.tags, args.camera, args.photo, args.survey))
+    if not 0 < args.max_angle < 90 or not args.min_side > 0 or args.views < 1 or not args.spacing >= 100:
+        raise FablineError("--max-angle must be between 0 and 90 degrees, --min-side more than 0 px, --views at least 1 "
+                           "and --spacing at least 100 mm")
+    network = load_network(args.model)
+    tag_map = load_tag_map(args.tags) if args.tags else make_tag_map(network)
+    from fabline.survey.tagmap import check_tag_map
+
+    check_tag_map(tag_map, network.in_mm())
+    survey = read_json(args.survey) if args.survey else None
+    if survey is not None and (not isinstance(survey, dict) or survey.get("schema") != "fabline.survey/1"):
+        raise FablineError(f"--survey {args.survey}: not a fabline.survey/1 file")
+    options = PlanOptions(height_mm=args.height, max_angle_deg=args.max_angle, min_side_px=args.min_side,
+                          views=args.views, spacing_mm=args.spacing)
+    plan = plan_survey(network, tag_map, camera, options)
+    out = Path(args.output)
+    data = save_plan(plan, network.name, out / "plan.json")
+    write_plan_svg(network, plan, out / "plan.svg")
+    print(f"{'station':>7}  {'x m':>7} {'y m':>7} {'z m':>6}  {'where':<6} {'facing':>7} {'down':>5}  nodes seen")
+    for station in data["stations"]:
+        x, y, z = (v / 1000 for v in station["position_mm"])
+        print(f"{station['station']:>7}  {x:>7.2f} {y:>7.2f} {z:>6.2f}  {station['where']:<6} {station['azimuth_deg']:>6.0f}d "
+              f"{station['tilt_deg']:>4.0f}d  {len(station['nodes'])}")
+    tagged = len(plan.seen_by)
+    print(f"{len(plan.stations)} stations at {args.height / 1000:g} m (of {plan.candidates} candidates) see "
+          f"{tagged - len(plan.short)} of {tagged} tagged nodes from {args.views} or more stations -> {out / 'plan.json'}, "
+          f"{out / 'plan.svg'}")
+    if plan.short:
+        listed = ", ".join(f"{nid} ({n})" for nid, n in list(plan.short.items())[:20])
+        print(f"warning: {len(plan.short)} node(s) seen from fewer than {args.views} stations at this height (from how "
+              f"many): {listed}{', ...' if len(plan.short) > 20 else ''}; try a greater --height or another camera")
+    if survey is not None:
+        unseen = unseen_with_stations(plan, survey)
+        print(f"{len(unseen)} node(s) not measured in {args.survey}" + (":" if unseen else ""))
+        for nid, why, stations in unseen:
+            if nid not in plan.seen_by:
+                print(f"  {nid} ({why})")
+                continue
+            where = f"stations {', '.join(map(str, stations))}" if stations else "no station at this height"
+            print(f"  {nid} ({why}): seen from {where}")
     return 0
 
 
@@ -241,11 +366,12 @@ def _measure(args: argparse.Namespace) -> int:
               f"+/- {sigma.get('f', 0):.3g} px, principal point ({fitted['cx']}, {fitted['cy']}) +/- "
               f"({sigma.get('cx', 0):.2g}, {sigma.get('cy', 0):.2g}) px, k1 {fitted['distortion'][0]:.4f} "
               f"+/- {sigma.get('k1', 0):.2g}, k2 {fitted['distortion'][1]:.4f} +/- {sigma.get('k2', 0):.2g}")
-    from fabline.verdicts import verdict_text
+    from fabline.verdicts import reach_text, verdict_text
 
     s = record["summary"]
     print(f"{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
           f"RMS deviation {mm(s['rms_deviation_mm'])} mm, max {mm(s['max_deviation_mm'])} mm; at {record['tolerance_mm']:g} mm "
           f"({s['k_sigma']:g} sigma) {verdict_text(s)}; {s['tags_found_where_predicted']} tag view(s) "
           f"found where the reconstruction predicted them -> {Path(args.output) / 'survey.json'}")
+    print(f"not seen: {reach_text(s, record['not_seen_regions'])}")
     return 0

@@ -22,7 +22,7 @@ from fabline.jobs.pictures import model_svg
 from fabline.mechanics.structure import CHECKS, VERDICT_RULE, percent, verdict_lines
 from fabline.model.extent import plan_extent_m, extent_text
 from fabline.units import metres, mm
-from fabline.verdicts import verdict_text
+from fabline.verdicts import reach_text, verdict_text
 
 REPORT_SCHEMA = "fabline.report/1"
 _STYLE = """
@@ -227,7 +227,7 @@ def _survey_section(survey: dict[str, Any] | None, folder: Path) -> str:
                "every measured node within tolerance")
     parts.append(f"<p>{s['measured']} of {s['nodes']} nodes measured from {s['photos_used']} of {s['photos']} photos: "
                  f"{e(verdict)} ({e(verdict_text(s))}, against {survey['tolerance_mm']:g} mm with {k:g} sigma of "
-                 f"margin). "
+                 f"margin). The verdicts' reach: {e(reach_text(s, survey.get('not_seen_regions')))}. "
                  f"From {e(survey['file'])}.</p>")
     rows = [("nodes measured", f"{s['measured']} of {s['nodes']}"), ("pass (deviation + k sigma within tolerance)", s["passed"]),
             ("fail (deviation - k sigma beyond tolerance)", s["failed"]), ("uncertain", uncertain), ("k (sigma)", f"{k:g}"),

@@ -141,7 +141,7 @@ def survey_entry(record: dict[str, Any], path: Path) -> dict[str, Any]:
                 "tolerance_mm": record["tolerance_mm"], "reference": record["registration"]["reference"],
                 "registration_rms_mm": record["registration"]["rms_mm"], "scale": record.get("scale"),
                 "summary": record["summary"],
-                "not_seen": record["not_seen"], "problems": [p["problem"] for p in record["problems"]],
+                "not_seen": record["not_seen"], "not_seen_regions": record.get("not_seen_regions"), "problems": [p["problem"] for p in record["problems"]],
                 "simulated": None, "truth": None}
     except (KeyError, TypeError) as exc:
         raise FablineError(f"{path}: not a complete fabline.survey/1 record (missing {exc})") from None

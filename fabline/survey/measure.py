@@ -375,6 +375,7 @@ def _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviat
                          f"tag {tag} seen in fewer than {options.min_views} photos" if nid in seen_once else f"tag {tag} not seen")
     order = np.argsort(-distance)
     verdict, sigma_along, along_normal = judged
+    regions = unseen_regions(model, list(not_seen))
     return {
         "schema": SURVEY_SCHEMA, "model": model.name, "units": "mm", "tolerance_mm": options.tolerance_mm,
         "registration": {"method": "rigid", "reference": options.reference if isinstance(options.reference, str) else list(options.reference),
@@ -398,10 +399,41 @@ def _record(model, tag_map, options, node_ids, tag_ids, design, measured, deviat
             for i, nid in enumerate(node_ids)
         },
         "not_seen": not_seen,
+        "not_seen_regions": regions,
         "photos": [{"file": str(p), "tags": [d.tag_id for d in detections.get(k, [])],
                     "used": k in reconstruction.camera_rotations} for k, p in enumerate(photos)],
         "problems": problems,
     }
+
+
+def unseen_regions(model: Network, unseen: list[str]) -> list[dict]:
+    """Where the unmeasured nodes are: the groups of them that join along lamellas (neighbours on a lamella),
+    largest first, each with its nodes, the centre of their design positions and the plan radius (mm) around it."""
+    if not unseen:
+        return []
+    index = {nid: i for i, nid in enumerate(unseen)}
+    parent = list(range(len(unseen)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for lamella in model.lamellas:
+        for a, b in zip(lamella.nodes, lamella.nodes[1:]):
+            if a in index and b in index:
+                parent[root(index[a])] = root(index[b])
+    groups: dict[int, list[str]] = {}
+    for nid in unseen:
+        groups.setdefault(root(index[nid]), []).append(nid)
+    regions = []
+    for members in sorted(groups.values(), key=lambda g: (-len(g), g[0])):
+        xyz = np.array([model.nodes[n].xyz for n in members], dtype=float)
+        centre = xyz.mean(axis=0)
+        regions.append({"nodes": members, "centre_mm": np.round(centre, 1).tolist(),
+                        "radius_mm": round(float(np.max(np.linalg.norm(xyz[:, :2] - centre[:2], axis=1))), 1)})
+    return regions
 
 
 def _diverging(levels: np.ndarray) -> np.ndarray:

@@ -26,6 +26,11 @@ from fabline.survey.tagmap import TAG_CELLS, TagMap, make_tag_map, save_tag_map,
 TRUTH_SCHEMA = "fabline.survey-truth/1"
 SUPERSAMPLE = 4
 MAX_VIEW_ANGLE_DEG = 70.0
+MAX_CELL_TEXELS = 256
+"""Most texels a tag cell has in its render texture (a 2560 px square): tags up to 640 px a side get one a
+supersampled pixel."""
+FINE_BAND_PX = 2**23
+"""Most supersampled pixels one tag renders at once (32 MB a float32 buffer): bounds memory for tags near the lens."""
 
 
 @dataclass
@@ -115,13 +120,28 @@ def sag_field(design_mm: np.ndarray, kinds: list[str], amplitude_mm: float) -> n
     return deviation
 
 
-def _look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
+def look_at(position: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
+    """World-to-camera rotation of a camera at `position` looking at `target`, image x level with the ground (the
+    view not vertical), turned by `roll` radians about its axis."""
     forward = (target - position) / np.linalg.norm(target - position)
     right = np.cross(forward, [0.0, 0.0, 1.0])
     right /= np.linalg.norm(right)
     down = np.cross(forward, right)
     c, s = np.cos(roll), np.sin(roll)
     return np.array([c * right + s * down, -s * right + c * down, forward])
+
+
+def tag_centres(model: Network, tag_map: TagMap, positions: np.ndarray | None = None):
+    """The tagged nodes in tag order, their tags' centres (N, 3) mm and the tags' normals (N, 3): tags sit on the top
+    washer, so along the node normal turned upwards, `mount_offset_mm` above the node (`positions`: the nodes' own
+    positions in `model.node_array()` order, default the design's)."""
+    ids, design, normals = model.node_array()
+    index_of = {nid: i for i, nid in enumerate(ids)}
+    tags = sorted(tag_map.node_of_tag)
+    rows = np.array([index_of[tag_map.node_of_tag[t]] for t in tags], dtype=int)
+    up = normals[rows] * np.where(normals[rows][:, 2] < 0, -1.0, 1.0)[:, None]
+    where = design if positions is None else positions
+    return [ids[r] for r in rows], where[rows] + tag_map.mount_offset_mm * up, up
 
 
 def camera_poses(points_mm: np.ndarray, normals: np.ndarray, spec: SyntheticSpec,
@@ -147,7 +167,7 @@ def camera_poses(points_mm: np.ndarray, normals: np.ndarray, spec: SyntheticSpec
         view[2] = max(view[2], 0.35 * np.linalg.norm(view[:2]))
         view /= np.linalg.norm(view)
         position = aim + distance * view
-        rotation = _look_at(position, aim, rng.uniform(-0.15, 0.15))
+        rotation = look_at(position, aim, rng.uniform(-0.15, 0.15))
         poses.append((rotation, -rotation @ position))
     return poses
 
@@ -169,7 +189,8 @@ def _background(spec: SyntheticSpec, rng: np.random.Generator) -> np.ndarray:
     coarse = rng.uniform(70, 170, size=(max(spec.height // 150, 2), max(spec.width // 150, 2))).astype(np.float32)
     image = cv2.resize(coarse, (spec.width, spec.height), interpolation=cv2.INTER_CUBIC)
     fine = rng.normal(0, 12, size=(spec.height // 8 + 1, spec.width // 8 + 1)).astype(np.float32)
-    return image + cv2.resize(fine, (spec.width, spec.height), interpolation=cv2.INTER_LINEAR)
+    image += cv2.resize(fine, (spec.width, spec.height), interpolation=cv2.INTER_LINEAR)
+    return image
 
 
 def _draw_lamella(photo: np.ndarray, curve_cam: np.ndarray, camera: Camera) -> None:
@@ -191,9 +212,15 @@ def _draw_lamella(photo: np.ndarray, curve_cam: np.ndarray, camera: Camera) -> N
 
 def _render_tag(photo: np.ndarray, tag_id: int, black_corners: np.ndarray, shade: float) -> None:
     """Warp tag `tag_id` (with its white quiet zone) into `photo` so its black square lands on `black_corners` (4, 2) px,
-    in the AprilTag order (`fabline.survey.detect`)."""
+    in the AprilTag order (`fabline.survey.detect`).
+
+    Supersampled 4x from a texture of about one texel per supersampled pixel (bilinear) and area-averaged. Memory is
+    bounded whatever the tag's size in the photo (a tag near the lens spans it): the texture has at most
+    MAX_CELL_TEXELS a cell (a larger tag's edges are then a ramp of a few supersampled pixels, centred on the true
+    edge), and a tag whose supersampled window exceeds FINE_BAND_PX is rendered in bands of rows.
+    """
     side = np.max(np.linalg.norm(black_corners - np.roll(black_corners, 1, axis=0), axis=1))
-    cell = max(4, int(np.ceil(SUPERSAMPLE * side / TAG_CELLS)))
+    cell = min(max(4, int(np.ceil(SUPERSAMPLE * side / TAG_CELLS))), MAX_CELL_TEXELS)
     texture = tag_image(tag_id, cell).astype(np.float32) * (195.0 / 255.0) + 25.0
     source = np.array([[cell, cell], [9 * cell, cell], [9 * cell, 9 * cell], [cell, 9 * cell]], dtype=np.float64) - 0.5
     to_image = cv2.getPerspectiveTransform(source.astype(np.float32), black_corners[APRILTAG_ORDER].astype(np.float32))
@@ -205,35 +232,38 @@ def _render_tag(photo: np.ndarray, tag_id: int, black_corners: np.ndarray, shade
     if x1 <= x0 or y1 <= y0:
         return
     s = SUPERSAMPLE
-    to_fine = np.array([[s, 0, -s * x0 + (s - 1) / 2], [0, s, -s * y0 + (s - 1) / 2], [0, 0, 1]]) @ to_image
-    size = ((x1 - x0) * s, (y1 - y0) * s)
-    fine = cv2.warpPerspective(texture, to_fine, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-    cover = cv2.warpPerspective(np.ones_like(texture), to_fine, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-    fine = cv2.resize(fine, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
-    cover = cv2.resize(cover, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
-    roi = photo[y0:y1, x0:x1]
-    roi[:] = roi * (1 - cover) + fine * shade
+    rows = max(1, FINE_BAND_PX // ((x1 - x0) * s * s))
+    for top in range(y0, y1, rows):
+        bottom = min(top + rows, y1)
+        to_fine = np.array([[s, 0, -s * x0 + (s - 1) / 2], [0, s, -s * top + (s - 1) / 2], [0, 0, 1]]) @ to_image
+        size = ((x1 - x0) * s, (bottom - top) * s)
+        fine = cv2.warpPerspective(texture, to_fine, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        cover = cv2.warpPerspective(np.ones_like(texture), to_fine, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        fine = cv2.resize(fine, (x1 - x0, bottom - top), interpolation=cv2.INTER_AREA)
+        cover = cv2.resize(cover, (x1 - x0, bottom - top), interpolation=cv2.INTER_AREA)
+        roi = photo[top:bottom, x0:x1]
+        roi[:] = roi * (1 - cover) + fine * shade
 
 
 def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: SyntheticSpec | None = None,
-                    tag_map: TagMap | None = None) -> dict:
-    """Render a photo set of the built structure into `out_dir`; return the truth record (also written)."""
+                    tag_map: TagMap | None = None, poses: list[tuple[np.ndarray, np.ndarray]] | None = None) -> dict:
+    """Render a photo set of the built structure into `out_dir`; return the truth record (also written).
+
+    `poses`: the photos' world-to-camera (rotation matrix, translation mm), e.g. a photo plan's stations
+    (`fabline.survey.plan`), instead of the simulator's own placement (`spec.photos` is then unused)."""
     spec = spec or SyntheticSpec()
     rng = np.random.default_rng(spec.seed)
     cv2.setRNGSeed(spec.seed)
     out_dir = Path(out_dir)
     model = network.in_mm()
     tag_map = tag_map or make_tag_map(model, spec.tag_size_mm, spec.mount_offset_mm, spec.every)
-    ids, design, normals = model.node_array()
+    ids, design, _ = model.node_array()
     kinds = [model.nodes[i].kind for i in ids]
     deviation = sag_field(design, kinds, spec.sag_mm)
     built = design + deviation
-    index_of = {nid: i for i, nid in enumerate(ids)}
     tags = sorted(tag_map.node_of_tag)
-    rows = np.array([index_of[tag_map.node_of_tag[t]] for t in tags], dtype=int)
-    facing_up = normals[rows] * np.where(normals[rows][:, 2] < 0, -1.0, 1.0)[:, None]  # tags sit on the top washer
+    _, centres, facing_up = tag_centres(model, tag_map, built)
     frames = _tag_frames(facing_up, rng)
-    centres = built[rows] + tag_map.mount_offset_mm * facing_up
     # the AprilTag frame of each tag: x, y in its face, z into it (the tag image upright to an observer outside)
     apriltag_frames = frames @ np.diag([-1.0, 1.0, -1.0])
     corners_world = centres[:, None, :] + np.einsum("nij,kj->nki", apriltag_frames, tag_object_points(tag_map.tag_size_mm))
@@ -244,7 +274,8 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
     photos_dir = out_dir / "photos"
     photos_dir.mkdir(parents=True, exist_ok=True)
     photo_records = []
-    poses = camera_poses(centres, frames[:, :, 2], spec, rng)
+    placed = camera_poses(centres, frames[:, :, 2], spec, rng)  # drawn even when unused: the same noise either way
+    poses = placed if poses is None else poses
     for k, (rotation, translation) in enumerate(progress(poses, "rendering photos")):
         photo = _background(spec, rng)
         for lamella in model.lamellas:
@@ -281,6 +312,7 @@ def simulate_survey(network: Network, out_dir: str | os.PathLike, spec: Syntheti
             own = label[y0:y1, x0:x1][sub > 0]
             if own.size and np.mean(own == n) > 0.995 and tags[n] not in printed:
                 visible[int(tags[n])] = np.round(quad, 4).tolist()
+        del label  # one photo's buffers at a time: rendered, written, freed
         photo = _degrade(photo, spec, rng)
         name = f"photo-{k:03d}.jpg"
         if spec.exif_model:
@@ -334,14 +366,18 @@ def _degrade(photo: np.ndarray, spec: SyntheticSpec, rng: np.random.Generator) -
     ramp_x = np.linspace(-1, 1, w, dtype=np.float32) * np.float32(tilt[0])
     ramp_y = np.linspace(-1, 1, h, dtype=np.float32) * np.float32(tilt[1])
     photo *= np.float32(gain)
-    photo *= (1 + ramp_y[:, None]) * (1 + ramp_x[None, :])
+    for top in range(0, h, 256):  # the gradient row band by row band: no second whole-image buffer
+        photo[top:top + 256] *= (1 + ramp_y[top:top + 256, None]) * (1 + ramp_x[None, :])
     if spec.blur_sigma > 0:
-        photo = cv2.GaussianBlur(photo, (0, 0), spec.blur_sigma)
+        cv2.GaussianBlur(photo, (0, 0), spec.blur_sigma, dst=photo)
     if spec.noise_sigma > 0:
         noise = np.empty_like(photo)
         cv2.randn(noise, 0.0, spec.noise_sigma)
         photo += noise
-    return np.clip(photo + 0.5, 0, 255).astype(np.uint8)
+        del noise
+    photo += np.float32(0.5)
+    np.clip(photo, 0, 255, out=photo)
+    return photo.astype(np.uint8)
 
 
 def render_plane_photo(texture: np.ndarray, mm_per_texel: float, camera: Camera, rotation: np.ndarray,
