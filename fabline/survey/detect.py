@@ -69,7 +69,8 @@ MAX_SEARCH_LEVEL, MIN_LEVEL_SIDE_PX, OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX = 2, 240, 12
 # Blurred, small tags' black border falls below aruco's default threshold offset (7 grey levels) and breaks up: at full
 # resolution a lower offset keeps it whole (2: small low-contrast and thin-quiet-zone tags of 17-21 px whose border
 # broke up at 3, issue 30); at the coarser levels, where halving has taken out half the noise, a slightly higher one
-# finds fewer false outlines.
+# finds fewer false outlines (at 3 large tags of 25 grey levels from black to white are found, but also a small tag in
+# a 4 px blur whose corners come out 1.4-2.7 px off).
 FULL_RESOLUTION_THRESHOLD_OFFSET, COARSE_THRESHOLD_OFFSET = 2, 5
 # quads found at a coarser level are at least this many of its pixels across (smaller ones are found at the finer)
 COARSE_MIN_SIDE_PX = 8.0
