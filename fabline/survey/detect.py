@@ -72,11 +72,6 @@ MAX_SEARCH_LEVEL, MIN_LEVEL_SIDE_PX, OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX = 2, 240, 12
 # finds fewer false outlines (at 3 large tags of 25 grey levels from black to white are found, but also a small tag in
 # a 4 px blur whose corners come out 1.4-2.7 px off).
 FULL_RESOLUTION_THRESHOLD_OFFSET, COARSE_THRESHOLD_OFFSET = 2, 5
-# aruco keeps one of two quads whose corners lie within this share of their perimeter of each other (its default 0.125):
-# a small dim tag's black square inside its quiet zone's outline blurred into a dark surround is such a pair, and aruco
-# kept the outline (3 of 6 tags pupil-apriltags found and fabline missed on camera-like 1056 x 792 and 1200 x 1600
-# photos), so that only near-copies of one outline are merged.
-NESTED_QUAD_DISTANCE_RATE = 0.03
 # quads found at a coarser level are at least this many of its pixels across (smaller ones are found at the finer)
 COARSE_MIN_SIDE_PX = 8.0
 COARSE_MIN_CORNER_DISTANCE_RATE = 0.1
@@ -181,7 +176,6 @@ def _detector(min_side_px: float, image_size: int, level: int, window_px: int) -
     params.adaptiveThreshConstant = COARSE_THRESHOLD_OFFSET if level else FULL_RESOLUTION_THRESHOLD_OFFSET
     params.maxErroneousBitsInBorderRate = ARUCO_BORDER_ERROR_RATE
     params.errorCorrectionRate = ARUCO_CORRECTION_RATE
-    params.minMarkerDistanceRate = NESTED_QUAD_DISTANCE_RATE
     if level == 0:
         params.polygonalApproxAccuracyRate = SLIVER_POLYGON_ACCURACY
     else:
