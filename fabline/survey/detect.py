@@ -128,7 +128,7 @@ MIN_EDGE_INSIDE = 0.5  # a tag cut by the photo's edge: each of its edges at lea
 # of the black border's 28 cells, all but a cut corner's few inside the photo (the corner cell and a neighbour or two
 # along each edge; small tags lose more of them to the photo's edge than large ones, as cells are read on their middle)
 MIN_BORDER_CELLS = 24
-FAILED_QUAD_MATCH_PX = 1.0  # a quad within this of one read in vain (centre and shortest side) is not read again
+TRIED_QUAD_MATCH_PX = 1.0  # a quad within this of one read before (centre and shortest side) is not read again
 MIN_QUIET_ZONE_CELLS = 18  # of the 36 cells of the quiet-zone ring, at least half inside the photo to read a tag
 
 
@@ -213,7 +213,7 @@ def detect_tags(gray: np.ndarray, min_side_px: float = 8.0, flagged: list[TagDet
 
     Quads OpenCV decodes are refined; quads it finds but cannot decode (small, oblique or blurred
     tags, where its bit sampling on the coarse quad fails) get a second chance: refined first, their
-    bits are then read on the refined quad and identified with the dictionary's own error correction.
+    bits are then read on the refined quad and identified with up to REPORTED_BITS corrected.
     Quads are searched for on an image pyramid, finest level first (see SEARCH_WINDOWS_PX): full resolution finds the
     small, dim or grazing tags, the coarse levels blurred large ones; quads inside tags already found are skipped.
     Last, black squares with a corner hidden under the quiet
@@ -246,20 +246,20 @@ def detect_tags(gray: np.ndarray, min_side_px: float = 8.0, flagged: list[TagDet
 @dataclass
 class _Search:
     """One photo's search: the photo, the smallest side of a quad read, the tags found (id, corners in detection's
-    order), the quads flagged (id, corners, why) and the centres and shortest sides of quads read in vain (another
-    search's quad at the same place, to a pixel, is not read again)."""
+    order), the quads flagged (id, corners, why) and the centres and shortest sides of the unidentified quads read so far
+    (another search's quad at the same place, to a pixel, is not read again: it reads no better)."""
 
     gray: np.ndarray
     min_side_px: float
     found: list[tuple[int, np.ndarray]] = field(default_factory=list)
     flagged: list[tuple[int, np.ndarray, str]] = field(default_factory=list)
-    failed: list[np.ndarray] = field(default_factory=list)
+    tried: list[np.ndarray] = field(default_factory=list)
 
     def tried_before(self, quad: np.ndarray) -> bool:
         key = np.array([*quad.mean(axis=0), _shortest_side(quad)])
-        if self.failed and np.min(np.abs(np.array(self.failed) - key).max(axis=1)) < FAILED_QUAD_MATCH_PX:
+        if self.tried and np.min(np.abs(np.array(self.tried) - key).max(axis=1)) < TRIED_QUAD_MATCH_PX:
             return True
-        self.failed.append(key)
+        self.tried.append(key)
         return False
 
 
@@ -267,9 +267,9 @@ def _read_candidates(search: _Search, candidates: list[tuple[np.ndarray, int | N
                      try_quiet_zone: bool = True) -> None:
     """Refine and read candidate quads (4, 2) in px, each with aruco's id or None and the outline of what hides part of
     it or None (see `_decode`), into the search's found tags (id, corners) or flagged quads; quads cut by the image
-    border, inside a tag found before or read in vain before are skipped; a quad read as a tag already found at the
-    same place keeps the larger of the two. `try_quiet_zone`: a quad whose edges cannot be located may be a tag's quiet
-    zone outline, as aruco's quads of tags on a darker background are."""
+    border, inside a tag found before or read before (`_Search.tried_before`) are skipped; a quad read as a tag
+    already found at the same place keeps the larger of the two. `try_quiet_zone`: a quad whose edges cannot be
+    located may be a tag's quiet zone outline, as aruco's quads of tags on a darker background are."""
     gray, found = search.gray, search.found
     centres = np.array([q.mean(axis=0) for _, q in found]).reshape(-1, 2)
     radii = np.array([0.5 * _shortest_side(q) for _, q in found])
@@ -481,7 +481,7 @@ def _decode(image: np.ndarray, quad: np.ndarray, hidden_by: np.ndarray | None = 
     halfway between the two and matched with OpenCV's dictionary (`read_code`), sharpened first when they do not match
     within REPORTED_BITS as they are (see DECODE_SHARPENING).
     Cells under `hidden_by` (a convex outline (4, 2) in px of a tag in front) are not measured, as cells outside the
-    image; data cells under it are read anyway but each counts as a wrong bit against the 3 the dictionary corrects.
+    image; data cells under it are read anyway but each counts as a wrong bit towards FLAGGED_BITS.
     """
     ticks = np.arange(-1, TAG_CELLS + 1) + 0.5
     sub = np.array([-0.25, 0.0, 0.25])
@@ -525,7 +525,7 @@ BITS_SET = np.array([bin(byte).count("1") for byte in range(256)], dtype=np.uint
 
 
 @cache
-def _codes() -> tuple[np.ndarray, np.ndarray, int]:
+def _codes() -> tuple[np.ndarray, np.ndarray]:
     """The dictionary's codes as integers, bit k the data bit k of the 6 x 6 in row order, of each tag in each of
     aruco's four rotations (4 * n,: tag i's at 4i..4i+3), and each rotation's number as aruco counts them (4,)."""
     dictionary = cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY)
