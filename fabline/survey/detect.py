@@ -19,7 +19,7 @@ of a tag in front of it is found from that tag, its hidden corner likewise extra
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
 
@@ -52,21 +52,26 @@ CONVERGED_PX = 0.25
 BORDER_PAD_PX = 16
 PAD_LIGHT_ROWS = 2
 # Quads are searched for on an image pyramid, as the AprilTag library's quad_decimate but at every scale: aruco's
-# adaptive threshold at one window per search, at full resolution SEARCH_WINDOW_PX, at each coarser level (the photo
-# halved, up to MAX_SEARCH_LEVEL times while its shorter side keeps MIN_LEVEL_SIDE_PX) each of COARSE_WINDOWS_PX in a
-# search of its own (aruco keeps one of the quads its windows find at one place: the quiet zone's outline, not the black
-# square's). A 3 px window keeps the thin black border of small tags of about 2 px cells, and of tags seen at 60-80
-# degrees whose cells are a pixel or less across, whole; it sees a blurred large tag's border no longer (on a linear
-# ramp the window's mean is the centre's value), but a level where that blur is a pixel or two does. A lens blurs over
-# more pixels the more the sensor has: photos of under 960 px a side, sharp to a pixel, get no coarser level, unless
-# none is found at full resolution (the photo out of focus: then levels down to OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX). Each
-# quad is refined and read at full resolution (`_refine_and_read`).
-SEARCH_WINDOW_PX, COARSE_WINDOWS_PX = 3, (3, 5)
-MAX_SEARCH_LEVEL, MIN_LEVEL_SIDE_PX, OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX = 2, 480, 160
+# adaptive threshold at one window per search, at full resolution each of SEARCH_WINDOWS_PX, at each coarser level (the
+# photo halved, up to MAX_SEARCH_LEVEL times while its shorter side keeps MIN_LEVEL_SIDE_PX) each of COARSE_WINDOWS_PX
+# in a search of its own (aruco keeps one of the quads its windows find at one place: the quiet zone's outline, not the
+# black square's). A 3 px window keeps the thin black border of small tags of about 2 px cells, and of tags seen at
+# 60-80 degrees whose cells are a pixel or less across, whole; in the noise of a dim or low-contrast tag (25-40 grey
+# levels from black to white) its mean is too noisy and the border breaks up, where a 5 px window's holds, at full
+# resolution for tags of 2-4 px cells, on the halved photo for larger ones (issue 30: with coarser levels only for
+# photos of 960 px a side, 47 of 241 tags pupil-apriltags finds on camera-like photos of 640 x 480 and 1056 x 792 were
+# missed, nearly all low contrast or dim). A window sees a blurred large tag's border no longer (on a linear ramp the
+# window's mean is the centre's value), but a level where that blur is a pixel or two does. A small photo where none is
+# found gets levels down to OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX (out of focus). Each quad is refined and read at full
+# resolution (`_refine_and_read`).
+SEARCH_WINDOWS_PX, COARSE_WINDOWS_PX = (3, 5), (5,)
+MAX_SEARCH_LEVEL, MIN_LEVEL_SIDE_PX, OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX = 2, 240, 120
 # Blurred, small tags' black border falls below aruco's default threshold offset (7 grey levels) and breaks up: at full
-# resolution a lower offset keeps it whole; at the coarser levels, where halving has taken out half the noise, a
-# slightly higher one finds fewer false outlines.
-FULL_RESOLUTION_THRESHOLD_OFFSET, COARSE_THRESHOLD_OFFSET = 3, 5
+# resolution a lower offset keeps it whole (2: small low-contrast and thin-quiet-zone tags of 17-21 px whose border
+# broke up at 3, issue 30); at the coarser levels, where halving has taken out half the noise, a slightly higher one
+# finds fewer false outlines (at 3 large tags of 25 grey levels from black to white are found, but also a small tag in
+# a 4 px blur whose corners come out 1.4-2.7 px off).
+FULL_RESOLUTION_THRESHOLD_OFFSET, COARSE_THRESHOLD_OFFSET = 2, 5
 # quads found at a coarser level are at least this many of its pixels across (smaller ones are found at the finer)
 COARSE_MIN_SIDE_PX = 8.0
 COARSE_MIN_CORNER_DISTANCE_RATE = 0.1
@@ -103,16 +108,27 @@ DECODE_SHARPENING = 0.25  # of the cells' Laplacian, added to a blurred tag's ce
 CELL_CENTRES = np.stack(np.meshgrid(np.arange(-1, TAG_CELLS + 1) + 0.5, np.arange(-1, TAG_CELLS + 1) + 0.5), axis=-1)
 QUIET_ZONE_CELLS = np.pad(np.zeros((TAG_CELLS, TAG_CELLS), dtype=bool), 1, constant_values=True)
 BORDER_CELLS = np.pad(np.pad(np.zeros((TAG_CELLS - 2, TAG_CELLS - 2), dtype=bool), 1, constant_values=True), 1)
-MIN_CONTRAST = 20  # grey levels from a tag's black border to its quiet zone, at least
+# grey levels from a tag's black border to its quiet zone, at least (a low-contrast tag of 17 px, 27 grey levels apart
+# as printed, is 18 apart on its cells once blurred)
+MIN_CONTRAST = 12
 PLAIN_DARK_RATE = 0.4
-# bits the dictionary corrects, as OpenCV's detector does (60 % of what 36h11's minimum distance allows, 3 bits)
-CORRECTION_RATE = 0.6
+# A tag is reported when its code reads with at most REPORTED_BITS wrong, as the AprilTag library decodes by default
+# (pupil-apriltags' and apriltag's hamming limit, 2); a quad that reads only with FLAGGED_BITS corrected (as OpenCV's
+# detector does: 60 % of what 36h11's minimum distance allows) is no tag reported but flagged (issue 30: such reads on
+# real photos included a sliver seen edge-on). Data bits hidden under a tag in front count as wrong towards
+# FLAGGED_BITS, not REPORTED_BITS: the distance left keeps the read unique (36h11's minimum distance is 11).
+REPORTED_BITS, FLAGGED_BITS = 2, 3
+ARUCO_CORRECTION_RATE = 0.4  # of the dictionary's maxCorrectionBits (5): aruco identifies with 2 bits corrected
+# a read tag whose narrowest cell (its depth across an edge over the 8 cells) is under this is flagged, not reported:
+# seen edge-on, 4-7 px across, the corners along its thin side mean nothing
+MIN_CELL_PX = 1.0
 MIN_REACH_PX = 0.75  # edge profiles reach 0.45 cell either side of the edge, at least this far (at most 4 px)
 COARSE_REACH_PX = 2.0  # ... and in a first pass on a coarse quad of a small tag
 MIN_EDGE_INSIDE = 0.5  # a tag cut by the photo's edge: each of its edges at least half inside, to fix its line
 # of the black border's 28 cells, all but a cut corner's few inside the photo (the corner cell and a neighbour or two
 # along each edge; small tags lose more of them to the photo's edge than large ones, as cells are read on their middle)
 MIN_BORDER_CELLS = 24
+TRIED_QUAD_MATCH_PX = 1.0  # a quad within this of one read before (centre and shortest side) is not read again
 MIN_QUIET_ZONE_CELLS = 18  # of the 36 cells of the quiet-zone ring, at least half inside the photo to read a tag
 
 
@@ -124,6 +140,7 @@ class TagDetection:
     tag_id: int
     corners: np.ndarray
     partial: bool = False  # a corner lies outside the photo: it is extrapolated from the edges inside, not measured
+    quality: str = ""  # why a quad that reads is not reported as a tag ("" for every tag `detect_tags` returns)
 
 
 def read_gray(path: str | os.PathLike, notes: list[str] | None = None) -> np.ndarray:
@@ -158,6 +175,7 @@ def _detector(min_side_px: float, image_size: int, level: int, window_px: int) -
     params.adaptiveThreshWinSizeMin = params.adaptiveThreshWinSizeMax = window_px
     params.adaptiveThreshConstant = COARSE_THRESHOLD_OFFSET if level else FULL_RESOLUTION_THRESHOLD_OFFSET
     params.maxErroneousBitsInBorderRate = ARUCO_BORDER_ERROR_RATE
+    params.errorCorrectionRate = ARUCO_CORRECTION_RATE
     if level == 0:
         params.polygonalApproxAccuracyRate = SLIVER_POLYGON_ACCURACY
     else:
@@ -166,7 +184,7 @@ def _detector(min_side_px: float, image_size: int, level: int, window_px: int) -
 
 
 def _search_levels(padded: np.ndarray, min_side_px: int) -> list[tuple[int, np.ndarray]]:
-    """The pyramid levels (see SEARCH_WINDOW_PX) of the padded photo, finest first, each with its image; a coarser level
+    """The pyramid levels (see SEARCH_WINDOWS_PX) of the padded photo, finest first, each with its image; a coarser level
     while its shorter side keeps `min_side_px`."""
     levels = [(0, padded)]
     while levels[-1][0] < MAX_SEARCH_LEVEL and min(levels[-1][1].shape) // 2 >= min_side_px:
@@ -176,71 +194,104 @@ def _search_levels(padded: np.ndarray, min_side_px: int) -> list[tuple[int, np.n
     return levels
 
 
-def _search_level(gray: np.ndarray, level: int, image: np.ndarray, min_side_px: float,
-                  found: list[tuple[int, np.ndarray]]) -> None:
-    """Search pyramid `level` (`image`, padded) for quads and read them into `found` (see `_read_candidates`)."""
+def _search_level(search: _Search, level: int, image: np.ndarray) -> None:
+    """Search pyramid `level` (`image`, padded) for quads and read them (see `_read_candidates`)."""
     scale = 2 ** level
-    min_side = max(min_side_px / scale, COARSE_MIN_SIDE_PX if level else 0.0)
-    for window in COARSE_WINDOWS_PX if level else (SEARCH_WINDOW_PX,):
+    min_side = max(search.min_side_px / scale, COARSE_MIN_SIDE_PX if level else 0.0)
+    for window in COARSE_WINDOWS_PX if level else SEARCH_WINDOWS_PX:
         corners, ids, rejected = _detector(min_side, max(image.shape), level, window).detectMarkers(image)
         candidates = [(q, int(i)) for q, i in zip(corners, ids.ravel())] if ids is not None else []
         candidates += [(q, None) for q in rejected]
         # a pixel centre of the level at (x + 0.5) * scale - 0.5 at full resolution
-        _read_candidates(gray, [((q.reshape(4, 2).astype(float) + 0.5) * scale - 0.5 - BORDER_PAD_PX, i, None)
-                                for q, i in candidates], found, min_side_px)
+        _read_candidates(search, [((q.reshape(4, 2).astype(float) + 0.5) * scale - 0.5 - BORDER_PAD_PX, i, None)
+                                  for q, i in candidates])
 
 
-def detect_tags(gray: np.ndarray, min_side_px: float = 8.0) -> list[TagDetection]:
+def detect_tags(gray: np.ndarray, min_side_px: float = 8.0, flagged: list[TagDetection] | None = None
+                ) -> list[TagDetection]:
     """Every 36h11 tag in a grayscale image, sorted by id, corners refined to sub-pixel precision.
 
     Quads OpenCV decodes are refined; quads it finds but cannot decode (small, oblique or blurred
     tags, where its bit sampling on the coarse quad fails) get a second chance: refined first, their
-    bits are then read on the refined quad and identified with the dictionary's own error correction.
-    Quads are searched for on an image pyramid, finest level first (see SEARCH_WINDOW_PX): full resolution finds the
+    bits are then read on the refined quad and identified with up to REPORTED_BITS corrected.
+    Quads are searched for on an image pyramid, finest level first (see SEARCH_WINDOWS_PX): full resolution finds the
     small, dim or grazing tags, the coarse levels blurred large ones; quads inside tags already found are skipped.
     Last, black squares with a corner hidden under the quiet
     zone of a tag found in front of them are read (`_occluded_quads`). Tags with a corner outside the image come out
-    `partial` (see the module's docstring).
+    `partial` (see the module's docstring). Quads that read only with more bits corrected than REPORTED_BITS, or whose
+    cells are under MIN_CELL_PX across, are no tags: they go to `flagged` (when given) with their `quality`.
     """
-    found: list[tuple[int, np.ndarray]] = []
+    search = _Search(gray, min_side_px)
     padded = _padded(gray)
     levels = _search_levels(padded, MIN_LEVEL_SIDE_PX)
     for level, image in levels:
-        _search_level(gray, level, image, min_side_px, found)
-    if not found and len(levels) == 1:  # a small photo out of focus
-        for level, image in _search_levels(padded, OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX)[1:]:
-            _search_level(gray, level, image, min_side_px, found)
-    _read_candidates(gray, [(q, None, cover) for q, cover in _occluded_quads(gray, [q for _, q in found])], found,
-                     min_side_px, try_quiet_zone=False)
-    found.sort(key=lambda tag: (tag[0], *tag[1].mean(axis=0)[::-1]))
+        _search_level(search, level, image)
+    if not search.found and len(levels) <= 2:  # a small photo out of focus
+        for level, image in _search_levels(padded, OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX)[len(levels):]:
+            _search_level(search, level, image)
+    _read_candidates(search, [(q, None, cover) for q, cover in _occluded_quads(gray, [q for _, q in search.found])],
+                     try_quiet_zone=False)
+    if flagged is not None:  # once each, where no tag of its id was found
+        kept: list[tuple[int, np.ndarray]] = []
+        for tag_id, quad, quality in search.flagged:
+            if not any(tag_id == other_id and _overlap(quad, other) for other_id, other in search.found + kept):
+                kept.append((tag_id, quad))
+                flagged.append(TagDetection(tag_id, quad[APRILTAG_ORDER],
+                                            bool(_edge_inside_fraction(gray, quad).min() < 1), quality))
+    search.found.sort(key=lambda tag: (tag[0], *tag[1].mean(axis=0)[::-1]))
     return [TagDetection(tag_id, quad[APRILTAG_ORDER], bool(_edge_inside_fraction(gray, quad).min() < 1))
-            for tag_id, quad in found]
+            for tag_id, quad in search.found]
 
 
-def _read_candidates(gray: np.ndarray, candidates: list[tuple[np.ndarray, int | None, np.ndarray | None]],
-                     found: list[tuple[int, np.ndarray]], min_side_px: float, try_quiet_zone: bool = True) -> None:
+@dataclass
+class _Search:
+    """One photo's search: the photo, the smallest side of a quad read, the tags found (id, corners in detection's
+    order), the quads flagged (id, corners, why) and the centres and shortest sides of the unidentified quads read so far
+    (another search's quad at the same place, to a pixel, is not read again: it reads no better)."""
+
+    gray: np.ndarray
+    min_side_px: float
+    found: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    flagged: list[tuple[int, np.ndarray, str]] = field(default_factory=list)
+    tried: list[np.ndarray] = field(default_factory=list)
+
+    def tried_before(self, quad: np.ndarray) -> bool:
+        key = np.array([*quad.mean(axis=0), _shortest_side(quad)])
+        if self.tried and np.min(np.abs(np.array(self.tried) - key).max(axis=1)) < TRIED_QUAD_MATCH_PX:
+            return True
+        self.tried.append(key)
+        return False
+
+
+def _read_candidates(search: _Search, candidates: list[tuple[np.ndarray, int | None, np.ndarray | None]],
+                     try_quiet_zone: bool = True) -> None:
     """Refine and read candidate quads (4, 2) in px, each with aruco's id or None and the outline of what hides part of
-    it or None (see `_decode`), into `found` (id, corners); quads cut by the image border, or inside a tag found
-    before, are skipped; a quad read as a tag already found at the same place keeps the larger of the two.
-    `try_quiet_zone`: a quad whose edges cannot be located may be a tag's quiet zone outline, as aruco's quads of tags
-    on a darker background are."""
+    it or None (see `_decode`), into the search's found tags (id, corners) or flagged quads; quads cut by the image
+    border, inside a tag found before or read before (`_Search.tried_before`) are skipped; a quad read as a tag
+    already found at the same place keeps the larger of the two. `try_quiet_zone`: a quad whose edges cannot be
+    located may be a tag's quiet zone outline, as aruco's quads of tags on a darker background are."""
+    gray, found = search.gray, search.found
     centres = np.array([q.mean(axis=0) for _, q in found]).reshape(-1, 2)
     radii = np.array([0.5 * _shortest_side(q) for _, q in found])
     for quad, tag_id, hidden_by in candidates:
         if np.any(quad < 0) or np.any(quad > [gray.shape[1] - 1, gray.shape[0] - 1]):
             continue  # cut by the image border: its corners cannot be measured
-        if tag_id is None and _shortest_side(quad) < min_side_px:
+        if tag_id is None and _shortest_side(quad) < search.min_side_px:
             continue
         if np.any(np.linalg.norm(centres - quad.mean(axis=0), axis=1) < radii):
             continue  # inside a tag found before
-        if tag_id is None and hidden_by is None and _plain_dark(gray, quad):
+        if tag_id is None and hidden_by is None and (search.tried_before(quad) or _plain_dark(gray, quad)):
             continue
-        read_id, refined = _refine_and_read(gray, quad, tag_id, hidden_by)
+        read_id, refined, wrong = _refine_and_read(gray, quad, tag_id, hidden_by)
         if try_quiet_zone and tag_id is None and refined is None and _contrast(gray, _inside_quiet_zone(quad)) > 0:
             # a tag on a darker background: the quad may be its quiet zone's outline, one cell outside the black square
             # (whose edges, light inside, cannot be located as a black square's are), if that square is darker
-            read_id, refined = _refine_and_read(gray, _inside_quiet_zone(quad), None)
+            read_id, refined, wrong = _refine_and_read(gray, _inside_quiet_zone(quad), None)
         if refined is None or read_id is None or _edge_inside_fraction(gray, refined).min() < MIN_EDGE_INSIDE:
+            continue
+        if wrong > REPORTED_BITS or _narrowest_cell(refined) < MIN_CELL_PX:
+            search.flagged.append((read_id, refined, f"{wrong} bits wrong" if wrong > REPORTED_BITS else
+                                   f"cells {_narrowest_cell(refined):.1f} px across"))
             continue
         same = [k for k, (other_id, other) in enumerate(found) if other_id == read_id and _overlap(refined, other)]
         if not same:
@@ -392,19 +443,19 @@ def detect_expected_tags(gray: np.ndarray, expected: dict[int, np.ndarray], min_
         if (np.any(quad < 0) or np.any(quad > [gray.shape[1] - 1, gray.shape[0] - 1])
                 or _shortest_side(quad) < min_side_px):
             continue
-        read_id, refined = _refine_and_read(gray, quad, None)
-        if read_id == tag_id:
+        read_id, refined, wrong = _refine_and_read(gray, quad, None)
+        if read_id == tag_id and wrong <= REPORTED_BITS:
             found.append(TagDetection(tag_id, refined[APRILTAG_ORDER]))
     return found
 
 
 def _refine_and_read(gray: np.ndarray, quad: np.ndarray, tag_id: int | None,
-                     hidden_by: np.ndarray | None = None) -> tuple[int | None, np.ndarray | None]:
+                     hidden_by: np.ndarray | None = None) -> tuple[int | None, np.ndarray | None, int]:
     """Refine a candidate quad on the image around it; without a known `tag_id`, read its cells on the refined quad
     (`hidden_by`: the outline (4, 2) in px of a tag in front hiding part of it, see `_decode`).
 
-    Returns the id (None when unreadable) and the refined corners in px (None when the edges cannot be
-    located), in tag order once read.
+    Returns the id (None when unreadable), the refined corners in px (None when the edges cannot be
+    located), in tag order once read, and the bits read wrong (0 for aruco's own reads, within REPORTED_BITS).
     """
     margin = 4 + 0.2 * np.ptp(quad, axis=0).max()
     x0, y0 = np.maximum(np.floor(quad.min(axis=0) - margin).astype(int), 0)
@@ -412,22 +463,25 @@ def _refine_and_read(gray: np.ndarray, quad: np.ndarray, tag_id: int | None,
     window = spline_filter(gray[y0:y1, x0:x1].astype(np.float64), order=3)
     refined, moved = _refine(window, quad - [x0, y0])
     if refined is None:
-        return tag_id, None
+        return tag_id, None, 0
+    wrong = 0
     if tag_id is None:
-        tag_id, refined = _decode(window, refined, None if hidden_by is None else hidden_by - [x0, y0])
+        tag_id, refined, wrong = _decode(window, refined, None if hidden_by is None else hidden_by - [x0, y0])
     if tag_id is not None:
         refined = _settle(window, refined, moved)
-    return tag_id, refined + [x0, y0]
+    return tag_id, refined + [x0, y0], wrong
 
 
-def _decode(image: np.ndarray, quad: np.ndarray, hidden_by: np.ndarray | None = None) -> tuple[int | None, np.ndarray]:
-    """Read a refined quad's cells (spline image) and identify it; returns the id (or None) and corners in tag order.
+def _decode(image: np.ndarray, quad: np.ndarray, hidden_by: np.ndarray | None = None
+            ) -> tuple[int | None, np.ndarray, int]:
+    """Read a refined quad's cells (spline image) and identify it; returns the id (or None), corners in tag order and
+    the bits read wrong (up to FLAGGED_BITS, see there).
 
     The black border must be dark and the quiet zone around it light; data cells are thresholded
-    halfway between the two and matched with OpenCV's dictionary (3 bits corrected, as its detector), sharpened first
-    when they do not match as they are (see DECODE_SHARPENING).
+    halfway between the two and matched with OpenCV's dictionary (`read_code`), sharpened first when they do not match
+    within REPORTED_BITS as they are (see DECODE_SHARPENING).
     Cells under `hidden_by` (a convex outline (4, 2) in px of a tag in front) are not measured, as cells outside the
-    image; data cells under it are read anyway but each counts as a wrong bit against the 3 the dictionary corrects.
+    image; data cells under it are read anyway but each counts as a wrong bit towards FLAGGED_BITS.
     """
     ticks = np.arange(-1, TAG_CELLS + 1) + 0.5
     sub = np.array([-0.25, 0.0, 0.25])
@@ -444,35 +498,36 @@ def _decode(image: np.ndarray, quad: np.ndarray, hidden_by: np.ndarray | None = 
     # the black square must lie in the image; of its quiet zone (which the photo's edge may cut) at least half
     if (not inside[2:-2, 2:-2].all() or measured[border].sum() < MIN_BORDER_CELLS
             or measured[ring].sum() < MIN_QUIET_ZONE_CELLS):
-        return None, quad
+        return None, quad, 0
     ring &= measured
     border &= measured
     dark, light = cells[border], cells[ring]
     threshold = 0.5 * (np.median(dark) + np.median(light))
     if (np.median(light) - np.median(dark) < MIN_CONTRAST or np.sum(dark > threshold) > 2
             or np.sum(light < threshold) > 4):
-        return None, quad
+        return None, quad, 0
     hidden_bits = ~measured[2:-2, 2:-2]
-    tag_id, rotation = identify(cells[2:-2, 2:-2] > threshold, hidden_bits)
-    if tag_id is None:
+    tag_id, rotation, wrong = read_code(cells[2:-2, 2:-2] > threshold, hidden_bits)
+    if tag_id is None or wrong > REPORTED_BITS:
         # blur spreads each cell into its neighbours: a lone light cell among dark ones reads dark. Sharpened as the
         # AprilTag library's decode_sharpening does (the cells' Laplacian, 0.25 of it), then read again.
         padded = np.pad(cells, 1, mode="edge")
         laplacian = 4 * cells - padded[:-2, 1:-1] - padded[2:, 1:-1] - padded[1:-1, :-2] - padded[1:-1, 2:]
-        tag_id, rotation = identify((cells + DECODE_SHARPENING * laplacian)[2:-2, 2:-2] > threshold, hidden_bits)
+        sharpened = read_code((cells + DECODE_SHARPENING * laplacian)[2:-2, 2:-2] > threshold, hidden_bits)
+        if sharpened[0] is not None and (tag_id is None or sharpened[2] < wrong):
+            tag_id, rotation, wrong = sharpened
     if tag_id is None:
-        return None, quad
-    return tag_id, np.roll(quad, rotation, axis=0)
+        return None, quad, 0
+    return tag_id, np.roll(quad, rotation, axis=0), wrong
 
 
 BITS_SET = np.array([bin(byte).count("1") for byte in range(256)], dtype=np.uint8)  # per byte value, its bits set
 
 
 @cache
-def _codes() -> tuple[np.ndarray, np.ndarray, int]:
+def _codes() -> tuple[np.ndarray, np.ndarray]:
     """The dictionary's codes as integers, bit k the data bit k of the 6 x 6 in row order, of each tag in each of
-    aruco's four rotations (4 * n,: tag i's at 4i..4i+3), each rotation's number as aruco counts them (4,), and the bits
-    it corrects (CORRECTION_RATE)."""
+    aruco's four rotations (4 * n,: tag i's at 4i..4i+3), and each rotation's number as aruco counts them (4,)."""
     dictionary = cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY)
     size = dictionary.markerSize
     codes = np.array([cv2.aruco.Dictionary.getBitsFromByteList(dictionary.bytesList[i:i + 1], size)
@@ -480,7 +535,7 @@ def _codes() -> tuple[np.ndarray, np.ndarray, int]:
     # aruco's rotation of a tag read as its code turned by np.rot90 k times: its own answer, once
     rotations = np.array([dictionary.identify(np.rot90(codes[0], turns).astype(np.uint8), 0)[2] for turns in range(4)])
     turned = np.stack([np.rot90(codes, turns, axes=(1, 2)) for turns in range(4)], axis=1).reshape(-1, size * size)
-    return _as_integer(turned), rotations, int(CORRECTION_RATE * dictionary.maxCorrectionBits)
+    return _as_integer(turned), rotations
 
 
 def _as_integer(bits: np.ndarray) -> np.ndarray:
@@ -489,17 +544,26 @@ def _as_integer(bits: np.ndarray) -> np.ndarray:
 
 
 def identify(bits: np.ndarray, hidden: np.ndarray | None = None) -> tuple[int | None, int]:
-    """The tag whose code the data bits (6, 6, bool) read, with up to the dictionary's correctable bits wrong (as
-    aruco's `Dictionary.identify` at CORRECTION_RATE, but all codes at once: it compares one at a time, 2 ms a
-    miss), and aruco's rotation of it; (None, 0) if none. Bits `hidden` (6, 6) were not measured: each counts wrong."""
-    codes, rotations, correctable = _codes()
+    """The tag whose code the data bits (6, 6, bool) read, with up to REPORTED_BITS wrong (as aruco's
+    `Dictionary.identify` at ARUCO_CORRECTION_RATE), and aruco's rotation of it; (None, 0) if none. Bits `hidden`
+    (6, 6) were not measured (see `read_code`)."""
+    tag_id, rotation, wrong = read_code(bits, hidden)
+    return (tag_id, rotation) if tag_id is not None and wrong <= REPORTED_BITS else (None, 0)
+
+
+def read_code(bits: np.ndarray, hidden: np.ndarray | None = None) -> tuple[int | None, int, int]:
+    """The tag whose code the data bits (6, 6, bool) are nearest, all codes compared at once (aruco's
+    `Dictionary.identify` compares one at a time, 2 ms a miss), aruco's rotation of it and the measured bits that
+    differ; (None, 0, 0) when more than FLAGGED_BITS differ. Bits `hidden` (6, 6) were not measured: they count
+    towards FLAGGED_BITS, not among the bits returned (see REPORTED_BITS)."""
+    codes, rotations = _codes()
     known = np.ones(bits.size, dtype=bool) if hidden is None else ~hidden.ravel()
     differ = (codes ^ _as_integer(bits.ravel())) & _as_integer(known)
-    wrong = BITS_SET[differ.view(np.uint8)].reshape(-1, 8).sum(axis=1) + (bits.size - known.sum())
+    wrong = BITS_SET[differ.view(np.uint8)].reshape(-1, 8).sum(axis=1)
     best = int(np.argmin(wrong))
-    if wrong[best] > correctable:
-        return None, 0
-    return best // 4, int(rotations[best % 4])
+    if wrong[best] + (bits.size - known.sum()) > FLAGGED_BITS:
+        return None, 0, 0
+    return best // 4, int(rotations[best % 4]), int(wrong[best])
 
 
 def _inside(image: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -633,11 +697,16 @@ def _profile_reach(quad: np.ndarray, min_reach: float) -> float:
     the profiles run: a tag seen at a grazing angle is a thin sheared quad whose cells are far narrower across than its
     side lengths say, and longer profiles would cross the cells inside and the background beyond the quiet zone.
     """
+    return float(np.clip(0.45 * _narrowest_cell(quad), min_reach, 4.0))
+
+
+def _narrowest_cell(quad: np.ndarray) -> float:
+    """A quad's narrowest cell across, px: the least of its depths from each edge to the opposite one's middle over the
+    TAG_CELLS cells (a tag seen edge-on is thin across, however long its sides)."""
     starts, ends = quad, quad[NEXT_CORNER]
     directions = (ends - starts) / np.linalg.norm(ends - starts, axis=1)[:, None]
     to_opposite = (quad[OPPOSITE_CORNER] + quad[PREVIOUS_CORNER]) / 2 - starts
-    depth = np.abs(_cross(directions, to_opposite))
-    return float(np.clip(0.45 * depth.min() / TAG_CELLS, min_reach, 4.0))
+    return float(np.abs(_cross(directions, to_opposite)).min() / TAG_CELLS)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

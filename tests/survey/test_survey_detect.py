@@ -610,11 +610,11 @@ def test_identify_reads_as_opencvs_dictionary():
         tag, turns, flips = int(rng.integers(0, 587)), int(rng.integers(0, 4)), int(rng.integers(0, 6))
         bits = np.rot90(cv2.aruco.Dictionary.getBitsFromByteList(dictionary.bytesList[tag:tag + 1], 6), turns).ravel()
         bits[rng.choice(36, flips, replace=False)] ^= 1
-        ok, expected_id, expected_rotation = dictionary.identify(bits.reshape(6, 6).astype(np.uint8), 0.6)
+        ok, expected_id, expected_rotation = dictionary.identify(bits.reshape(6, 6).astype(np.uint8), 0.4)
         assert identify(bits.reshape(6, 6).astype(bool)) == ((expected_id, expected_rotation) if ok else (None, 0))
     for _ in range(100):
         bits = rng.integers(0, 2, (6, 6)).astype(np.uint8)
-        ok, expected_id, expected_rotation = dictionary.identify(bits, 0.6)
+        ok, expected_id, expected_rotation = dictionary.identify(bits, 0.4)
         assert identify(bits.astype(bool)) == ((expected_id, expected_rotation) if ok else (None, 0))
     code = cv2.aruco.Dictionary.getBitsFromByteList(dictionary.bytesList[7:8], 6).astype(bool)
     hidden = np.zeros((6, 6), dtype=bool)
