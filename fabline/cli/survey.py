@@ -198,14 +198,13 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _resolution(text: str) -> tuple[int, int]:
-    """A `--resolution WxH` in pixels, at least 64 x 64; anything else raises saying so."""
+    """A `--resolution WxH` in pixels, at least 64 x 64; anything else raises naming the option."""
+    from fabline.survey.camera import parse_resolution
+
     try:
-        width, height = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise FablineError(f"--resolution {text!r}: expected WxH in pixels, e.g. 6000x4000") from None
-    if width < 64 or height < 64:
-        raise FablineError("--resolution must be at least 64x64")
-    return width, height
+        return parse_resolution(text)
+    except FablineError as exc:
+        raise FablineError(f"--resolution {exc}") from None
 
 
 def _simulate(args: argparse.Namespace) -> int:

@@ -286,7 +286,8 @@ def _default_stages(survey: dict[str, Any]) -> list[str]:
 
 def _check_survey(survey: dict[str, Any], where: str) -> dict[str, Any]:
     """`survey.result` (an existing survey to show) or `survey.simulate` with its settings, defaults filled in."""
-    from fabline.jobs.survey_stage import load_survey_result, parse_resolution
+    from fabline.jobs.survey_stage import load_survey_result
+    from fabline.survey.camera import parse_resolution
     from fabline.survey.photos import check_simulation
 
     if survey["result"] is not None and survey["simulate"]:

@@ -17,23 +17,13 @@ import numpy as np
 
 from fabline.errors import FablineError
 from fabline.fileio import read_json
+from fabline.survey.camera import parse_resolution
 
 if TYPE_CHECKING:
     from fabline.model import Network
 
 SURVEY_FOLDER = "survey"
 """The survey's folder inside the job's output folder: photos/, camera.json, tagmap.json, truth.json, survey.json."""
-
-
-def parse_resolution(text: str) -> tuple[int, int]:
-    """'4000x2667' -> (4000, 2667) pixels; malformed or smaller than 64 x 64 is a FablineError."""
-    try:
-        width, height = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise FablineError(f"{text!r}: expected WIDTHxHEIGHT in pixels, e.g. 4000x2667") from None
-    if width < 64 or height < 64:
-        raise FablineError(f"{text!r}: must be at least 64x64 pixels")
-    return width, height
 
 
 def simulate_and_measure(network: "Network", folder: Path, settings: dict[str, Any],

@@ -16,6 +16,17 @@ MAX_PIXELS = 1e6       # image sides, focal lengths and principal points (px) a 
 MAX_DISTORTION = 1e4   # size of a distortion coefficient (real lenses: well under 100)
 
 
+def parse_resolution(text: str) -> tuple[int, int]:
+    """'4000x2667' -> (4000, 2667) pixels; malformed or smaller than 64 x 64 is a FablineError naming the text."""
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise FablineError(f"{text!r}: expected WIDTHxHEIGHT in pixels, e.g. 4000x2667") from None
+    if width < 64 or height < 64:
+        raise FablineError(f"{text!r}: must be at least 64x64 pixels")
+    return width, height
+
+
 @dataclass
 class Camera:
     """Intrinsics of one camera at one resolution: 3x3 matrix, distortion (k1 k2 p1 p2 k3), image size."""

@@ -7,7 +7,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from fabline.errors import FablineError
-from fabline.jobs.survey_stage import compare_with_truth, parse_resolution
+from fabline.jobs.survey_stage import compare_with_truth
+from fabline.survey.camera import parse_resolution
 from fabline.survey import sag_field, saddle_network
 
 

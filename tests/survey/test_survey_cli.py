@@ -149,7 +149,7 @@ def test_a_scale_bar_corrects_a_wrong_tag_size(cli, model_file, simulated, tmp_p
         ("--tolerance", "-5", "--tolerance -5: must be a distance in mm, more than 0"),
         ("--min-views", "0", "--min-views 0: a tag must be seen in at least 2 photos")]],
     (["survey", "calibrate", "{tmp}", "-o", "{tmp}/cam.json"], "no photos"),
-    (["survey", "simulate", "--model", "{model}", "-o", "{tmp}/out", "--resolution", "big"], "--resolution 'big': expected WxH"),
+    (["survey", "simulate", "--model", "{model}", "-o", "{tmp}/out", "--resolution", "big"], "--resolution 'big': expected WIDTHxHEIGHT"),
 ])
 def test_bad_input_is_one_line_exit_2_nothing_written(cli, model_file, simulated, tmp_path, args, message):
     camera = json.loads((simulated / "camera.json").read_text())
