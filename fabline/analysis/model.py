@@ -100,3 +100,18 @@ def build(geometry: NetworkGeometry, section: Section, options: ModelOptions) ->
         frame.cable_E = CABLE_E
         frame.cable_prestrain = options.cable_prestrain
     return GridshellFrame(frame, joints, beam_lamella, np.array(beam_interval), np.array(design))
+
+
+def bracing(network) -> tuple[tuple[str, ...], ...]:
+    """The bracing cables' node runs as the unroll places them (every diagonal through the clamp nodes, one colour of
+    the grid's two-colouring), for a network analysed without its parts.json."""
+    from fabline.unroll.cables import diagonal_chains
+    from fabline.unroll.hardware import checkerboard
+
+    neighbours: dict[str, list[str]] = {}
+    for lam in network.lamellas:
+        for a, b in zip(lam.nodes[:-1], lam.nodes[1:]):
+            neighbours.setdefault(a, []).append(b)
+            neighbours.setdefault(b, []).append(a)
+    clamped = checkerboard(sorted(neighbours), neighbours)
+    return tuple(tuple(chain) for chain in diagonal_chains(network.in_mm(), clamped))

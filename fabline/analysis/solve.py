@@ -117,8 +117,10 @@ class Model:
     def solve(self, loads: np.ndarray, residual: bool = True) -> Solution:
         """The frame under `loads` (N, 6: forces N, moments N mm, global axes) and, with `residual`, the initial
         strains, from the unstressed start."""
+        return self._read(self._apply(loads, residual), residual)
+
+    def _read(self, converged: bool, residual: bool) -> Solution:
         ops = self.ops
-        converged = self._apply(loads, residual)
         ops.reactions()
         n = len(self.frame.xyz)
         displacements = np.array([ops.nodeDisp(k + 1) for k in range(n)])
@@ -128,6 +130,18 @@ class Model:
             forces = forces + self.fixed_end
         cables = np.array([ops.eleResponse(tag, "axialForce")[0] for tag in self.cable_tags]) if self.cable_tags else np.zeros(0)
         return Solution(displacements, reactions, forces, cables, converged)
+
+    def next_case(self, loads: np.ndarray, residual: bool = True) -> Solution:
+        """Another case after `solve`, from the last one's equilibrium (the frame is elastic, so the path does not
+        matter, and Newton starts close)."""
+        ops = self.ops
+        ops.remove("loadPattern", 1)
+        ops.pattern("Plain", 1, 1)  # the linear time series stands at 1 after `solve`
+        total = loads + (self.strain_loads if residual else 0.0)
+        for node in np.flatnonzero(np.abs(total).max(axis=1) > 0.0):
+            ops.load(int(node) + 1, *map(float, total[node]))
+        ops.integrator("LoadControl", 0.0)
+        return self._read(ops.analyze(1) == 0, residual)
 
     def lowest_eigenvalue(self, loads: np.ndarray, factor: float, residual: bool) -> float:
         """The smallest eigenvalue of the tangent stiffness (against unit lumped masses) under factor x loads."""
