@@ -15,6 +15,7 @@ from fabline.errors import FablineError
 HINGE_STIFFNESS = (1e8, 1e13)   # N/mm and N mm/rad of a bolt's tied DOFs: 1e3 to 1e5 times a strip's own
 LINK_STIFFNESS = 1e3            # a washer link's moduli over the strip's (with the strip's strong-axis inertia)
 STEPS = 2
+RETRY_STEPS = 8                 # a case that does not converge from the last one's state: from the start in 8 steps
 TOLERANCE = 1e-8                # displacement increment norm, mm
 MAX_ITERATIONS = 60
 INSTALL = ("analysis needs openseespy: pip install 'fabline[analysis]'; on Debian its wheel also needs the system BLAS "
@@ -141,7 +142,9 @@ class Model:
         for node in np.flatnonzero(np.abs(total).max(axis=1) > 0.0):
             ops.load(int(node) + 1, *map(float, total[node]))
         ops.integrator("LoadControl", 0.0)
-        return self._read(ops.analyze(1) == 0, residual)
+        if ops.analyze(1) == 0:
+            return self._read(True, residual)
+        return self._read(self._apply(loads, residual, RETRY_STEPS), residual)  # from the start, in smaller steps
 
     def lowest_eigenvalue(self, loads: np.ndarray, factor: float, residual: bool) -> float:
         """The smallest eigenvalue of the tangent stiffness (against unit lumped masses) under factor x loads."""
