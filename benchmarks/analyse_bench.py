@@ -2,6 +2,8 @@
 pairs 25 mm apart): model size, seconds per step and load case, and each case's figures, as one table.
 
     python benchmarks/analyse_bench.py [--stations N] [--no-buckling]
+
+Wall seconds per step, and the whole process's CPU seconds at the end.
 """
 
 import argparse
@@ -39,7 +41,8 @@ def main() -> None:
         figures = (f"{case['max_deflection_mm']:>12.2f} {case['max_reaction_kN']:>16.3f} {case['max_utilisation']:>9.3f}"
                    if case else "")
         print(f"{step:<34} {seconds:>7.2f} {figures}")
-    print(f"total {sum(record['seconds'].values()):.1f} s")
+    print(f"total {sum(record['seconds'].values()):.1f} s wall, {time.process_time():.1f} s CPU of this process "
+          "(wall times on a shared machine count the other processes' share)")
     if "buckling" in record:
         print(f"buckling factor {record['buckling']['factor']:.3f} ({record['buckling']['case']})")
     print("residual check:", record["residual_check"])
