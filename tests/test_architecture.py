@@ -20,7 +20,7 @@ FLOORS = [
     ("geometry",),
     ("design",),                            # designs from a surface measure their network with geometry
     ("unroll",),
-    ("nest",),
+    ("nest", "analysis"),                   # analysis reads the network, its geometry and the parts' settings
     ("export",),
     ("link", "survey", "assembly"),  # assembly: the site's plan, from the model and the unroll's parts
     ("jobs",),

@@ -27,7 +27,8 @@ from fabline.fileio import OutputSet
 
 STAGE_COMMANDS = {"model": ("design", "inspect"), "importing": ("import",), "unroll": ("unroll", "limits"),
                   "nest": ("nest",), "export": ("export", "gcode-check"), "link": ("stream", "grbl-sim"),
-                  "survey": ("survey",), "assembly": ("assembly",), "jobs": ("run", "runner")}
+                  "survey": ("survey",), "assembly": ("assembly",), "analysis": ("analyse",),
+                  "jobs": ("run", "runner")}
 """CLI module -> the commands it registers (a test checks this against the modules)."""
 KEEPS_PARTIAL_OUTPUTS = ("run", "runner", "stream", "grbl-sim")
 """Commands whose files must outlive a failure (journals, logs, the programs an interrupted run resumes): their

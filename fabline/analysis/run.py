@@ -1,0 +1,84 @@
+"""The analysis of one gridshell: its frame, the erection's residual stress alone, every default combination on top,
+and the buckling factor of the governing one; the figures per case as the JSON record (analysis.json) holds them."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from fabline.analysis.frame import Section
+from fabline.analysis.loads import LoadSettings, basic_cases, combinations, person
+from fabline.analysis.model import GridshellFrame, ModelOptions, build
+from fabline.analysis.results import summary, utilisation
+from fabline.analysis.solve import Model
+from fabline.geometry.darboux import NetworkGeometry
+from fabline.mechanics.materials import Material, Profile
+
+
+def analyse(geometry: NetworkGeometry, material: Material, profile: Profile, options: ModelOptions,
+            settings: LoadSettings = LoadSettings(), buckling: bool = True) -> dict:
+    """Build, solve and summarise: the residual case (no load), each combination, the person at the joint that moved
+    most under the one-sided snow (the search's candidate), and the buckling factor of the combination with the
+    largest deflection (the residual stress included), with seconds per step."""
+    timings = {}
+    start = time.perf_counter()
+    section = Section.of(material, profile)
+    grid = build(geometry, section, options)
+    frame = grid.frame
+    model = Model(frame)
+    timings["build"] = time.perf_counter() - start
+    beam_names = [f"{strip} beam {k}" for strip, k in frame.beam_tags]
+    joints = np.array(list(grid.joints.values()))
+    base = basic_cases(frame, joints, settings)
+    cases = {"residual": np.zeros((len(frame.xyz), 6)), **combinations(base, settings)}
+    results, solutions = {}, {}
+    for name, loads in cases.items():
+        t0 = time.perf_counter()
+        solutions[name] = model.solve(loads) if not solutions else model.next_case(loads)
+        timings[name] = time.perf_counter() - t0
+        results[name] = summary(solutions[name], section, material.f_y, frame.names, grid.joints, beam_names)
+    snow_side = next(n for n in cases if n.endswith("S one-sided"))
+    spot = grid.joints[results[snow_side]["max_deflection_node"]]
+    name = f"{settings.gamma_g:g} G + {settings.gamma_q:g} P at {results[snow_side]['max_deflection_node']}"
+    cases[name] = cases[f"{settings.gamma_g:g} G"] + settings.gamma_q * person(frame, spot, settings)
+    t0 = time.perf_counter()
+    solutions[name] = model.next_case(cases[name])
+    timings[name] = time.perf_counter() - t0
+    results[name] = summary(solutions[name], section, material.f_y, frame.names, grid.joints, beam_names)
+    record = {"model": {"nodes": len(frame.xyz), "beams": len(frame.beams), "links": len(frame.links),
+                        "hinges": len(frame.hinges), "cables": len(frame.cables), "supports": len(frame.supports),
+                        "dofs": 6 * len(frame.xyz), "stations": options.stations,
+                        "pair_spacing_mm": options.pair_spacing, "support_kind": options.supports},
+              "loads": settings.__dict__, "cases": results,
+              "residual_check": residual_check(grid, solutions["residual"], material)}
+    if buckling:
+        governing = max((n for n in cases if n != "residual"), key=lambda n: results[n]["max_deflection_mm"])
+        t0 = time.perf_counter()
+        factor, mode = model.buckling_factor(cases[governing], residual=True)
+        timings["buckling"] = time.perf_counter() - t0
+        shape = np.linalg.norm(mode[:, :3], axis=1)
+        record["buckling"] = {"case": governing, "factor": round(float(factor), 4),
+                              "mode_peak_node": frame.names[int(np.argmax(shape))],
+                              "mode": dict(zip(grid.joints, np.round(shape[list(grid.joints.values())] / shape.max(), 4).tolist()))}
+    record["seconds"] = {k: round(v, 3) for k, v in timings.items()}
+    return record
+
+
+def residual_check(grid: GridshellFrame, solution, material: Material) -> dict:
+    """The unloaded frame's weak-axis bending and twist stresses against the geometric check's E t k_g / 2 and G t tau_g
+    at the same beams: the largest deviation in % of the largest geometric stress, overall and at the 99th percentile."""
+    section = grid.frame.section
+    forces = solution.beam_forces
+    bending = np.abs(forces[:, 1:3]).max(axis=1) / (section.h * section.t ** 2 / 6.0)
+    shear = np.abs(forces[:, 5]) * section.t / section.J
+    geometric = material.E * section.t * np.abs(grid.design[:, 0]) / 2.0, material.G * section.t * np.abs(grid.design[:, 1])
+    out = {}
+    for key, fe, geo in (("bending", bending, geometric[0]), ("shear", shear, geometric[1])):
+        deviation = np.abs(fe - geo) / geo.max()
+        out[key] = {"frame_max": round(float(fe.max()), 2), "geometric_max": round(float(geo.max()), 2),
+                    "deviation_max_pct": round(100 * float(deviation.max()), 2),
+                    "deviation_p99_pct": round(100 * float(np.percentile(deviation, 99)), 2),
+                    "deviation_median_pct": round(100 * float(np.median(deviation)), 2)}
+    out["max_utilisation"] = round(float(utilisation(forces, section, material.f_y).max()), 4)
+    return out

@@ -1,0 +1,74 @@
+"""CLI for the analysis stage: `fabline analyse` solves the erected gridshell on OpenSees and writes analysis.json."""
+
+from __future__ import annotations
+
+import argparse
+
+from fabline.cli import positive
+from fabline.errors import FablineError
+from fabline.fileio import check_outputs
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add `analyse`."""
+    parser = subparsers.add_parser("analyse", help="load analysis of the erected gridshell on OpenSees "
+                                                   "(the analysis extra)")
+    parser.add_argument("model", help="the network model the parts were unrolled from")
+    parser.add_argument("parts", help="its fabline.parts/1 file (profile, material, pair spacing, cables)")
+    parser.add_argument("-o", "--output", required=True, help="analysis JSON to write")
+    parser.add_argument("--materials", metavar="FILE", help="TOML file with more materials (E, G, f_y, density)")
+    parser.add_argument("--supports", choices=("pinned", "fixed"), default="pinned",
+                        help="how the support nodes hold the shell")
+    parser.add_argument("--stations", type=positive(int, 16), default=2, help="beams per node interval")
+    parser.add_argument("--snow", type=float, default=0.75, metavar="KN_PER_M2", help="snow on the plan area")
+    parser.add_argument("--wind", type=float, default=0.5, metavar="KN_PER_M2", help="wind pressure normal to the shell")
+    parser.add_argument("--person", type=float, default=1000.0, metavar="N", help="a person's point load")
+    parser.add_argument("--no-buckling", action="store_true", help="skip the buckling factor search")
+    parser.set_defaults(func=run_analyse)
+
+
+def run_analyse(args: argparse.Namespace) -> int:
+    """Analyse and print one line per load case."""
+    from fabline.unroll import load_parts
+    from fabline.model import load_network
+
+    check_outputs(files=(args.output,), inputs=(args.model, args.parts, args.materials))
+    network = load_network(args.model).in_mm()
+    partset = load_parts(args.parts)
+    from fabline.analysis.loads import LoadSettings
+    from fabline.analysis.model import ModelOptions
+    from fabline.analysis.run import analyse
+    from fabline.fileio import write_json
+    from fabline.geometry.darboux import analyse as geometry_of
+    from fabline.mechanics.hardware import load_catalogue
+    from fabline.mechanics.materials import Profile, get_material
+
+    try:
+        profile = Profile(float(partset.profile["h"]), float(partset.profile["t"]))
+    except (KeyError, TypeError, ValueError):
+        raise FablineError(f"{args.parts}: profile: expected h and t in mm") from None
+    material = get_material(partset.material, args.materials)
+    unrolled = partset.report.get("options", {})
+    runs = tuple(tuple(run["nodes"]) for run in partset.cables)
+    unknown = sorted({n for run in runs for n in run} - set(network.nodes))
+    if unknown:
+        raise FablineError(f"{args.parts}: cables: node {unknown[0]} is not in {args.model} (unrolled from another model?)")
+    options = ModelOptions(stations=args.stations, pair_spacing=float(unrolled.get("pair_spacing_mm", 25.0)),
+                           supports=args.supports, cables=runs, cable=load_catalogue().cable,
+                           cable_prestrain=float(unrolled.get("cable_pretension_mm_per_m", 0.0)) / 1000.0)
+    if not any(node.kind == "support" for node in network.nodes.values()):
+        raise FablineError(f"{args.model}: no node is a support (node kind 'support'): the frame would float")
+    settings = LoadSettings(snow=args.snow, wind=args.wind, person=args.person)
+    record = analyse(geometry_of(network), material, profile, options, settings, buckling=not args.no_buckling)
+    write_json(args.output, {"schema": "fabline.analysis/1", "units": "mm, N, N/mm2 (reactions kN)",
+                             "model_file": args.model, "parts_file": args.parts, **record})
+    for name, case in record["cases"].items():
+        print(f"{name:<32} max deflection {case['max_deflection_mm']:8.2f} mm at {case['max_deflection_node']:<10} "
+              f"largest reaction {case['max_reaction_kN']:7.3f} kN  utilisation {100 * case['max_utilisation']:6.1f} %"
+              + ("" if case["converged"] else "  (NOT CONVERGED)"))
+    if "buckling" in record:
+        print(f"buckling factor {record['buckling']['factor']:.3f} on {record['buckling']['case']} "
+              f"(mode largest at {record['buckling']['mode_peak_node']})")
+    print(f"{args.output}: {record['model']['nodes']} nodes, {record['model']['beams']} beams, "
+          f"{sum(record['seconds'].values()):.1f} s")
+    return 0
