@@ -21,7 +21,7 @@ LONG_EDGE = 2.5             # a plan triangle with an edge longer than this many
 
 @dataclass(frozen=True)
 class LoadSettings:
-    """The job's [analysis] loads: snow and wind (kN/m2), the person (N), partial factors of permanent and variable loads."""
+    """The load cases' figures (`fabline analyse` options): snow and wind (kN/m2), the person (N), partial factors."""
 
     snow: float = 0.75
     wind: float = 0.5
