@@ -124,6 +124,9 @@ NOT_LENGTHS = {
     ("fabline survey measure", "--k-sigma"): "a number of standard deviations",
     ("fabline nest", "--stock"): "a file (of sheet sizes)",
     ("fabline survey measure", "--tags"): "a file (of tag sizes)",
+    ("fabline survey plan", "--tags"): "a file (of tag sizes)",
+    ("fabline survey plan", "--photo"): "a photo file (its size and EXIF focal length)",
+    ("fabline survey plan", "--resolution"): "an image size in pixels",
 }
 LENGTH_OPTIONS = [(prog, action) for prog, action in OPTIONS
                   if LENGTH_WORDS.search(f"{action.option_strings[-1]} {action.help}")
