@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from fabline.cli import positive
 from fabline.errors import FablineError
@@ -71,4 +72,24 @@ def run_analyse(args: argparse.Namespace) -> int:
               f"(mode largest at {record['buckling']['mode_peak_node']})")
     print(f"{args.output}: {record['model']['nodes']} nodes, {record['model']['beams']} beams, "
           f"{sum(record['seconds'].values()):.1f} s")
+    _warn_unverified(record)
     return 0
+
+
+RESIDUAL_TRUST_PCT = 2.0
+"""The unloaded frame must carry the geometric check's stresses this closely (median beam) to be trusted."""
+
+
+def _warn_unverified(record: dict) -> None:
+    """Say on stderr when the figures above rest on a frame that does not carry the erection's stresses as the
+    geometric check computes them (a model that does not reproduce its own unloaded state), or did not converge."""
+    bending = record["residual_check"]["bending"]
+    failed = [name for name, case in record["cases"].items() if not case["converged"]]
+    if bending["deviation_median_pct"] > RESIDUAL_TRUST_PCT:
+        print(f"warning: the unloaded frame's weak-axis bending differs from the geometric check by "
+              f"{bending['deviation_median_pct']:.1f} % at the median beam ({bending['deviation_max_pct']:.0f} % at "
+              f"the worst): this frame does not reproduce the erected state, so its figures are unverified",
+              file=sys.stderr)
+    if failed:
+        print(f"warning: {len(failed)} load case(s) did not converge ({', '.join(failed)}): their figures are the last "
+              f"state reached, not an equilibrium", file=sys.stderr)

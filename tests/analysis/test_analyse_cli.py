@@ -22,8 +22,13 @@ def test_analyse_prints_every_case_and_writes_the_record(unrolled, capsys):
     out = folder / "analysis.json"
     capsys.readouterr()
     assert main(["analyse", str(model), str(parts), "-o", str(out), "--no-buckling", "--stations", "1"]) == 0
-    printed = capsys.readouterr().out.splitlines()
+    captured = capsys.readouterr()
+    printed = captured.out.splitlines()
     record = json.loads(out.read_text())
+    # this small design's frame does not reproduce its erected state (the pavilion's does: test_pavilion_frame):
+    # the command says so rather than print its figures as verified
+    bending = record["residual_check"]["bending"]
+    assert (bending["deviation_median_pct"] > 2.0) == ("figures are unverified" in captured.err)
     assert record["schema"] == "fabline.analysis/1"
     cases = record["cases"]
     assert list(cases)[:3] == ["residual", "1.35 G", "1.35 G + 1.5 S"]
