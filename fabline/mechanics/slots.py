@@ -24,7 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from fabline.mechanics.materials import Material, Profile
-from fabline.mechanics.structure import bending_stress, percent, rounded_utilisation, twist_shear_stress
+from fabline.mechanics.structure import (bending_stress, combined_utilisations, percent, rounded_utilisation,
+                                        twist_shear_stress)
 
 SLOT_CHECKS = ("bending", "shear", "helix", "combined")
 
@@ -46,10 +47,7 @@ def slot_utilisations(material: Material, profile: Profile, slot_depth: float, k
     edge_helix = 0.5 * material.E * ((profile.h / 2.0) ** 2 - i_p_sq) * kappa_sq
     nearest = max(0.0, slot_depth - profile.h / 2.0)  # the net section's fibre nearest the twist axis
     near_helix = 0.5 * material.E * (nearest ** 2 - i_p_sq) * kappa_sq
-    edge = sigma_b + edge_helix
-    centre = np.sqrt((sigma_b + np.abs(near_helix)) ** 2 + 3.0 * tau ** 2)
-    return {"bending": sigma_b / material.f_y, "shear": tau / material.tau_y, "helix": edge_helix / material.f_y,
-            "combined": np.maximum(edge, centre) / material.f_y}
+    return combined_utilisations(material, sigma_b, tau, edge_helix, np.abs(near_helix))
 
 
 @dataclass

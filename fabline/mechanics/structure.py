@@ -104,12 +104,18 @@ def utilisations(material: Material, profile: Profile, k_g: np.ndarray, twist: n
     edge fibre (sigma_b + sigma_H,max, no torsional shear there) and the face centre (von Mises of
     sigma_b + |sigma_H,min| with tau).
     """
-    sigma_b = bending_stress(material, profile, k_g)
-    tau = twist_shear_stress(material, profile, twist)
     sigma_min, sigma_max = helix_stresses(material, profile, twist)
-    edge = sigma_b + sigma_max
-    centre = np.sqrt((sigma_b - sigma_min) ** 2 + 3.0 * tau ** 2)
-    return {"bending": sigma_b / material.f_y, "shear": tau / material.tau_y, "helix": sigma_max / material.f_y,
+    return combined_utilisations(material, bending_stress(material, profile, k_g),
+                                 twist_shear_stress(material, profile, twist), sigma_max, -sigma_min)
+
+
+def combined_utilisations(material: Material, sigma_b, tau, edge_helix, contraction) -> dict[str, np.ndarray]:
+    """The combined rule on given stresses (N/mm2): the worse of the edge fibre (sigma_b + the helix stretch there)
+    and the fibre nearest the twist axis (von Mises of sigma_b + the helix contraction there, with the shear tau);
+    for the full section (`utilisations`) and the net section at a slot (`slots`)."""
+    edge = sigma_b + edge_helix
+    centre = np.sqrt((sigma_b + contraction) ** 2 + 3.0 * tau ** 2)
+    return {"bending": sigma_b / material.f_y, "shear": tau / material.tau_y, "helix": edge_helix / material.f_y,
             "combined": np.maximum(edge, centre) / material.f_y}
 
 
