@@ -8,7 +8,7 @@ import numpy as np
 
 from fabline.analysis.frame import Section
 from fabline.analysis.solve import Solution
-from fabline.mechanics.structure import helix_stresses
+from fabline.mechanics.structure import combined_stress, helix_stresses
 from fabline.mechanics.materials import Material, Profile
 
 
@@ -28,9 +28,8 @@ def utilisation(forces: np.ndarray, section: Section, f_y: float) -> np.ndarray:
     """The combined rule per beam: the worse of the edge fibre (axial, both bendings and the helix stretch) and the
     face centre at mid-height (von Mises of axial, weak bending and helix contraction with the twist's shear), over f_y."""
     s = stresses(forces, section)
-    edge = np.abs(s["axial"]) + s["weak"] + s["strong"] + s["helix_max"]
-    centre = np.sqrt((np.abs(s["axial"]) + s["weak"] - s["helix_min"]) ** 2 + 3.0 * s["shear"] ** 2)
-    return np.maximum(edge, centre) / f_y
+    return combined_stress(np.abs(s["axial"]) + s["weak"], s["shear"], s["strong"] + s["helix_max"],
+                           -s["helix_min"]) / f_y
 
 
 def summary(solution: Solution, section: Section, f_y: float, names: list[str], joints: dict[str, int],

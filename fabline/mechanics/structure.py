@@ -113,10 +113,17 @@ def combined_utilisations(material: Material, sigma_b, tau, edge_helix, contract
     """The combined rule on given stresses (N/mm2): the worse of the edge fibre (sigma_b + the helix stretch there)
     and the fibre nearest the twist axis (von Mises of sigma_b + the helix contraction there, with the shear tau);
     for the full section (`utilisations`) and the net section at a slot (`slots`)."""
-    edge = sigma_b + edge_helix
-    centre = np.sqrt((sigma_b + contraction) ** 2 + 3.0 * tau ** 2)
     return {"bending": sigma_b / material.f_y, "shear": tau / material.tau_y, "helix": edge_helix / material.f_y,
-            "combined": np.maximum(edge, centre) / material.f_y}
+            "combined": combined_stress(sigma_b, tau, edge_helix, contraction) / material.f_y}
+
+
+def combined_stress(sigma_b, tau, edge_only, contraction):
+    """The combined rule's governing stress (N/mm2): the worse of the edge fibre, sigma_b + `edge_only` (what acts
+    at the edge alone: the helix stretch, and in a loaded frame its strong-axis bending), and the fibre nearest the
+    twist axis, von Mises of sigma_b + the helix `contraction` there with the shear tau."""
+    edge = sigma_b + edge_only
+    centre = np.sqrt((sigma_b + contraction) ** 2 + 3.0 * tau ** 2)
+    return np.maximum(edge, centre)
 
 
 def _helix_coefficients(material: Material, profile: Profile) -> tuple[float, float]:
