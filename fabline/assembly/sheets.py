@@ -3,8 +3,8 @@
 A lamella's page: a key plan of the whole shell from above with the lamella in red and its segment(s) shaded;
 its pieces with their segment, step and length; and each strip drawn straight along the page, its pieces end to
 end with the seams' overlaps marked, and at every slot the crossing lamella's label and the node id. The
-overview numbers the segments on the key plan and marks the crossings made on site. SVG only: the project has
-no library that draws vector PDF from these pages (print the SVG from a browser, or convert it with Inkscape).
+overview numbers the segments on the key plan and marks the crossings made on site. The same pages, in the same
+order, also go into one vector PDF beside them (`fabline.assembly.pdf`).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import numpy as np
 from shapely.geometry import LineString, MultiLineString, Point
 from shapely.ops import unary_union
 
+from fabline.assembly.pdf import PDF, write_pdf
 from fabline.assembly.pieces import Piece
 from fabline.assembly.plan import AssemblyPlan
 from fabline.fileio import atomic_output
@@ -33,7 +34,8 @@ def page_name(lamella: str) -> str:
 
 
 def write_pages(plan: AssemblyPlan, folder: str | os.PathLike) -> list[Path]:
-    """Write the overview and one page per lamella of the network into `folder`; returns the paths, overview first."""
+    """Write the overview and one page per lamella of the network into `folder`, and all of them as its `plan.pdf`;
+    returns the SVG pages' paths, overview first."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     keyplan = _KeyPlan(plan)
@@ -42,6 +44,7 @@ def write_pages(plan: AssemblyPlan, folder: str | os.PathLike) -> list[Path]:
     for path, text in pages:
         with atomic_output(path) as handle:
             handle.write(text)
+    write_pdf([text for _, text in pages], folder / PDF, PAGE)
     return [path for path, _ in pages]
 
 

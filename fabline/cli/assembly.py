@@ -45,6 +45,7 @@ def run_assembly(args: argparse.Namespace) -> int:
         raise FablineError(f"{args.parts}: names its model as {partset.source!r}, which is not a file here: give "
                            "--model, the network the parts were unrolled from")
     from fabline.assembly import plan_assembly
+    from fabline.assembly.pdf import PDF
     from fabline.assembly.sheets import write_pages
     from fabline.fileio import write_json
     from fabline.model import load_network
@@ -70,6 +71,6 @@ def run_assembly(args: argparse.Namespace) -> int:
               f"{row['extent_mm'] / 1000.0:>10.2f}{row['strip_length_m']:>9.1f}{row['site_crossings']:>8}"
               f"{row['site_seams']:>12}")
     count = len(plan.segments)
-    print(f"{args.output}: {len(pages) - 1} lamella pages and the overview (SVG), {count} segment{'s' * (count != 1)}; "
+    print(f"{args.output}: {len(pages) - 1} lamella pages and the overview (SVG, and all in {PDF}), {count} segment{'s' * (count != 1)}; "
           f"{len(summary['site_crossings'])} crossings and {len(summary['site_seams'])} seams made on site")
     return 0

@@ -17,6 +17,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from fabline.assembly.pdf import PDF
 from fabline.jobs import report_shop
 from fabline.jobs.pictures import model_svg
 from fabline.mechanics.structure import CHECKS, VERDICT_RULE, percent, verdict_lines
@@ -202,7 +203,8 @@ def _assembly_section(plan: dict[str, Any] | None, folder: Path) -> str:
             f"{len(plan['site_crossings'])} crossings and {len(plan['site_seams'])} seams are made on site between "
             f"segments. Rule: {e(plan['rule'])}.</p>"
             f"<p><a href=\"{report_shop.picture_source(pages[0], folder, 'image/svg+xml')}\">Overview page</a> (the segments "
-            f"numbered). A printable page per lamella (SVG, A3 landscape): {links}</p>"
+            f"numbered). A printable page per lamella (SVG, A3 landscape): {links}. All of them in one PDF: "
+            f"<a href=\"{report_shop.picture_source(pages[0].with_name(PDF), folder, 'application/pdf')}\">{PDF}</a></p>"
             f"<table id=assembly-segments>{head}{''.join(body)}</table>")
 
 

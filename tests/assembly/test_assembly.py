@@ -11,6 +11,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from fabline.assembly import plan_assembly
+from fabline.assembly.pdf import PDF
 from fabline.assembly.sheets import OVERVIEW, page_name, write_pages
 from fabline.errors import FablineError
 from fabline.jobs.jobfile import load_job_file
@@ -134,6 +135,34 @@ def test_one_page_per_lamella_and_each_slot_names_the_lamella_that_crosses_there
     assert seen == slots_in_parts
 
 
+def test_the_pdf_holds_every_page_on_a3_with_the_labels_its_svg_page_holds(small, tmp_path):
+    """Read back with pypdf (not the writer): a page per lamella and the overview, each 420 x 297 mm, and each
+    lamella page's text names the lamella and every crossing lamella and node its SVG page labels at a slot."""
+    pypdf = pytest.importorskip("pypdf", reason="pypdf (the test extra) reads the PDF back")
+    network, parts = small
+    plan = plan_assembly(network, parts, count=4)
+    paths = write_pages(plan, tmp_path)
+    reader = pypdf.PdfReader(tmp_path / PDF)
+    assert len(reader.pages) == len(network.lamellas) + 1 == len(paths)
+    points_per_mm = 72.0 / 25.4
+    for page in reader.pages:
+        assert (float(page.mediabox.width), float(page.mediabox.height)) == pytest.approx(
+            (420.0 * points_per_mm, 297.0 * points_per_mm), abs=0.5)
+    assert f"assembly in {len(plan.segments)} segments" in reader.pages[0].extract_text()
+    checked = 0
+    for path, page in zip(paths[1:], reader.pages[1:]):
+        text = page.extract_text()
+        root = ET.parse(path).getroot()
+        lamella = path.stem.removeprefix("lamella-")
+        assert f"Lamella {lamella}" in text
+        for group in root.iter(f"{SVG}g"):
+            if group.get("class") == "slot":
+                words = set(group.get("data-crossing").split()) | {group.get("data-node")}
+                assert all(word in text for word in words), (lamella, words)
+                checked += 1
+    assert checked == len({(p.id, s.node) for p in parts.parts if p.kind == "strip" for s in p.slots})
+
+
 def test_overview_numbers_every_segment(small, tmp_path):
     network, parts = small
     plan = plan_assembly(network, parts, count=4)
@@ -189,12 +218,13 @@ def test_a_small_job_writes_the_pages_and_the_report_section(tmp_path, cli):
     network = json.loads((tmp_path / "out" / "network.json").read_text())
     lamellas = [lam["id"] for lam in network["lamellas"]]
     pages = sorted(p.name for p in (tmp_path / "out" / "assembly").iterdir())
-    assert pages == sorted([OVERVIEW] + [page_name(lam) for lam in lamellas])
+    assert pages == sorted([OVERVIEW, PDF] + [page_name(lam) for lam in lamellas])
     page = (tmp_path / "out" / "report.html").read_text()
     section = page[page.index("<h2 id=assembly>"):]
     assert section.count("<tr><td>") == 3
     for lam in lamellas:
         assert f'href="assembly/{page_name(lam)}"' in section
+    assert f'href="assembly/{PDF}"' in section
     data = json.loads((tmp_path / "out" / "report.json").read_text())
     assert len(data["assembly"]["segments"]) == 3
     assert sum(row["nodes"] for row in data["assembly"]["segments"]) == len(network["nodes"])
