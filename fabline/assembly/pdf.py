@@ -29,6 +29,8 @@ def write_pdf(pages: list[str], path: str | os.PathLike, size: tuple[float, floa
     try:
         for text in pages:
             pdf.add_page()
+            # the PDF's built-in fonts hold Latin-1 only: any other character of a name or id prints as "?"
+            text = text.encode("latin-1", "replace").decode("latin-1")
             pdf.image(io.BytesIO(text.encode("utf-8")), x=0, y=0, w=width, h=height)
     finally:
         svg_log.setLevel(level)

@@ -163,6 +163,16 @@ def test_the_pdf_holds_every_page_on_a3_with_the_labels_its_svg_page_holds(small
     assert checked == len({(p.id, s.node) for p in parts.parts if p.kind == "strip" for s in p.slots})
 
 
+def test_a_name_outside_latin_1_prints_as_question_marks_not_a_crash(tmp_path):
+    pypdf = pytest.importorskip("pypdf", reason="pypdf (the test extra) reads the PDF back")
+    from fabline.assembly.pdf import write_pdf
+
+    svg = ('<svg xmlns="http://www.w3.org/2000/svg" width="420mm" height="297mm" viewBox="0 0 420 297">'
+           '<text x="10" y="20" font-size="6">Pavillon \u2013 Z\u00fcrich \u6771</text></svg>')
+    write_pdf([svg], tmp_path / PDF, (420.0, 297.0))
+    assert pypdf.PdfReader(tmp_path / PDF).pages[0].extract_text().strip() == "Pavillon ? Z\u00fcrich ?"
+
+
 def test_overview_numbers_every_segment(small, tmp_path):
     network, parts = small
     plan = plan_assembly(network, parts, count=4)
