@@ -47,3 +47,17 @@ def design_section(design: dict[str, Any] | None) -> str:
                f"<th>across {e(u)}</th><th>area {e(u)}2</th></tr>{regions}</table>" if regions else "")
             + (f"<table id=design-stops><tr><th>stop</th><th>curve ends</th><th>why</th><th>e.g. ({e(u)})</th></tr>"
                f"{stops}</table>" if stops else ""))
+
+
+def design_lines(network: Any) -> list[str]:
+    """The design stage in a line for the console (none for a network not traced on a surface)."""
+    from fabline.design.quality import percent_area
+
+    design = design_data(network.meta, network.units)
+    if design is None:
+        return []
+    c, units = design["coverage"], network.units
+    return [f"design: traced on {design['surface']}, covers {percent_area(c['fraction'])} of its area; "
+            f"{len(design['left_out'])} region(s) without asymptotic lines left out ({c.get('left_out', 0.0):.4g} {units}2); "
+            + ", ".join(f"{s['ends']} curve end(s) stop at {s['reason']}" for s in design["stops"])
+            + f"; {design['dropped']['curves']} curve(s) dropped"]

@@ -78,6 +78,7 @@ def build_network(spec: JobSpec) -> "Network":
 
 
 def _traced(spec: JobSpec) -> "Network":
+    """model.mesh traced with its options, as `fabline design asymptotic` would with the job's strip."""
     from fabline.design import design_asymptotic
     from fabline.jobs.jobfile import mesh_length
 
@@ -86,21 +87,6 @@ def _traced(spec: JobSpec) -> "Network":
     return design_asymptotic(spec.model["mesh"], mesh_length(options["spacing"], f"{where}.spacing"), options.get("seed"),
                              options.get("supports"), options.get("units"), step, spec.lamella["material"],
                              spec.lamella["profile"]).network
-
-
-def design_lines(network: "Network") -> list[str]:
-    """The design stage in a line or two for the console (none for a network not traced on a surface)."""
-    from fabline.design.quality import percent_area
-    from fabline.jobs.design_stage import design_data
-
-    design = design_data(network.meta, network.units)
-    if design is None:
-        return []
-    c, units = design["coverage"], network.units
-    return [f"design: traced on {design['surface']}, covers {percent_area(c['fraction'])} of its area; "
-            f"{len(design['left_out'])} region(s) without asymptotic lines left out ({c.get('left_out', 0.0):.4g} {units}2); "
-            + ", ".join(f"{s['ends']} curve end(s) stop at {s['reason']}" for s in design["stops"])
-            + f"; {design['dropped']['curves']} curve(s) dropped"]
 
 
 def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) -> JobResult:
@@ -123,6 +109,8 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
         save_network(result.network, spec.output("network.json"))
         say(f"model: {result.network.name}, {len(result.network.lamellas)} lamellas, {len(result.network.nodes)} nodes, "
             f"{extent_text(result.network)}")
+        from fabline.jobs.design_stage import design_lines
+
         for line in design_lines(result.network):
             say(line)
         if "unroll" in spec.stages:
