@@ -85,13 +85,18 @@ def main() -> None:
     parser.add_argument("--noise", type=float, default=0.5, help="standard deviation of the noisy table's normal noise, mm")
     parser.add_argument("--minimal", type=int, default=20_000, help="triangles of the minimal surface run (0: skip)")
     parser.add_argument("--hard", default="0.07,0.035", help="spacings (m) for the hard mesh table (empty: skip)")
+    parser.add_argument("--pipeline", action="store_true",
+                        help="the hard table also runs unroll (strips alone) -> nest -> export DXF on every valid design")
+    parser.add_argument("--hard-only", action="store_true", help="only the hard mesh table")
     parser.add_argument("--dir", help="folder for the meshes (default: a temporary one)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(args.dir or scratch)
         folder.mkdir(parents=True, exist_ok=True)
         if args.hard:
-            hard_table([float(s) for s in args.hard.split(",")], folder)
+            hard_table([float(s) for s in args.hard.split(",")], folder, args.pipeline)
+        if args.hard_only:
+            return
         accuracy_table([int(s) for s in args.sizes.split(",")], folder)
         if args.noisy:
             accuracy_table([int(s) for s in args.noisy.split(",")], folder, args.noise)
@@ -100,7 +105,7 @@ def main() -> None:
             minimal_table(args.minimal, folder)
 
 
-def hard_table(spacings: list[float], folder: Path) -> None:
+def hard_table(spacings: list[float], folder: Path, pipeline: bool = False) -> None:
     from collections import Counter
 
     from meshes import HARD_MESHES, hard_mesh, hypar, write_mesh
@@ -128,7 +133,41 @@ def hard_table(spacings: list[float], folder: Path) -> None:
             print(f"{name:<20}{len(vertices):>9}{spacing:>8g}{'valid':>8}{len(network.lamellas):>6}{len(network.nodes):>6}"
                   f"{coverage['fraction'] * 100:>7.1f}%{coverage['left_out'] / coverage['surface_area'] * 100:>8.1f}%"
                   f"{network.meta['dropped']['curves']:>8}{error:>10}{wall:>7.2f}  "
-                  + ", ".join(f"{k} {v}" for k, v in sorted(stops.items())))
+                  + ", ".join(f"{k} {v}" for k, v in sorted(stops.items()))
+                  + (f"; to parts: {_to_parts(network, folder / name)}" if pipeline else ""))
+
+
+def _to_parts(network, folder: Path) -> str:
+    """unroll (strips alone) -> nest -> export DXF on a traced network, as `fabline` runs them: the parts, sheets,
+    whether ezdxf's audit of every sheet is clean and every part is on one, and the wall time; or the refusal."""
+    import contextlib
+    import io
+    import json
+
+    import ezdxf
+
+    from fabline.cli import main as fabline
+    from fabline.model import save_network
+
+    folder.mkdir(parents=True, exist_ok=True)
+    save_network(network, folder / "net.json")
+    started = time.perf_counter()
+    for command in (("unroll", folder / "net.json", "--no-hardware", "-o", folder / "parts.json"),
+                    ("nest", folder / "parts.json", "--time-limit", "2", "-o", folder / "nesting.json"),
+                    ("export", folder / "nesting.json", "--dxf", folder / "dxf", "--no-preview")):
+        errors = io.StringIO()
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(errors):
+            code = fabline([str(a) for a in command])
+        if code:
+            return f"{command[0]} refused: {errors.getvalue().strip().splitlines()[-1].split(': ', 3)[-1]}"
+    parts = {p["id"] for p in json.loads((folder / "parts.json").read_text())["parts"]}
+    sheets = sorted((folder / "dxf").glob("*_S*.dxf"))
+    docs = [ezdxf.readfile(sheet) for sheet in sheets]
+    inserted = {i.dxf.name for doc in docs for i in doc.modelspace().query("INSERT")}
+    clean = not any(doc.audit().has_errors for doc in docs)
+    return (f"{len(parts)} parts on {len(sheets)} sheet(s), DXF audit {'clean' if clean else 'ERRORS'}, "
+            f"{'every part placed' if inserted == parts else f'{len(parts - inserted)} parts missing'}, "
+            f"{time.perf_counter() - started:.1f} s")
 
 
 def _off_straight(curve: np.ndarray) -> float:

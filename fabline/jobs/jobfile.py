@@ -22,6 +22,7 @@ from fabline.units import job_length
 if TYPE_CHECKING:  # the nesting stage pulls in shapely; a job file is read before any stage runs
     from fabline.export import ToolpathOptions
     from fabline.machine.profile import MachineProfile
+    from fabline.model_units import Length
     from fabline.nest.nester import NestOptions
     from fabline.unroll.options import UnrollOptions
 
@@ -60,7 +61,7 @@ SCHEMA: dict[str, Any] = {
     "name": Key(str, required=True),
     "description": Key(str, default=""),
     "stages": Key(list, default=list(DEFAULT_STAGES)),
-    "model": {"design": Key(str), "file": Key(str), "options": Key(dict, default={})},
+    "model": {"design": Key(str), "file": Key(str), "mesh": Key(str), "options": Key(dict, default={})},
     "lamella": {"material": Key(str, default="stainless"), "profile": Key(str, default="100x1.5"),
                 "materials_file": Key(str)},
     "stock": {"sheet": Key(str, default="4000x2000"), "count": Key(int), "file": Key(str),
@@ -167,6 +168,9 @@ def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
     if len(data["name"]) > NAME_MAX:
         raise FablineError(f"{where}: name: {len(data['name'])} characters, at most {NAME_MAX} (it names output files)")
     model = _check_model(data["model"], base, where)
+    if "mesh" in model and data["lamella"]["materials_file"] is not None:
+        raise FablineError(f"{where}: lamella.materials_file: not with model.mesh (the tracer's strip limits take a "
+                           "built-in material); trace with `fabline design asymptotic` and give model.file")
     for section, key in (("lamella", "materials_file"), ("stock", "file"), ("survey", "result")):
         if data[section][key] is not None:
             data[section][key] = str(_existing(base, data[section][key], f"{where}: {section}.{key}"))
@@ -201,7 +205,7 @@ def _check_port_files(spec: JobSpec, where: str) -> None:
     file=, a simulator's log=) inside the output folder and none of the job's inputs."""
     from fabline.link import check_port
 
-    inputs = (spec.path, spec.model.get("file"), spec.lamella["materials_file"], spec.stock["file"],
+    inputs = (spec.path, spec.model.get("file"), spec.model.get("mesh"), spec.lamella["materials_file"], spec.stock["file"],
               spec.survey.get("result"))
     key = "machine.port" if spec.machine.get("port") is not None else "machine.ports"
     for port in spec.machine["ports"]:
@@ -358,15 +362,27 @@ def _check_ports(machine: dict[str, Any], where: str) -> list[str]:
     return ports
 
 
+MESH_OPTIONS = {"spacing": Key(object, required=True), "step": Key(object), "seed": Key(list), "supports": Key(str),
+                "units": Key(str)}
+"""`[model.options]` of a job that starts from a mesh: `fabline design asymptotic`'s options under their own names;
+spacing and step in the model's units (a number) or with a unit (`"70 mm"`)."""
+
+
 def _check_model(model: dict[str, Any], base: Path, where: str) -> dict[str, Any]:
-    """Exactly one of model.design (a built-in design, options checked against its signature) or model.file."""
+    """Exactly one of model.design (a built-in design, options checked against its signature), model.file (a
+    network) or model.mesh (a surface traced by `design asymptotic` with its options)."""
     from fabline.model.designs import DESIGNS
 
-    if (model["design"] is None) == (model["file"] is None):
-        raise FablineError(f"{where}: model: give exactly one of model.design ({', '.join(DESIGNS)}) or model.file")
+    given = [key for key in ("design", "file", "mesh") if model[key] is not None]
+    if len(given) != 1:
+        raise FablineError(f"{where}: model: give exactly one of model.design ({', '.join(DESIGNS)}), model.file "
+                           "(a network) or model.mesh (a surface to trace)")
+    if model["mesh"] is not None:
+        return {"mesh": str(_existing(base, model["mesh"], f"{where}: model.mesh")),
+                "options": _check_mesh_options(model["options"], where)}
     if model["file"] is not None:
         if model["options"]:
-            raise FablineError(f"{where}: model.options: only for a built-in design, not with model.file")
+            raise FablineError(f"{where}: model.options: only for a built-in design or a mesh, not with model.file")
         return {"file": str(_existing(base, model["file"], f"{where}: model.file")), "options": {}}
     if model["design"] not in DESIGNS:
         raise FablineError(f"{where}: model.design: unknown design {model['design']!r} (use one of {', '.join(DESIGNS)})")
@@ -387,6 +403,42 @@ def _check_model(model: dict[str, Any], base: Path, where: str) -> dict[str, Any
             value = _typed(value, type(default), where, key_path)
         options[key] = value
     return {"design": model["design"], "options": options}
+
+
+def _check_mesh_options(options: dict[str, Any], where: str) -> dict[str, Any]:
+    """The tracing options of model.mesh: lengths parse (`mesh_length`), the seed is three finite numbers, the
+    units are a model unit; the ones left out are left out (the command's defaults)."""
+    from fabline.model_units import UNIT_NAMES
+
+    checked = _check_table(options, MESH_OPTIONS, where, "model.options.")
+    for key in ("spacing", "step"):
+        if checked[key] is not None:
+            mesh_length(checked[key], f"{where}: model.options.{key}")
+    if checked["seed"] is not None:
+        seed = [_typed(v, float, where, f"model.options.seed[{k}]") for k, v in enumerate(checked["seed"])]
+        if len(seed) != 3 or not all(math.isfinite(v) for v in seed):
+            raise FablineError(f"{where}: model.options.seed: expected three finite numbers [x, y, z] in model units, "
+                               f"got {checked['seed']!r}")
+        checked["seed"] = seed
+    if checked["units"] is not None and checked["units"] not in UNIT_NAMES:
+        raise FablineError(f"{where}: model.options.units: {checked['units']!r} is not a unit (use one of "
+                           f"{', '.join(UNIT_NAMES)})")
+    return {key: value for key, value in checked.items() if value is not None}
+
+
+def mesh_length(value: Any, where: str) -> Length:
+    """A mesh job's spacing or step: a number in the model's units or a string with a unit, positive."""
+    from fabline.model_units import Length, parse_model_length
+
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        raise FablineError(f"{where}: expected a number (model units) or a string with a unit, got {_type_name(value)}")
+    try:
+        length = parse_model_length(value) if isinstance(value, str) else Length(float(value))
+    except ValueError as exc:
+        raise FablineError(f"{where}: {exc}") from None
+    if not 0 < length.value < math.inf:
+        raise FablineError(f"{where}: must be a positive length, got {value!r}")
+    return length
 
 
 def _existing(base: Path, relative: str, where: str) -> Path:

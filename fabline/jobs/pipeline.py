@@ -62,16 +62,31 @@ def load_facts(sheet: dict) -> dict[str, Any]:
 
 
 def build_network(spec: JobSpec) -> "Network":
-    """The job's network: the built-in design with its options, or the model file."""
+    """The job's network: the built-in design with its options, the model file, or the mesh traced as
+    `fabline design asymptotic` does (its strip limits from the job's [lamella])."""
     from fabline.model import load_network
     from fabline.model.designs import DESIGNS
 
     if "file" in spec.model:
         return load_network(spec.model["file"])
     try:
+        if "mesh" in spec.model:
+            return _traced(spec)
         return DESIGNS[spec.model["design"]](**spec.model["options"])
     except FablineError as exc:
         raise FablineError(f"{spec.path.name}: model: {exc}") from None
+
+
+def _traced(spec: JobSpec) -> "Network":
+    """model.mesh traced with its options, as `fabline design asymptotic` would with the job's strip."""
+    from fabline.design import design_asymptotic
+    from fabline.jobs.jobfile import mesh_length
+
+    options, where = spec.model["options"], f"{spec.path.name}: model.options"
+    step = mesh_length(options["step"], f"{where}.step") if "step" in options else None
+    return design_asymptotic(spec.model["mesh"], mesh_length(options["spacing"], f"{where}.spacing"), options.get("seed"),
+                             options.get("supports"), options.get("units"), step, spec.lamella["material"],
+                             spec.lamella["profile"]).network
 
 
 def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) -> JobResult:
@@ -89,11 +104,15 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
     with OutputSet():  # a stage refused (or Ctrl-C) removes what every stage before it wrote: the folder is as it was
         check_outputs(files=[spec.output(name) for name in names],
                       folders=[spec.output(name) for name in ("dxf", "gcode", "sheets", ASSEMBLY_FOLDER)],
-                      inputs=(spec.path, spec.model.get("file")))
+                      inputs=(spec.path, spec.model.get("file"), spec.model.get("mesh")))
         result = JobResult(spec, network=_timed(timings, "model", lambda: build_network(spec)), timings=timings)
         save_network(result.network, spec.output("network.json"))
         say(f"model: {result.network.name}, {len(result.network.lamellas)} lamellas, {len(result.network.nodes)} nodes, "
             f"{extent_text(result.network)}")
+        from fabline.jobs.design_stage import design_lines
+
+        for line in design_lines(result.network):
+            say(line)
         if "unroll" in spec.stages:
             _timed(result.timings, "unroll", lambda: _unroll(result))
             say(f"unroll: {len(result.partset.parts)} parts -> {spec.output('parts.json')}")

@@ -27,8 +27,8 @@ FORMAT = "fabline.prepared/1"
 
 
 def input_files(spec: JobSpec) -> list[Path]:
-    """The files a job's preparation reads besides its job file: model, materials, stock, profile, survey result."""
-    named = [spec.model.get("file"), spec.lamella.get("materials_file"), spec.stock.get("file"),
+    """The files a job's preparation reads besides its job file: model or mesh, materials, stock, profile, survey result."""
+    named = [spec.model.get("file"), spec.model.get("mesh"), spec.lamella.get("materials_file"), spec.stock.get("file"),
              spec.survey.get("result"), spec.machine["profile"] if str(spec.machine["profile"]).endswith(".toml") else None]
     return [Path(path) for path in named if path]
 

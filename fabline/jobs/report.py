@@ -19,6 +19,7 @@ from typing import Any
 
 from fabline.assembly.pdf import PDF
 from fabline.jobs import report_shop
+from fabline.jobs.design_stage import design_data, design_section
 from fabline.jobs.pictures import model_svg
 from fabline.mechanics.structure import CHECKS, VERDICT_RULE, percent, verdict_lines
 from fabline.model.extent import plan_extent_m, extent_text
@@ -64,6 +65,7 @@ def report_data(result: Any) -> dict[str, Any]:
                   "nodes": len(network.nodes), "meta": network.meta,
                   "extent": {"plan_m": [round(v, 3) for v in plan_extent_m(network)],
                              "asked_m": network.meta.get("size_m"), "text": extent_text(network)}},
+        "design": design_data(network.meta, network.units),
         "parts": ({"count": len(result.partset.parts),
                    "by_kind": dict(Counter(p.kind for p in result.partset.parts))} if result.partset else None),
         "structure": {"lamellas": structure, "max_utilisation": max((r["utilisation"] for r in structure), default=None),
@@ -106,6 +108,7 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
                         if "cut_length_mm" in entry else "") + " (click to zoom)</figcaption></figure>"
                      + report_shop.preview_figure(entry, folder))
     parts.append("</div>")
+    parts.append(design_section(data["design"]))
     parts.append(report_shop.bom_section(data["bill_of_materials"]))
     parts.append(_structure_table(data["structure"]))
     parts.append(_edge_table(data["edge_members"]))
