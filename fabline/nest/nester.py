@@ -24,6 +24,7 @@ from fabline.nest.layout import CommonCut, Nesting, Placement, Sheet
 from fabline.nest.raster import Canvas, Lattice, Template, densest_lattice, make_template, place_copies
 from fabline.nest.remnants import leftover_rectangles
 from fabline.nest.shapes import NestShape, nest_shapes
+from fabline.nest.stacking import StackSheet
 from fabline.nest.validate import validate_nesting
 from fabline.progress import progress
 from fabline.shop.stock import StockItem, usable_extent
@@ -35,6 +36,8 @@ ROTATION_STEPS = (1, 2, 4, 8, 12, 24, 36, 72)   # the rotation steps a part may 
 REMNANT_CELL = 20.0
 # Groups of at least this many identical parts are laid on a repeating pattern before the greedy fill.
 LATTICE_MIN_COPIES = 12
+# Parts with grain at least this long that are not strips (the curved edge bars) are stacked by their outlines.
+STACK_MIN_LENGTH = 1000.0
 
 
 @dataclass
@@ -135,7 +138,10 @@ def nest(partset: PartSet, stock: list[StockItem], options: NestOptions, parts_f
     row_shapes = [s for s in shapes if s.strip_like and _row_fits_some(s, supply.order, options)]
     row_ids = {s.id for s in row_shapes}
     strip_report = _place_strips(row_shapes, supply, sheets, options)
-    _place_irregular([s for s in shapes if s.id not in row_ids], supply, sheets, options)
+    rest = [s for s in shapes if s.id not in row_ids]
+    stacked = _stack_bars([s for s in rest if s.part.grain and _extent(s)[0] >= STACK_MIN_LENGTH], supply, sheets,
+                          options)
+    _place_irregular([s for s in rest if s.id not in stacked], supply, sheets, options)
     nesting = Nesting([o.sheet for o in sheets], parts_file, options.kerf, options.gap, options.margin)
     nesting.remnants = _remnants(sheets, options)
     report = _summary(shapes, sheets, supply, options, strip_report, time.monotonic() - started)
@@ -354,6 +360,46 @@ def _place_irregular(shapes: list[NestShape], supply: _Supply, sheets: list[_Ope
                 raise FablineError(f"part {representative.id} ({w:.0f} x {h:.0f} mm) does not fit on an empty "
                                    f"{item.width:g} x {item.height:g} mm sheet ({item.id}) with its clearance of gap "
                                    f"{options.gap:g} + kerf {options.kerf:g} mm")
+
+
+def _stack_bars(bars: list[NestShape], supply: _Supply, sheets: list[_OpenSheet], options: NestOptions) -> set[str]:
+    """Long curved parts, longest first, each as low as it fits above the strip rows of the first sheet that holds
+    it (open sheets, then new ones); returns their ids. Their outlines, not cells, set the spacing (`stacking`)."""
+    stacks: dict[int, StackSheet] = {}
+
+    def stack_of(open_sheet: _OpenSheet) -> StackSheet:
+        if id(open_sheet) not in stacks:
+            top = max((r[3] for r in open_sheet.rectangles), default=None)
+            stacks[id(open_sheet)] = StackSheet(open_sheet.stock.width, open_sheet.stock.height, options.margin,
+                                                options.clearance, top)
+            for polygon in open_sheet.polygons:
+                stacks[id(open_sheet)].add(polygon)
+        return stacks[id(open_sheet)]
+
+    placed: set[str] = set()
+    for shape in sorted(bars, key=lambda s: -_extent(s)[0]):
+        geometry = shape.polygon if options.fill_holes else shape.solid
+        rotations = shape.rotations(options.rotation_steps)
+        spot = next(((o, s) for o in sheets if (s := stack_of(o).place(geometry, rotations)) is not None), None)
+        if spot is None:
+            item = next((s for s in supply.available() if _fits(shape, s, options)), None)
+            if item is None:
+                raise FablineError(f"part {shape.id}: not enough sheets in stock")
+            supply.take(item)
+            open_sheet = _open(sheets, item)
+            spot = (open_sheet, stack_of(open_sheet).place(geometry, rotations))
+        open_sheet, where = spot
+        if where is None:
+            continue  # the raster fill places it (or names why it does not fit)
+        x, y, rotation = where
+        open_sheet.sheet.placements.append(Placement(shape.id, x, y, rotation))
+        laid = affinity.translate(affinity.rotate(geometry, rotation, origin=(0, 0)), x, y)
+        open_sheet.polygons.append(laid)
+        stack_of(open_sheet).add(laid)
+        open_sheet.part_area += shape.area
+        open_sheet.zone_area += float(laid.buffer(options.clearance / 2).area)
+        placed.add(shape.id)
+    return placed
 
 
 def _lattice(templates: list[Template]) -> Lattice | None:
