@@ -171,7 +171,8 @@ def _detect(args: argparse.Namespace) -> int:
             print(f"{entry['file']}: {len(ids)} tag(s)" + (f" {', '.join(map(str, ids))}" if ids else "")
                   + (f"; id(s) {', '.join(map(str, twice))} found more than once" if twice else "")
                   + (f"; {len(entry['flagged'])} quad(s) flagged, not tags: "
-                     + ", ".join(f"id {q['id']} ({q['quality']})" for q in entry["flagged"]) if entry["flagged"] else ""))
+                     + ", ".join(f"id {q['id']} ({q['quality']})" for q in entry["flagged"])
+                     if entry["flagged"] else ""))
             for note in entry.get("warnings", []):
                 print(f"warning: {note}")
     if failures == len(report):

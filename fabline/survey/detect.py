@@ -54,9 +54,9 @@ PAD_LIGHT_ROWS = 2
 # Quads are searched for on an image pyramid, as the AprilTag library's quad_decimate but at every scale: aruco's
 # adaptive threshold at one window per search, at full resolution each of SEARCH_WINDOWS_PX, at each coarser level (the
 # photo halved, up to MAX_SEARCH_LEVEL times while its shorter side keeps MIN_LEVEL_SIDE_PX: 1056 x 792 photos get the
-# twice-halved level, where alone 70 px tags of 25 grey levels from black to white are found, issue 30) each of COARSE_WINDOWS_PX
-# in a search of its own (aruco keeps one of the quads its windows find at one place: the quiet zone's outline, not the
-# black square's). A 3 px window keeps the thin black border of small tags of about 2 px cells, and of tags seen at
+# twice-halved level, where alone 70 px tags of 25 grey levels from black to white are found, issue 30) each of
+# COARSE_WINDOWS_PX in a search of its own (aruco keeps one of the quads its windows find at one place: the quiet
+# zone's outline, not the black square's). A 3 px window keeps the thin black border of small tags of about 2 px cells, and of tags seen at
 # 60-80 degrees whose cells are a pixel or less across, whole; in the noise of a dim or low-contrast tag (25-40 grey
 # levels from black to white) its mean is too noisy and the border breaks up, where a 5 px window's holds, at full
 # resolution for tags of 2-4 px cells, on the halved photo for larger ones (issue 30: with coarser levels only for
@@ -129,9 +129,9 @@ ARUCO_CORRECTION_RATE = 0.4  # of the dictionary's maxCorrectionBits (5): aruco 
 MIN_CELL_PX = 1.0
 MIN_REACH_PX = 0.75  # edge profiles reach 0.45 cell either side of the edge, at least this far (at most 4 px)
 COARSE_REACH_PX = 2.0  # ... and in a first pass on a coarse quad of a small tag
-# ... at most MAX_REACH_PX; but a quad of a large tag found on the photo halved twice or more may be 4-8 px off (issue
-# 30: three 60-75 px tags of 25 grey levels, which only that level finds): where the first passes fail, the first
-# reaches up to COARSE_MAX_REACH_PX
+# ... at most MAX_REACH_PX; but a quad of a large tag found on the photo halved twice may be 4-7 px off (issue 30: a
+# 68 px tag of 25 grey levels, which only that level finds): where the passes fail on a quad of cells of LARGE_CELL_PX
+# or more, they are tried again after a first pass reaching 0.9 cell, up to COARSE_MAX_REACH_PX
 MAX_REACH_PX, COARSE_MAX_REACH_PX, LARGE_CELL_PX = 4.0, 8.0, 5.0
 MIN_EDGE_INSIDE = 0.5  # a tag cut by the photo's edge: each of its edges at least half inside, to fix its line
 # of the black border's 28 cells, all but a cut corner's few inside the photo (the corner cell and a neighbour or two
@@ -625,8 +625,8 @@ def _refine(image: np.ndarray, quad: np.ndarray) -> tuple[np.ndarray | None, flo
 def _refine_passes(image: np.ndarray, quad: np.ndarray, min_reaches: list[float], max_reaches: list[float] | None = None
                    ) -> tuple[np.ndarray | None, float]:
     """Corners refined by one pass of edge fits per entry of `min_reaches` (each pass's shortest profile reach, px; its
-    longest, of `max_reaches`, MAX_REACH_PX by default), and how far the last pass moved them the most; (None, inf) when a
-    pass cannot locate the edges."""
+    longest, of `max_reaches`, MAX_REACH_PX by default), and how far the last pass moved them the most; (None, inf) when
+    a pass cannot locate the edges."""
     moved = np.inf
     for min_reach, max_reach in zip(min_reaches, max_reaches or [MAX_REACH_PX] * len(min_reaches)):
         lines = _fit_edges(image, quad, min_reach, max_reach)
