@@ -143,7 +143,8 @@ def _detect(args: argparse.Namespace) -> int:
             report.append(entry)
             continue
         entry.update({"warnings": notes} if notes else {}, tags=[])
-        for det in detect_tags(gray):
+        flagged: list = []
+        for det in detect_tags(gray, flagged=flagged):
             # partial: cut by the photo's edge, a corner extrapolated from the edges inside
             tag = {"id": det.tag_id, "corners_px": [[round(x, 3), round(y, 3)] for x, y in det.corners], "partial": det.partial}
             if camera is not None:
@@ -152,6 +153,9 @@ def _detect(args: argparse.Namespace) -> int:
                            reprojection_px=round(pose.error_px, 4), ambiguity=round(pose.ambiguity, 4),
                            ambiguous=pose.ambiguous)
             entry["tags"].append(tag)
+        # quads that read but are no tags: their code only with more bits corrected, or cells under a pixel across
+        entry["flagged"] = [{"id": det.tag_id, "corners_px": [[round(x, 3), round(y, 3)] for x, y in det.corners],
+                             "partial": det.partial, "quality": det.quality} for det in flagged]
         report.append(entry)
     if failures == len(report) == 1:
         raise FablineError(report[0]["error"])
@@ -164,8 +168,11 @@ def _detect(args: argparse.Namespace) -> int:
                 continue
             ids = [t["id"] for t in entry["tags"]]
             twice = sorted({i for i in ids if ids.count(i) > 1})
-            print(f"{entry['file']}: {len(ids)} tag(s) {', '.join(map(str, ids))}"
-                  + (f"; id(s) {', '.join(map(str, twice))} found more than once" if twice else ""))
+            print(f"{entry['file']}: {len(ids)} tag(s)" + (f" {', '.join(map(str, ids))}" if ids else "")
+                  + (f"; id(s) {', '.join(map(str, twice))} found more than once" if twice else "")
+                  + (f"; {len(entry['flagged'])} quad(s) flagged, not tags: "
+                     + ", ".join(f"id {q['id']} ({q['quality']})" for q in entry["flagged"])
+                     if entry["flagged"] else ""))
             for note in entry.get("warnings", []):
                 print(f"warning: {note}")
     if failures == len(report):

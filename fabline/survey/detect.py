@@ -53,9 +53,10 @@ BORDER_PAD_PX = 16
 PAD_LIGHT_ROWS = 2
 # Quads are searched for on an image pyramid, as the AprilTag library's quad_decimate but at every scale: aruco's
 # adaptive threshold at one window per search, at full resolution each of SEARCH_WINDOWS_PX, at each coarser level (the
-# photo halved, up to MAX_SEARCH_LEVEL times while its shorter side keeps MIN_LEVEL_SIDE_PX) each of COARSE_WINDOWS_PX
-# in a search of its own (aruco keeps one of the quads its windows find at one place: the quiet zone's outline, not the
-# black square's). A 3 px window keeps the thin black border of small tags of about 2 px cells, and of tags seen at
+# photo halved, up to MAX_SEARCH_LEVEL times while its shorter side keeps MIN_LEVEL_SIDE_PX: 1056 x 792 photos get the
+# twice-halved level, where alone 70 px tags of 25 grey levels from black to white are found, issue 30) each of
+# COARSE_WINDOWS_PX in a search of its own (aruco keeps one of the quads its windows find at one place: the quiet
+# zone's outline, not the black square's). A 3 px window keeps the thin black border of small tags of about 2 px cells, and of tags seen at
 # 60-80 degrees whose cells are a pixel or less across, whole; in the noise of a dim or low-contrast tag (25-40 grey
 # levels from black to white) its mean is too noisy and the border breaks up, where a 5 px window's holds, at full
 # resolution for tags of 2-4 px cells, on the halved photo for larger ones (issue 30: with coarser levels only for
@@ -65,7 +66,7 @@ PAD_LIGHT_ROWS = 2
 # found gets levels down to OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX (out of focus). Each quad is refined and read at full
 # resolution (`_refine_and_read`).
 SEARCH_WINDOWS_PX, COARSE_WINDOWS_PX = (3, 5), (5,)
-MAX_SEARCH_LEVEL, MIN_LEVEL_SIDE_PX, OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX = 2, 240, 120
+MAX_SEARCH_LEVEL, MIN_LEVEL_SIDE_PX, OUT_OF_FOCUS_MIN_LEVEL_SIDE_PX = 2, 200, 120
 # Blurred, small tags' black border falls below aruco's default threshold offset (7 grey levels) and breaks up: at full
 # resolution a lower offset keeps it whole (2: small low-contrast and thin-quiet-zone tags of 17-21 px whose border
 # broke up at 3, issue 30); at the coarser levels, where halving has taken out half the noise, a slightly higher one
@@ -102,6 +103,10 @@ APRILTAG_ORDER = [1, 0, 3, 2]
 TAG_SQUARE = np.array([[0, 0], [TAG_CELLS, 0], [TAG_CELLS, TAG_CELLS], [0, TAG_CELLS]], dtype=float)
 QUIET_ZONE_OUTLINE = np.array([[-1, -1], [TAG_CELLS + 1, -1], [TAG_CELLS + 1, TAG_CELLS + 1], [-1, TAG_CELLS + 1]],
                               dtype=float)
+# Aruco's quad of a small tag on a darker background is the outline of its light quiet zone; blurred, with the 3 px
+# threshold window, that outline lies two cells outside the black square rather than one (issue 30: four tags of 14-18
+# px, dim or plain, that pupil-apriltags finds, read only so). Such a quad is read as either, nearest first.
+OUTLINES_AROUND_SQUARE = (QUIET_ZONE_OUTLINE, QUIET_ZONE_OUTLINE + np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]))
 DECODE_SHARPENING = 0.25  # of the cells' Laplacian, added to a blurred tag's cells for a second reading (see `_decode`)
 # cell centres (TAG_CELLS + 2, TAG_CELLS + 2, 2) of a tag and its quiet zone, in cell coordinates, and which of them
 # are the quiet zone's ring and the black border's
@@ -124,6 +129,10 @@ ARUCO_CORRECTION_RATE = 0.4  # of the dictionary's maxCorrectionBits (5): aruco 
 MIN_CELL_PX = 1.0
 MIN_REACH_PX = 0.75  # edge profiles reach 0.45 cell either side of the edge, at least this far (at most 4 px)
 COARSE_REACH_PX = 2.0  # ... and in a first pass on a coarse quad of a small tag
+# ... at most MAX_REACH_PX; but a quad of a large tag found on the photo halved twice may be 4-7 px off (issue 30: a
+# 68 px tag of 25 grey levels, which only that level finds): where the passes fail on a quad of cells of LARGE_CELL_PX
+# or more, they are tried again after a first pass reaching 0.9 cell, up to COARSE_MAX_REACH_PX
+MAX_REACH_PX, COARSE_MAX_REACH_PX, LARGE_CELL_PX = 4.0, 8.0, 5.0
 MIN_EDGE_INSIDE = 0.5  # a tag cut by the photo's edge: each of its edges at least half inside, to fix its line
 # of the black border's 28 cells, all but a cut corner's few inside the photo (the corner cell and a neighbour or two
 # along each edge; small tags lose more of them to the photo's edge than large ones, as cells are read on their middle)
@@ -283,10 +292,15 @@ def _read_candidates(search: _Search, candidates: list[tuple[np.ndarray, int | N
         if tag_id is None and hidden_by is None and (search.tried_before(quad) or _plain_dark(gray, quad)):
             continue
         read_id, refined, wrong = _refine_and_read(gray, quad, tag_id, hidden_by)
-        if try_quiet_zone and tag_id is None and refined is None and _contrast(gray, _inside_quiet_zone(quad)) > 0:
+        for outline in OUTLINES_AROUND_SQUARE if try_quiet_zone and tag_id is None and read_id is None else ():
             # a tag on a darker background: the quad may be its quiet zone's outline, one cell outside the black square
-            # (whose edges, light inside, cannot be located as a black square's are), if that square is darker
-            read_id, refined, wrong = _refine_and_read(gray, _inside_quiet_zone(quad), None)
+            # (or two, blurred), whose edges, light inside, cannot be located as a black square's are, if that square
+            # is darker
+            square = _inside_quiet_zone(quad, outline)
+            if _contrast(gray, square) > 0:
+                read_id, refined, wrong = _refine_and_read(gray, square, None)
+                if read_id is not None:
+                    break
         if refined is None or read_id is None or _edge_inside_fraction(gray, refined).min() < MIN_EDGE_INSIDE:
             continue
         if wrong > REPORTED_BITS or _narrowest_cell(refined) < MIN_CELL_PX:
@@ -423,9 +437,10 @@ def _shortest_side(quad: np.ndarray) -> float:
     return float(np.min(np.linalg.norm(quad - quad[PREVIOUS_CORNER], axis=1)))
 
 
-def _inside_quiet_zone(outline: np.ndarray) -> np.ndarray:
-    """The black square's corners (4, 2) of a tag whose quiet zone's outer outline is `outline`, in perspective."""
-    return _tag_points(outline, TAG_SQUARE, frame=QUIET_ZONE_OUTLINE)
+def _inside_quiet_zone(outline: np.ndarray, frame: np.ndarray = QUIET_ZONE_OUTLINE) -> np.ndarray:
+    """The black square's corners (4, 2) of a tag whose quiet zone's outer outline is `outline`, in perspective (`frame`:
+    that outline in the tag's cell coordinates)."""
+    return _tag_points(outline, TAG_SQUARE, frame=frame)
 
 
 def detect_expected_tags(gray: np.ndarray, expected: dict[int, np.ndarray], min_side_px: float = 12.0) -> list[TagDetection]:
@@ -601,15 +616,20 @@ def _refine(image: np.ndarray, quad: np.ndarray) -> tuple[np.ndarray | None, flo
     refined, moved = _refine_passes(image, quad, [MIN_REACH_PX] * REFINE_PASSES)
     if refined is None and _profile_reach(quad, MIN_REACH_PX) < COARSE_REACH_PX:
         refined, moved = _refine_passes(image, quad, [COARSE_REACH_PX] + [MIN_REACH_PX] * REFINE_PASSES)
+    elif refined is None and _narrowest_cell(quad) >= LARGE_CELL_PX:
+        refined, moved = _refine_passes(image, quad, [0.9 * _narrowest_cell(quad)] + [MIN_REACH_PX] * REFINE_PASSES,
+                                        [COARSE_MAX_REACH_PX] + [MAX_REACH_PX] * REFINE_PASSES)
     return refined, moved
 
 
-def _refine_passes(image: np.ndarray, quad: np.ndarray, min_reaches: list[float]) -> tuple[np.ndarray | None, float]:
-    """Corners refined by one pass of edge fits per entry of `min_reaches` (each pass's shortest profile reach, px), and
-    how far the last pass moved them the most; (None, inf) when a pass cannot locate the edges."""
+def _refine_passes(image: np.ndarray, quad: np.ndarray, min_reaches: list[float], max_reaches: list[float] | None = None
+                   ) -> tuple[np.ndarray | None, float]:
+    """Corners refined by one pass of edge fits per entry of `min_reaches` (each pass's shortest profile reach, px; its
+    longest, of `max_reaches`, MAX_REACH_PX by default), and how far the last pass moved them the most; (None, inf) when
+    a pass cannot locate the edges."""
     moved = np.inf
-    for min_reach in min_reaches:
-        lines = _fit_edges(image, quad, min_reach)
+    for min_reach, max_reach in zip(min_reaches, max_reaches or [MAX_REACH_PX] * len(min_reaches)):
+        lines = _fit_edges(image, quad, min_reach, max_reach)
         if lines is None:
             return None, np.inf
         new = _corners(lines)
@@ -634,7 +654,7 @@ def _settle(image: np.ndarray, quad: np.ndarray, moved: float) -> np.ndarray:
     return quad
 
 
-def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
+def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float, max_reach: float = MAX_REACH_PX):
     """The four edges of `quad` as lines, points and unit directions (4, 2) each, from the intensity-gradient peaks
     of profiles across them (None when an edge has fewer than four).
 
@@ -646,7 +666,7 @@ def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
     normals = np.column_stack([-directions[:, 1], directions[:, 0]])
     outward = np.einsum("ij,ij->i", normals, (starts + ends) / 2 - quad.mean(axis=0))
     normals *= np.where(outward < 0, -1.0, 1.0)[:, None]
-    reach = _profile_reach(quad, min_reach)
+    reach = _profile_reach(quad, min_reach, max_reach)
     offsets = np.linspace(-reach, reach, 2 * int(np.ceil(4 * reach)) + 1)
     samples = int(np.clip(0.7 * np.linalg.norm(ends - starts, axis=1).mean() / EDGE_SAMPLE_SPACING_PX, EDGE_SAMPLES,
                           MAX_EDGE_SAMPLES))
@@ -690,14 +710,15 @@ def _fit_edges(image: np.ndarray, quad: np.ndarray, min_reach: float):
     return means, np.column_stack([np.cos(angle), np.sin(angle)])
 
 
-def _profile_reach(quad: np.ndarray, min_reach: float) -> float:
-    """How far (px) the edge profiles reach either side of an edge: 0.45 of the narrowest cell, in [min_reach, 4].
+def _profile_reach(quad: np.ndarray, min_reach: float, max_reach: float = MAX_REACH_PX) -> float:
+    """How far (px) the edge profiles reach either side of an edge: 0.45 of the narrowest cell, in [min_reach,
+    max_reach].
 
     Cells are measured along the edges' normals (the depth of the tag from each edge to the opposite one's middle), as
     the profiles run: a tag seen at a grazing angle is a thin sheared quad whose cells are far narrower across than its
     side lengths say, and longer profiles would cross the cells inside and the background beyond the quiet zone.
     """
-    return float(np.clip(0.45 * _narrowest_cell(quad), min_reach, 4.0))
+    return float(np.clip(0.45 * _narrowest_cell(quad), min_reach, max_reach))
 
 
 def _narrowest_cell(quad: np.ndarray) -> float:
