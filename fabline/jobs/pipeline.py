@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, Callable
 from fabline.errors import FablineError
 from fabline.fileio import OutputSet, atomic_output, check_outputs, read_json, write_json
 from fabline.jobs.jobfile import JobSpec, load_job_file, nest_options, toolpath_options, unroll_options
+from fabline.jobs.report_analysis import ANALYSIS_NAME
 from fabline.jobs.report_shop import machine_seconds
 from fabline.progress import Eta, StreamBar, above_bars, estimate, simulated_speedup
 from fabline.units import duration, mm
@@ -207,9 +208,6 @@ def _unroll(result: JobResult) -> None:
         write_previews(result.partset, spec.output("previews"))
     result.structure = [{k: v for k, v in row.items() if k != "intervals"}
                         for row in result.partset.report.get("lamellas", [])]
-
-
-ANALYSIS_NAME = "analysis.json"
 
 
 def _analyse(result: JobResult) -> None:

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from fabline.jobs import report_shop
+from fabline.jobs.report_analysis import ANALYSIS_NAME, analysis_data, analysis_section
 from fabline.jobs.pictures import model_svg
 from fabline.mechanics.structure import CHECKS, VERDICT_RULE, percent, verdict_lines
 from fabline.model.extent import plan_extent_m, extent_text
@@ -77,6 +78,7 @@ def report_data(result: Any) -> dict[str, Any]:
                    "executed": sum(s["executed"] for s in result.stream),
                    "finished": bool(result.stream) and all(s["outcome"] == "finished" for s in result.stream)},
         "assembly": getattr(result, "assembly", None),
+        "analysis": analysis_data(getattr(result, "analysis", None), str(spec.output(ANALYSIS_NAME))),
         "survey": result.survey,
         "timings_s": result.timings,
     }
@@ -108,6 +110,7 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
     parts.append(report_shop.bom_section(data["bill_of_materials"]))
     parts.append(_structure_table(data["structure"]))
     parts.append(_edge_table(data["edge_members"]))
+    parts.append(analysis_section(result.network, getattr(result, "analysis", None), data["analysis"]))
     parts.append(_assembly_section(data["assembly"], folder))
     estimates = {s["id"]: s["time_s"] for s in data["nesting"]["sheets"] if "time_s" in s} if data["nesting"] else {}
     parts.append(report_shop.stream_table(data["stream"], estimates))
