@@ -37,7 +37,7 @@ NAME_MAX = 100
 their prefix), which must stay under the file systems' 255 bytes."""
 """Bytes a job file may have (a job file is a page of TOML; anything larger is a mistake or an attack)."""
 _TYPE_NAMES = {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
-               dict: "a table", object: "a number or a string"}
+               dict: "a table", object: "a number or a string", (bool, str): "true, false or a string"}
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,7 @@ class Key:
     """One allowed key of a table: its type, whether it must be given, and its default; a length key (`unit` set)
     takes a number in that unit or a string with a unit (`"25 cm"`), as the command line's option does."""
 
-    kind: type
+    kind: type | tuple[type, ...]
     required: bool = False
     default: Any = None
     unit: str | None = None
@@ -91,7 +91,7 @@ SCHEMA: dict[str, Any] = {
     "assembly": {"segments": Key(int), "max_segment": Length()},
     "survey": {"result": Key(str), "simulate": Key(bool, default=False), "photos": Key(int), "resolution": Key(str),
                "coverage": Key(float), "sag_mm": Length(), "seed": Key(int), "tolerance_mm": Length(),
-               "reference": Key(str), "scale_bars": Key(int)},
+               "reference": Key(str), "scale_bars": Key(int), "plan": Key((bool, str))},
     # the analyse stage's settings, `fabline analyse`'s options under their own names (--no-buckling is buckling)
     "analysis": {"snow": Key(object, default=0.75), "wind": Key(object, default=0.5), "person": Key(object, default=1000.0),
                  "gamma_g": Key(float, default=1.35), "gamma_q": Key(float, default=1.5),
@@ -103,7 +103,7 @@ ALIASES = {"nest": {"margin": "sheet_margin"}}
 """Old key names that still work, per table: old -> canonical (the command line's option name)."""
 
 SIMULATED_SURVEY_DEFAULTS = {"photos": 12, "resolution": "3600x2400", "coverage": 0.7, "sag_mm": 25.0, "seed": 1,
-                             "tolerance_mm": 20.0, "reference": "all", "scale_bars": 0}
+                             "tolerance_mm": 20.0, "reference": "all", "scale_bars": 0, "plan": False}
 """The `[survey]` keys of a simulated survey (`simulate = true`) and their defaults; they mean nothing without it."""
 
 
@@ -176,6 +176,8 @@ def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
     for section, key in (("lamella", "materials_file"), ("stock", "file"), ("survey", "result")):
         if data[section][key] is not None:
             data[section][key] = str(_existing(base, data[section][key], f"{where}: {section}.{key}"))
+    if isinstance(data["survey"]["plan"], str):
+        data["survey"]["plan"] = str(_existing(base, data["survey"]["plan"], f"{where}: survey.plan"))
     survey = _check_survey(data["survey"], where)
     stages = _check_stages(data["stages"] if "stages" in raw else _default_stages(survey), where)
     if ("survey" in stages) != survey["simulate"]:
@@ -263,7 +265,8 @@ def _typed(value: Any, kind: type, where: str, key_path: str, unit: str | None =
             raise FablineError(f"{where}: {key_path}: {exc}") from None
     if kind is float and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
-    if isinstance(value, kind) and not (kind is not bool and isinstance(value, bool)):
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if isinstance(value, kinds) and not (bool not in kinds and isinstance(value, bool)):
         return value
     raise FablineError(f"{where}: {key_path}: expected {_TYPE_NAMES[kind]}, got {_type_name(value)} {value!r}")
 
@@ -312,6 +315,7 @@ def _check_survey(survey: dict[str, Any], where: str) -> dict[str, Any]:
         return {"result": survey["result"], "simulate": False}
     checked = {"result": None, "simulate": True,
                **{key: default if survey[key] is None else survey[key] for key, default in SIMULATED_SURVEY_DEFAULTS.items()}}
+    _check_plan(survey, checked, where)
     try:
         width, height = parse_resolution(checked["resolution"])
     except FablineError as exc:
@@ -365,6 +369,26 @@ def _quantity(value: Any, unit: str, where: str) -> float:
     if not 0.0 <= number < math.inf:
         raise FablineError(f"{where}: must not be negative, got {value!r}")
     return number
+
+
+def _check_plan(survey: dict[str, Any], checked: dict[str, Any], where: str) -> None:
+    """`survey.plan`: true (plan the stations from the design, `fabline survey plan`, the photos one per station) or a
+    plan file (its camera's resolution and its stations' count are the photos'), neither with `survey.photos`."""
+    plan = checked["plan"]
+    if plan is False:
+        return
+    for key in ("photos",) + (("resolution",) if isinstance(plan, str) else ()):
+        if survey[key] is not None:
+            raise FablineError(f"{where}: survey.{key}: the plan sets it (one photo per station"
+                               + (", its camera's resolution" if key == "resolution" else "") + "); leave it out")
+    if isinstance(plan, str):
+        from fabline.survey.plan import load_plan_poses
+
+        try:
+            camera, poses = load_plan_poses(plan)
+        except FablineError as exc:
+            raise FablineError(f"{where}: survey.plan: {exc}") from None
+        checked["photos"], checked["resolution"] = len(poses), f"{camera.width}x{camera.height}"
 
 
 DEFAULT_MAX_SEGMENT_MM = 5000.0

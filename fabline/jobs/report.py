@@ -273,8 +273,12 @@ def _truth_table(truth: dict[str, Any], simulated: dict[str, Any], summary: dict
             ("pass/fail as the truth", f"{truth['pass_fail_agreement']} of {truth['nodes_compared']} nodes"
                                        f" ({truth.get('uncertain', 0)} uncertain, {truth.get('wrong_verdicts', 0)} wrong)")]
     body = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(v))}</td></tr>" for k, v in rows)
-    return (f"<p>Simulated survey: {simulated['photos']} photos of {html.escape(simulated['resolution'])} px "
-            f"({simulated['tag_views']} tag views) of the shell built with a {injected['kind']} of "
+    placed = (f" from the photo plan's stations ({html.escape(simulated['plan'])})" if simulated.get("plan")
+              else " from the simulator's own camera placement")
+    twice = (f"; {simulated['seen_twice']} of {simulated['tagged_nodes']} tagged nodes in 2 or more photos"
+             if "seen_twice" in simulated else "")
+    return (f"<p>Simulated survey: {simulated['photos']} photos of {html.escape(simulated['resolution'])} px{placed} "
+            f"({simulated['tag_views']} tag views{twice}) of the shell built with a {injected['kind']} of "
             f"{injected['amplitude_mm']:g} mm, rendered in {simulated['render_s']:.1f} s and measured in "
             f"{simulated['measure_s']:.1f} s; compared with the injected truth on the {truth['nodes_compared']} measured "
             f"nodes:</p><table id=survey-truth>{body}</table>")
