@@ -51,4 +51,14 @@ def summary(solution: Solution, section: Section, f_y: float, names: list[str], 
             "reactions": reactions, "max_reaction_kN": reactions[0]["resultant_kN"] if reactions else 0.0,
             "reaction_sum_kN": (sum(solution.reactions.values())[:3] / 1000.0).round(6).tolist() if reactions else [],
             "max_utilisation": round(float(use[at]), 4), "max_utilisation_at": beam_names[at],
+            "utilisation_by_strip": by_strip(use, beam_names),
             "cable_max_kN": round(float(solution.cable_forces.max()) / 1000.0, 4) if len(solution.cable_forces) else None}
+
+
+def by_strip(values: np.ndarray, beam_names: list[str]) -> dict[str, float]:
+    """The largest of a per-beam figure along each strip (`STRIP beam K` names): what a plan picture colours a strip by."""
+    out: dict[str, float] = {}
+    for name, value in zip(beam_names, values.tolist()):
+        strip = name.rsplit(" beam ", 1)[0]
+        out[strip] = max(out.get(strip, 0.0), round(value, 4))
+    return out

@@ -37,39 +37,16 @@ def run_analyse(args: argparse.Namespace) -> int:
     network = load_network(args.model).in_mm()
     partset = load_parts(args.parts)
     from fabline.analysis.loads import LoadSettings
-    from fabline.analysis.model import ModelOptions
-    from fabline.analysis.run import analyse
+    from fabline.analysis.parts import analyse_parts, case_lines
     from fabline.fileio import write_json
-    from fabline.geometry.darboux import analyse as geometry_of
-    from fabline.mechanics.hardware import load_catalogue
-    from fabline.mechanics.materials import Profile, get_material
 
-    try:
-        profile = Profile(float(partset.profile["h"]), float(partset.profile["t"]))
-    except (KeyError, TypeError, ValueError):
-        raise FablineError(f"{args.parts}: profile: expected h and t in mm") from None
-    material = get_material(partset.material, args.materials)
-    unrolled = partset.report.get("options", {})
-    runs = tuple(tuple(run["nodes"]) for run in partset.cables)
-    unknown = sorted({n for run in runs for n in run} - set(network.nodes))
-    if unknown:
-        raise FablineError(f"{args.parts}: cables: node {unknown[0]} is not in {args.model} (unrolled from another model?)")
-    options = ModelOptions(stations=args.stations, pair_spacing=float(unrolled.get("pair_spacing_mm", 25.0)),
-                           supports=args.supports, cables=runs, cable=load_catalogue().cable,
-                           cable_prestrain=float(unrolled.get("cable_pretension_mm_per_m", 0.0)) / 1000.0)
-    if not any(node.kind == "support" for node in network.nodes.values()):
-        raise FablineError(f"{args.model}: no node is a support (node kind 'support'): the frame would float")
     settings = LoadSettings(snow=args.snow, wind=args.wind, person=args.person)
-    record = analyse(geometry_of(network), material, profile, options, settings, buckling=not args.no_buckling)
+    record = analyse_parts(network, partset, settings, supports=args.supports, stations=args.stations,
+                           buckling=not args.no_buckling, materials_file=args.materials, where=(args.model, args.parts))
     write_json(args.output, {"schema": "fabline.analysis/1", "units": "mm, N, N/mm2 (reactions kN)",
                              "model_file": args.model, "parts_file": args.parts, **record})
-    for name, case in record["cases"].items():
-        print(f"{name:<32} max deflection {case['max_deflection_mm']:8.2f} mm at {case['max_deflection_node']:<10} "
-              f"largest reaction {case['max_reaction_kN']:7.3f} kN  utilisation {100 * case['max_utilisation']:6.1f} %"
-              + ("" if case["converged"] else "  (NOT CONVERGED)"))
-    if "buckling" in record:
-        print(f"buckling factor {record['buckling']['factor']:.3f} on {record['buckling']['case']} "
-              f"(mode largest at {record['buckling']['mode_peak_node']})")
+    for line in case_lines(record):
+        print(line)
     print(f"{args.output}: {record['model']['nodes']} nodes, {record['model']['beams']} beams, "
           f"{sum(record['seconds'].values()):.1f} s")
     _warn_unverified(record)

@@ -26,7 +26,7 @@ if TYPE_CHECKING:  # the nesting stage pulls in shapely; a job file is read befo
     from fabline.nest.nester import NestOptions
     from fabline.unroll.options import UnrollOptions
 
-STAGES = ("unroll", "assembly", "nest", "export", "stream", "survey", "report")
+STAGES = ("unroll", "analyse", "assembly", "nest", "export", "stream", "survey", "report")
 """Pipeline stages after the model, in the order they run; a job lists the ones it wants."""
 
 DEFAULT_STAGES = ("unroll", "nest", "export", "stream", "report")
@@ -38,7 +38,7 @@ NAME_MAX = 100
 their prefix), which must stay under the file systems' 255 bytes."""
 """Bytes a job file may have (a job file is a page of TOML; anything larger is a mistake or an attack)."""
 _TYPE_NAMES = {str: "a string", int: "an integer", float: "a number", bool: "true or false", list: "a list",
-               dict: "a table", object: "a number or a string"}
+               dict: "a table", object: "a number or a string", (bool, str): "true, false or a string"}
 
 
 @dataclass(frozen=True)
@@ -46,7 +46,7 @@ class Key:
     """One allowed key of a table: its type, whether it must be given, and its default; a length key (`unit` set)
     takes a number in that unit or a string with a unit (`"25 cm"`), as the command line's option does."""
 
-    kind: type
+    kind: type | tuple[type, ...]
     required: bool = False
     default: Any = None
     unit: str | None = None
@@ -92,14 +92,19 @@ SCHEMA: dict[str, Any] = {
     "assembly": {"segments": Key(int), "max_segment": Length()},
     "survey": {"result": Key(str), "simulate": Key(bool, default=False), "photos": Key(int), "resolution": Key(str),
                "coverage": Key(float), "sag_mm": Length(), "seed": Key(int), "tolerance_mm": Length(),
-               "reference": Key(str), "scale_bars": Key(int)},
+               "reference": Key(str), "scale_bars": Key(int), "plan": Key((bool, str))},
+    # the analyse stage's settings, `fabline analyse`'s options under their own names (--no-buckling is buckling)
+    "analysis": {"snow": Key(object, default=0.75), "wind": Key(object, default=0.5), "person": Key(object, default=1000.0),
+                 "gamma_g": Key(float, default=1.35), "gamma_q": Key(float, default=1.5),
+                 "supports": Key(str, default="pinned"), "stations": Key(int, default=2),
+                 "buckling": Key(bool, default=True)},
 }
 
 ALIASES = {"nest": {"margin": "sheet_margin"}}
 """Old key names that still work, per table: old -> canonical (the command line's option name)."""
 
 SIMULATED_SURVEY_DEFAULTS = {"photos": 12, "resolution": "3600x2400", "coverage": 0.7, "sag_mm": 25.0, "seed": 1,
-                             "tolerance_mm": 20.0, "reference": "all", "scale_bars": 0}
+                             "tolerance_mm": 20.0, "reference": "all", "scale_bars": 0, "plan": False}
 """The `[survey]` keys of a simulated survey (`simulate = true`) and their defaults; they mean nothing without it."""
 
 
@@ -122,6 +127,7 @@ class JobSpec:
     unroll: dict[str, Any] = field(default_factory=dict)
     export: dict[str, Any] = field(default_factory=dict)
     assembly: dict[str, Any] = field(default_factory=dict)
+    analysis: dict[str, Any] = field(default_factory=dict)
 
     def output(self, relative: str | os.PathLike) -> Path:
         """An output path inside the job's output folder; a path that would leave it is a FablineError."""
@@ -133,7 +139,7 @@ class JobSpec:
                 "model": self.model, "lamella": self.lamella, "stock": self.stock, "unroll": self.unroll,
                 "nest": self.nest, "export": self.export,
                 "machine": self.machine, "output": {"folder": str(self.output_folder), "report": self.report_name},
-                "survey": self.survey, "assembly": self.assembly}
+                "survey": self.survey, "assembly": self.assembly, "analysis": self.analysis}
 
 
 def inside(folder: Path, relative: str | os.PathLike, where: str) -> Path:
@@ -174,12 +180,15 @@ def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
     for section, key in (("lamella", "materials_file"), ("stock", "file"), ("survey", "result")):
         if data[section][key] is not None:
             data[section][key] = str(_existing(base, data[section][key], f"{where}: {section}.{key}"))
+    if isinstance(data["survey"]["plan"], str):
+        data["survey"]["plan"] = str(_existing(base, data["survey"]["plan"], f"{where}: survey.plan"))
     survey = _check_survey(data["survey"], where)
     stages = _check_stages(data["stages"] if "stages" in raw else _default_stages(survey), where)
     if ("survey" in stages) != survey["simulate"]:
         raise FablineError(f"{where}: stages: 'survey' needs survey.simulate = true" if "survey" in stages else
                            f"{where}: survey.simulate: true but 'survey' is not in stages")
     assembly = _check_assembly(data["assembly"], "assembly" in stages, where)
+    analysis = _check_analysis(data["analysis"], where)
     data["machine"]["ports"] = _check_ports(data["machine"], where)
     if data["machine"]["profile"].endswith(".toml"):
         data["machine"]["profile"] = str(_existing(base, data["machine"]["profile"], f"{where}: machine.profile"))
@@ -190,7 +199,8 @@ def job_from_dict(raw: dict[str, Any], path: Path) -> JobSpec:
     spec = JobSpec(path=path.resolve(), name=data["name"], description=data["description"], stages=stages, model=model,
                    lamella=data["lamella"], stock=data["stock"], nest=data["nest"], machine=data["machine"],
                    output_folder=folder.resolve(), report_name=data["output"]["report"], survey=survey,
-                   unroll=data["unroll"], export=data["export"], assembly=assembly)
+                   unroll=data["unroll"], export=data["export"], assembly=assembly,
+                   analysis=analysis)
     if spec.nest["stock_out"] is not None:
         spec.output(spec.nest["stock_out"])  # refused here if it would leave the output folder
     _check_port_files(spec, where)
@@ -259,7 +269,8 @@ def _typed(value: Any, kind: type, where: str, key_path: str, unit: str | None =
             raise FablineError(f"{where}: {key_path}: {exc}") from None
     if kind is float and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
-    if isinstance(value, kind) and not (kind is not bool and isinstance(value, bool)):
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if isinstance(value, kinds) and not (bool not in kinds and isinstance(value, bool)):
         return value
     raise FablineError(f"{where}: {key_path}: expected {_TYPE_NAMES[kind]}, got {_type_name(value)} {value!r}")
 
@@ -278,7 +289,7 @@ def _check_stages(stages: list, where: str) -> tuple[str, ...]:
             raise FablineError(f"{where}: stages[{k}]: unknown stage {stage!r} (use some of {', '.join(STAGES)})")
     if len(set(stages)) != len(stages):
         raise FablineError(f"{where}: stages: a stage is listed twice")
-    for stage, needs in (("assembly", "unroll"), ("nest", "unroll"), ("export", "nest"), ("stream", "export")):
+    for stage, needs in (("analyse", "unroll"), ("assembly", "unroll"), ("nest", "unroll"), ("export", "nest"), ("stream", "export")):
         if stage in stages and needs not in stages:
             raise FablineError(f"{where}: stages: '{stage}' needs '{needs}' in the same job")
     return tuple(s for s in STAGES if s in stages)
@@ -308,6 +319,7 @@ def _check_survey(survey: dict[str, Any], where: str) -> dict[str, Any]:
         return {"result": survey["result"], "simulate": False}
     checked = {"result": None, "simulate": True,
                **{key: default if survey[key] is None else survey[key] for key, default in SIMULATED_SURVEY_DEFAULTS.items()}}
+    _check_plan(survey, checked, where)
     try:
         width, height = parse_resolution(checked["resolution"])
     except FablineError as exc:
@@ -325,6 +337,62 @@ def _check_survey(survey: dict[str, Any], where: str) -> dict[str, Any]:
     if checked["reference"] not in ("all", "supports"):
         raise FablineError(f"{where}: survey.reference: {checked['reference']!r} must be 'all' or 'supports'")
     return checked
+
+
+LOAD_UNITS = {"kN/m2": {"kN/m2": 1.0, "kPa": 1.0, "N/m2": 1e-3, "Pa": 1e-3}, "N": {"N": 1.0, "kN": 1000.0}}
+"""The analysis's load keys' units: a number is in the first (kN/m2 for snow and wind, N for the person), a string
+names its unit (`"750 N/m2"`, `"1 kN"`)."""
+_QUANTITY = re.compile(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z/0-9]+)\s*")
+
+
+def _check_analysis(analysis: dict[str, Any], where: str) -> dict[str, Any]:
+    """The analyse stage's settings: loads with units (snow and wind in kN/m2, the person in N), partial factors at
+    least 1, supports pinned or fixed, 1 to 16 beams per node interval."""
+    checked = dict(analysis)
+    for key, unit in (("snow", "kN/m2"), ("wind", "kN/m2"), ("person", "N")):
+        checked[key] = _quantity(analysis[key], unit, f"{where}: analysis.{key}")
+    for key, ok, rule in (("gamma_g", 1.0 <= analysis["gamma_g"] < 10, "must be 1 to 10"),
+                          ("gamma_q", 1.0 <= analysis["gamma_q"] < 10, "must be 1 to 10"),
+                          ("stations", 1 <= analysis["stations"] <= 16, "must be 1 to 16"),
+                          ("supports", analysis["supports"] in ("pinned", "fixed"), "must be 'pinned' or 'fixed'")):
+        if not ok:
+            raise FablineError(f"{where}: analysis.{key}: {rule}, got {analysis[key]!r}")
+    return checked
+
+
+def _quantity(value: Any, unit: str, where: str) -> float:
+    """A load in `unit` from a number (in `unit`) or a string with one of LOAD_UNITS[unit]; not negative."""
+    units = LOAD_UNITS[unit]
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        number = float(value)
+    elif isinstance(value, str) and (match := _QUANTITY.fullmatch(value)) and match.group(2) in units:
+        number = float(match.group(1)) * units[match.group(2)]
+    else:
+        raise FablineError(f"{where}: expected a number in {unit} or a string with a unit "
+                           f"({', '.join(units)}), got {value!r}")
+    if not 0.0 <= number < math.inf:
+        raise FablineError(f"{where}: must not be negative, got {value!r}")
+    return number
+
+
+def _check_plan(survey: dict[str, Any], checked: dict[str, Any], where: str) -> None:
+    """`survey.plan`: true (plan the stations from the design, `fabline survey plan`, the photos one per station) or a
+    plan file (its camera's resolution and its stations' count are the photos'), neither with `survey.photos`."""
+    plan = checked["plan"]
+    if plan is False:
+        return
+    for key in ("photos",) + (("resolution",) if isinstance(plan, str) else ()):
+        if survey[key] is not None:
+            raise FablineError(f"{where}: survey.{key}: the plan sets it (one photo per station"
+                               + (", its camera's resolution" if key == "resolution" else "") + "); leave it out")
+    if isinstance(plan, str):
+        from fabline.survey.plan import load_plan_poses
+
+        try:
+            camera, poses = load_plan_poses(plan)
+        except FablineError as exc:
+            raise FablineError(f"{where}: survey.plan: {exc}") from None
+        checked["photos"], checked["resolution"] = len(poses), f"{camera.width}x{camera.height}"
 
 
 DEFAULT_MAX_SEGMENT_MM = 5000.0

@@ -186,3 +186,50 @@ def _progress_layers(program: str, mtime: float, background: str, stamp: float) 
     head = (f'<svg xmlns="http://www.w3.org/2000/svg" font-family="sans-serif" viewBox="0 0 {_fmt(width)} {_fmt(height)}" '
             f'data-lines="{len(moves)}"')
     return head, inner, tuple(polylines), (tuple(origin), scale, width)
+
+
+def value_plan_svg(network: "Network", values: dict[str, float], unit: str, title: str, width: int = 520) -> str:
+    """The network seen from above (x right, y up), coloured by a figure per node (dots) or per lamella (its curve;
+    a lamella takes the largest of its strips, `ID` or `ID-suffix`), blue at 0 to red at the largest, with a scale."""
+    top = max(max(values.values(), default=0.0), 1e-12)
+    lamella_ids = {lam.id for lam in network.lamellas}
+    per_lamella = {lam.id: max((v for k, v in values.items() if k == lam.id or k.startswith(lam.id + "-")), default=None)
+                   for lam in network.lamellas}
+    nodes = {k: v for k, v in values.items() if k in network.nodes and k not in lamella_ids}
+    every = np.vstack([lam.curve[:, :2] for lam in network.lamellas])
+    lo, hi = every.min(axis=0), every.max(axis=0)
+    scale = (width - 40) / max(hi[0] - lo[0], 1e-9)
+    height = int((hi[1] - lo[1]) * scale) + 40
+
+    def to_screen(xy: np.ndarray) -> np.ndarray:
+        return np.column_stack([(xy[:, 0] - lo[0]) * scale + 20, (hi[1] - xy[:, 1]) * scale + 20])
+
+    shapes = []
+    for lam in network.lamellas:
+        value = per_lamella[lam.id]
+        colour, stroke = ("#bbb", 1.0) if value is None else (_ramp(value / top), 2.4)
+        tip = lam.id if value is None else f"{lam.id}: {value:.3g} {unit}"
+        shapes.append(f'<polyline points="{_points(to_screen(lam.curve[:, :2]))}" fill="none" stroke="{colour}" '
+                      f'stroke-width="{stroke}"><title>{html.escape(tip)}</title></polyline>')
+    for node, value in nodes.items():
+        (x, y), = to_screen(np.asarray(network.nodes[node].xyz)[None, :2])
+        shapes.append(f'<circle cx="{_fmt(x)}" cy="{_fmt(y)}" r="4" fill="{_ramp(value / top)}" data-node="{html.escape(node)}" '
+                      f'data-value="{value:.6g}"><title>{html.escape(node)}: {value:.3g} {unit}</title></circle>')
+    stops = "".join(f'<stop offset="{k / 4:g}" stop-color="{_ramp(k / 4)}"/>' for k in range(5))
+    bar = (f'<defs><linearGradient id="ramp">{stops}</linearGradient></defs>'
+           f'<rect class="scale" x="20" y="{height + 4}" width="200" height="10" fill="url(#ramp)"/>'
+           f'<text x="20" y="{height + 28}" font-size="12">0</text>'
+           f'<text x="220" y="{height + 28}" font-size="12" text-anchor="end" class="scale-max">{top:.3g} {html.escape(unit)}</text>'
+           f'<text x="240" y="{height + 14}" font-size="13" fill="#333">{html.escape(title)}</text>')
+    return (f'<svg xmlns="http://www.w3.org/2000/svg" class="value-plan" viewBox="0 0 {width} {height + 36}" '
+            f'width="{width}" height="{height + 36}" data-max="{top:.6g}" data-unit="{html.escape(unit)}">'
+            f'<rect width="100%" height="100%" fill="#fbfbf8"/>' + "".join(shapes) + bar + "</svg>")
+
+
+def _ramp(fraction: float) -> str:
+    """Blue (0) through green and yellow to red (1), clipped to [0, 1]."""
+    stops = np.array([[49, 54, 149], [69, 177, 117], [254, 224, 76], [215, 48, 39]], dtype=float)
+    f = min(max(fraction, 0.0), 1.0) * (len(stops) - 1)
+    k = min(int(f), len(stops) - 2)
+    r, g, b = stops[k] + (stops[k + 1] - stops[k]) * (f - k)
+    return f"#{int(round(r)):02x}{int(round(g)):02x}{int(round(b)):02x}"

@@ -1,4 +1,4 @@
-"""The main job: model -> unroll -> nest -> export -> stream -> survey -> report, every output inside the job's folder.
+"""The main job: model -> unroll -> analyse -> nest -> export -> stream -> survey -> report, every output inside the job's folder.
 
 `prepare_job` runs the stages up to export (what the runner does before any sheet is cut) and writes a
 report; `run_job` also streams every sheet to the job's machine (the built-in simulator by default), runs
@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, Callable
 from fabline.errors import FablineError
 from fabline.fileio import OutputSet, atomic_output, check_outputs, read_json, write_json
 from fabline.jobs.jobfile import JobSpec, load_job_file, nest_options, toolpath_options, unroll_options
+from fabline.jobs.report_analysis import ANALYSIS_NAME
 from fabline.jobs.report_shop import machine_seconds
 from fabline.progress import Eta, StreamBar, above_bars, estimate, simulated_speedup
 from fabline.units import duration, mm
@@ -44,6 +45,7 @@ class JobResult:
     sheet_files: list[dict] = field(default_factory=list)
     stream: list[dict] = field(default_factory=list)
     stream_wall_s: float | None = None  # the stream stage's wall time: the machines cut in parallel, never summed
+    analysis: dict | None = None  # the analyse stage's record (analysis.json, fabline.analysis/1)
     assembly: dict | None = None  # the assembly plan's summary and its pages (`fabline.assembly`)
     survey: dict | None = None  # the report's survey entry (fabline.jobs.survey_stage.survey_entry)
     timings: dict[str, float] = field(default_factory=dict)
@@ -99,7 +101,7 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
     spec = job if isinstance(job, JobSpec) else load_job_file(job)
     timings: dict[str, float] = {}
     report = spec.report_name
-    names = ("network.json", "parts.json", "nesting.json", report, Path(report).with_suffix(".json"), BOM_NAME,
+    names = ("network.json", "parts.json", ANALYSIS_NAME, "nesting.json", report, Path(report).with_suffix(".json"), BOM_NAME,
              PLATES_NESTING, PLATES_CUTLIST)
     with OutputSet():  # a stage refused (or Ctrl-C) removes what every stage before it wrote: the folder is as it was
         check_outputs(files=[spec.output(name) for name in names],
@@ -118,6 +120,10 @@ def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) 
             say(f"unroll: {len(result.partset.parts)} parts -> {spec.output('parts.json')}")
             for line in structure_lines(result):
                 say(line)
+        if "analyse" in spec.stages:
+            _timed(result.timings, "analyse", lambda: _analyse(result))
+            for line in analysis_lines(result.analysis):
+                say(f"analyse: {line}")
         if "assembly" in spec.stages:
             _timed(result.timings, "assembly", lambda: _assembly(result))
             plan = result.assembly
@@ -221,6 +227,37 @@ def _unroll(result: JobResult) -> None:
         write_previews(result.partset, spec.output("previews"))
     result.structure = [{k: v for k, v in row.items() if k != "intervals"}
                         for row in result.partset.report.get("lamellas", [])]
+
+
+def _analyse(result: JobResult) -> None:
+    """The erected shell's load analysis on OpenSees (`fabline analyse`) with the job's [analysis] settings, from the
+    unrolled parts; its record into the output folder's analysis.json."""
+    from fabline.analysis.loads import LoadSettings
+    from fabline.analysis.parts import analyse_parts
+
+    spec = result.spec
+    settings = spec.analysis
+    loads = LoadSettings(**{key: settings[key] for key in ("snow", "wind", "person", "gamma_g", "gamma_q")})
+    try:
+        record = analyse_parts(result.network.in_mm(), result.partset, loads, supports=settings["supports"],
+                               stations=settings["stations"], buckling=settings["buckling"],
+                               materials_file=spec.lamella["materials_file"], where=("model", "parts.json"))
+    except FablineError as exc:
+        raise FablineError(f"{spec.path.name}: analyse: {exc}") from None
+    result.analysis = {"schema": "fabline.analysis/1", "units": "mm, N, N/mm2 (reactions kN)",
+                       "model_file": str(spec.output("network.json")), "parts_file": str(spec.output("parts.json")),
+                       **record}
+    write_json(spec.output(ANALYSIS_NAME), result.analysis)
+
+
+def analysis_lines(record: dict | None) -> list[str]:
+    """The analyse stage's lines as `fabline analyse` prints them, and the file's size line (none without it)."""
+    from fabline.analysis.parts import case_lines
+
+    if not record:
+        return []
+    return case_lines(record) + [f"{record['model']['nodes']} nodes, {record['model']['beams']} beams, "
+                                 f"{sum(record['seconds'].values()):.1f} s"]
 
 
 ASSEMBLY_FOLDER = "assembly"

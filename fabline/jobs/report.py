@@ -20,6 +20,7 @@ from typing import Any
 from fabline.assembly.pdf import PDF
 from fabline.jobs import report_shop
 from fabline.jobs.design_stage import design_data, design_section
+from fabline.jobs.report_analysis import ANALYSIS_NAME, analysis_data, analysis_section
 from fabline.jobs.pictures import model_svg
 from fabline.mechanics.structure import CHECKS, VERDICT_RULE, percent, verdict_lines
 from fabline.model.extent import plan_extent_m, extent_text
@@ -80,6 +81,7 @@ def report_data(result: Any) -> dict[str, Any]:
                    "executed": sum(s["executed"] for s in result.stream),
                    "finished": bool(result.stream) and all(s["outcome"] == "finished" for s in result.stream)},
         "assembly": getattr(result, "assembly", None),
+        "analysis": analysis_data(getattr(result, "analysis", None), str(spec.output(ANALYSIS_NAME))),
         "survey": result.survey,
         "timings_s": result.timings,
     }
@@ -112,6 +114,7 @@ def render_report(result: Any, data: dict[str, Any]) -> str:
     parts.append(report_shop.bom_section(data["bill_of_materials"]))
     parts.append(_structure_table(data["structure"]))
     parts.append(_edge_table(data["edge_members"]))
+    parts.append(analysis_section(result.network, getattr(result, "analysis", None), data["analysis"]))
     parts.append(_assembly_section(data["assembly"], folder))
     estimates = {s["id"]: s["time_s"] for s in data["nesting"]["sheets"] if "time_s" in s} if data["nesting"] else {}
     parts.append(report_shop.stream_table(data["stream"], estimates))
@@ -275,8 +278,12 @@ def _truth_table(truth: dict[str, Any], simulated: dict[str, Any], summary: dict
             ("pass/fail as the truth", f"{truth['pass_fail_agreement']} of {truth['nodes_compared']} nodes"
                                        f" ({truth.get('uncertain', 0)} uncertain, {truth.get('wrong_verdicts', 0)} wrong)")]
     body = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(v))}</td></tr>" for k, v in rows)
-    return (f"<p>Simulated survey: {simulated['photos']} photos of {html.escape(simulated['resolution'])} px "
-            f"({simulated['tag_views']} tag views) of the shell built with a {injected['kind']} of "
+    placed = (f" from the photo plan's stations ({html.escape(simulated['plan'])})" if simulated.get("plan")
+              else " from the simulator's own camera placement")
+    twice = (f"; {simulated['seen_twice']} of {simulated['tagged_nodes']} tagged nodes in 2 or more photos"
+             if "seen_twice" in simulated else "")
+    return (f"<p>Simulated survey: {simulated['photos']} photos of {html.escape(simulated['resolution'])} px{placed} "
+            f"({simulated['tag_views']} tag views{twice}) of the shell built with a {injected['kind']} of "
             f"{injected['amplitude_mm']:g} mm, rendered in {simulated['render_s']:.1f} s and measured in "
             f"{simulated['measure_s']:.1f} s; compared with the injected truth on the {truth['nodes_compared']} measured "
             f"nodes:</p><table id=survey-truth>{body}</table>")

@@ -41,13 +41,18 @@ def simulate_and_measure(network: "Network", folder: Path, settings: dict[str, A
     fresh = folder.with_name(folder.name + ".new")  # photos of an earlier, larger set must not be measured
     shutil.rmtree(fresh, ignore_errors=True)
     started = time.perf_counter()
-    truth = simulate_survey(network, fresh, spec)
+    spec, poses = planned(network, fresh, spec, settings["plan"], say)
+    truth = simulate_survey(network, fresh, spec, poses=poses)
     shutil.rmtree(folder, ignore_errors=True)
     fresh.rename(folder)
     rendered = time.perf_counter()
     views = sum(len(photo["visible"]) for photo in truth["photos"])
-    say(f"survey: {spec.photos} photos of {width} x {height} px with {views} tag views rendered in "
-        f"{rendered - started:.1f} s -> {folder / 'photos'}")
+    seen = views_per_tag(truth)
+    tagged = [node["tag"] for node in truth["nodes"].values() if node["tag"] is not None]
+    twice = sum(seen[tag] >= 2 for tag in tagged)
+    source = " from the plan's stations" if poses else ""
+    say(f"survey: {spec.photos} photos of {spec.width} x {spec.height} px{source} with {views} tag views rendered in "
+        f"{rendered - started:.1f} s -> {folder / 'photos'}; {twice} of {len(tagged)} tagged nodes in 2 or more photos")
     bars = scale_bars(truth, settings["scale_bars"])
     options = MeasureOptions(tolerance_mm=settings["tolerance_mm"], reference=settings["reference"],
                              scale_bars=tuple(bars))
@@ -57,7 +62,9 @@ def simulate_and_measure(network: "Network", folder: Path, settings: dict[str, A
     except FablineError as exc:
         raise FablineError(f"survey: measuring the simulated photo set in {folder}: {exc}") from None
     entry = survey_entry(record, folder / "survey.json")
-    entry["simulated"] = {"photos": spec.photos, "resolution": settings["resolution"], "coverage": spec.coverage,
+    entry["simulated"] = {"photos": spec.photos, "resolution": f"{spec.width}x{spec.height}", "coverage": spec.coverage,
+                          "plan": str(folder / "plan.json") if poses else None, "tagged_nodes": len(tagged),
+                          "seen_twice": twice,
                           "sag_mm": spec.sag_mm, "seed": spec.seed, "tag_views": views,
                           "scale_bars": [{"tags": [a, b], "distance_mm": length} for a, b, length in bars],
                           "truth": str(folder / "truth.json"), "render_s": round(rendered - started, 3),
@@ -66,12 +73,46 @@ def simulate_and_measure(network: "Network", folder: Path, settings: dict[str, A
     return entry
 
 
+def planned(network: "Network", folder: Path, spec, plan: bool | str, say: Callable[[str], None]):
+    """The photo set's spec and poses from the job's `survey.plan`: none (False: the simulator places its cameras),
+    stations planned from the design with the spec's camera and tags (True: `fabline survey plan`'s defaults, plan.json
+    and plan.svg into `folder`), or a plan file's camera and stations (copied into `folder` as plan.json)."""
+    from dataclasses import replace
+
+    from fabline.survey import make_tag_map
+    from fabline.survey.photos import check_simulation
+    from fabline.survey.plan import load_plan_poses, plan_survey, save_plan, write_plan_svg
+
+    if plan is False:
+        return spec, None
+    folder.mkdir(parents=True, exist_ok=True)
+    if plan is True:
+        tag_map = make_tag_map(network.in_mm(), spec.tag_size_mm, spec.mount_offset_mm, spec.every)
+        stations = plan_survey(network, tag_map, spec.camera())
+        save_plan(stations, network.name, folder / "plan.json")
+        write_plan_svg(network, stations, folder / "plan.svg")
+        tagged = len(stations.seen_by)
+        say(f"survey: planned {len(stations.stations)} stations (of {stations.candidates} candidates) that see "
+            f"{tagged - len(stations.short)} of {tagged} tagged nodes from 2 or more (plan.json, plan.svg in the survey folder)")
+    else:
+        shutil.copyfile(plan, folder / "plan.json")
+    camera, poses = load_plan_poses(folder / "plan.json")
+    check_simulation(camera.width, camera.height, len(poses), spec.seed,
+                     {"resolution": "survey.plan: camera", "photos": "survey.plan: stations", "seed": "survey.seed"})
+    return replace(spec, photos=len(poses), width=camera.width, height=camera.height, focal_px=camera.focal_px), poses
+
+
+def views_per_tag(truth: dict[str, Any]) -> Counter:
+    """How many photos of a simulated set show each tag in full view."""
+    return Counter(int(tag) for photo in truth["photos"] for tag in photo["visible"])
+
+
 def scale_bars(truth: dict[str, Any], count: int, min_photos: int = 3) -> list[tuple[int, int, float]]:
     """`count` (0 to 2) simulated tape measurements on site: the true distance between the tag centres farthest
     apart along x, then along y, among the tags that are in full view in at least `min_photos` photos."""
     if not count:
         return []
-    seen = Counter(int(tag) for photo in truth["photos"] for tag in photo["visible"])
+    seen = views_per_tag(truth)
     candidates = [(node["tag"], node["tag_centre_mm"]) for node in truth["nodes"].values()
                   if node["tag"] is not None and seen[node["tag"]] >= min_photos]
     if len(candidates) < 2:

@@ -20,7 +20,8 @@ def test_example_job_parses_with_defaults_filled_in():
     assert spec.machine["ports"] == [f"sim://grbl-{k}" for k in range(1, 7)]
     assert spec.stages == ("unroll", "assembly", "nest", "export", "stream", "survey", "report")
     assert spec.survey == {"result": None, "simulate": True, "photos": 12, "resolution": "3600x2400", "coverage": 0.7,
-                           "sag_mm": 40.0, "seed": 1, "tolerance_mm": 20.0, "reference": "all", "scale_bars": 2}
+                           "sag_mm": 40.0, "seed": 1, "tolerance_mm": 20.0, "reference": "all", "scale_bars": 2,
+                           "plan": False}
     assert spec.output_folder == (REPO / "out" / "pavilion").resolve()
 
 
@@ -102,7 +103,8 @@ def test_survey_settings_and_stages(tmp_path):
     spec = load_job_file(write(tmp_path, GOOD + "\n[survey]\nsimulate = true\nphotos = 8\n"))
     assert spec.stages == ("unroll", "nest", "export", "stream", "survey", "report")
     assert spec.survey == {"result": None, "simulate": True, "photos": 8, "resolution": "3600x2400", "coverage": 0.7,
-                           "sag_mm": 25.0, "seed": 1, "tolerance_mm": 20.0, "reference": "all", "scale_bars": 0}
+                           "sag_mm": 25.0, "seed": 1, "tolerance_mm": 20.0, "reference": "all", "scale_bars": 0,
+                           "plan": False}
     spec = load_job_file(write(tmp_path, 'stages = ["report", "survey"]\n' + GOOD + "\n[survey]\nsimulate = true\n"))
     assert spec.stages == ("survey", "report")
     assert load_job_file(write(tmp_path, GOOD)).survey == {"result": None, "simulate": False}
