@@ -94,7 +94,6 @@ class Model:
         self.strain_loads = strain_loads(frame)
         self.fixed_end = fixed_end_forces(frame)
         self.free = [k + 1 for k in range(len(frame.xyz)) if k not in frame.supports]
-        self.ready = False  # an analysis set up (by `_apply`) that `_continue` can go on from
 
     def _apply(self, loads: np.ndarray, residual: bool, steps: int = STEPS) -> bool:
         ops = self.ops
@@ -117,7 +116,6 @@ class Model:
         ops.algorithm("Newton")
         ops.integrator("LoadControl", 1.0 / steps)
         ops.analysis("Static")
-        self.ready = True
         return ops.analyze(steps) == 0
 
     def solve(self, loads: np.ndarray, residual: bool = True) -> Solution:
@@ -140,20 +138,16 @@ class Model:
     def next_case(self, loads: np.ndarray, residual: bool = True) -> Solution:
         """Another case after `solve`, from the last one's equilibrium (the frame is elastic, so the path does not
         matter, and Newton starts close)."""
-        return self._read(self._continue(loads, residual), residual)
-
-    def _continue(self, loads: np.ndarray, residual: bool) -> bool:
-        """Equilibrium under `loads` from the present state (one Newton solve), else from the start in RETRY_STEPS."""
-        if not self.ready:
-            return self._apply(loads, residual)
         ops = self.ops
         ops.remove("loadPattern", 1)
-        ops.pattern("Plain", 1, 1)  # the linear time series stands at 1 after `_apply`
+        ops.pattern("Plain", 1, 1)  # the linear time series stands at 1 after `solve`
         total = loads + (self.strain_loads if residual else 0.0)
         for node in np.flatnonzero(np.abs(total).max(axis=1) > 0.0):
             ops.load(int(node) + 1, *map(float, total[node]))
         ops.integrator("LoadControl", 0.0)
-        return ops.analyze(1) == 0 or self._apply(loads, residual, RETRY_STEPS)
+        if ops.analyze(1) == 0:
+            return self._read(True, residual)
+        return self._read(self._apply(loads, residual, RETRY_STEPS), residual)  # from the start, in smaller steps
 
     def lowest_eigenvalue(self, loads: np.ndarray, factor: float, residual: bool) -> float:
         """The smallest eigenvalue of the tangent stiffness (against unit lumped masses) under factor x loads, solved
