@@ -47,7 +47,7 @@ def test_job_folder_to_cut_sheets(tmp_path, cli):
         broken = jobs_by_name["broken"]
         assert broken.state == "failed"
         assert broken.error == ("broken.toml: colour: unknown key (allowed: name, description, stages, model, "
-                                "lamella, stock, unroll, nest, export, machine, output, assembly, survey)")
+                                "lamella, stock, unroll, nest, export, machine, output, assembly, survey, analysis)")
         tiny = jobs_by_name["tiny"].id
         wait_for(lambda: queue.job(tiny).state not in ("queued", "preparing"), 240)
         job = queue.job(tiny)
