@@ -7,6 +7,7 @@ keeps meaning the option's base unit, mm or m); sheet sizes in the same units (`
 
 from __future__ import annotations
 
+import math
 import re
 
 from fabline.errors import FablineError
@@ -51,6 +52,27 @@ def _convert(value: float, given: str, unit: str, text: str, forms: str) -> floa
     if not abs(result * MM_PER_UNIT[unit]) <= MAX_LENGTH_MM:
         raise ValueError(f"{text!r} is longer than {MAX_LENGTH_MM / 1e6:g} km")
     return result
+
+
+LOAD_UNITS = {"kN/m2": {"kN/m2": 1.0, "kPa": 1.0, "N/m2": 1e-3, "Pa": 1e-3}, "N": {"N": 1.0, "kN": 1000.0}}
+"""The loads' units: a number is in the first (kN/m2 for area loads, N for point loads), a string names its unit
+(`"750 N/m2"`, `"1 kN"`)."""
+_LOAD = re.compile(rf"\s*({_NUMBER})\s*([A-Za-z/0-9]+)\s*")
+
+
+def parse_load(value: float | str, unit: str) -> float:
+    """A load in `unit` ('kN/m2' or 'N') from a number (in `unit`) or a string with one of LOAD_UNITS[unit], not
+    negative; a ValueError saying the accepted forms otherwise."""
+    units = LOAD_UNITS[unit]
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        number = float(value)
+    elif isinstance(value, str) and (match := _LOAD.fullmatch(value)) and match.group(2) in units:
+        number = float(match.group(1)) * units[match.group(2)]
+    else:
+        raise ValueError(f"expected a number in {unit} or a string with a unit ({', '.join(units)}), got {value!r}")
+    if not 0.0 <= number < math.inf:
+        raise ValueError(f"must not be negative, got {value!r}")
+    return number
 
 
 def job_length(value: float | str, unit: str = "mm") -> float:

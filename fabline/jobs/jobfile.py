@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from fabline.errors import FablineError
 from fabline.fileio import parse_toml, read_text, vet_input
-from fabline.units import job_length
+from fabline.units import job_length, parse_load
 
 if TYPE_CHECKING:  # the nesting stage pulls in shapely; a job file is read before any stage runs
     from fabline.export import ToolpathOptions
@@ -339,10 +339,6 @@ def _check_survey(survey: dict[str, Any], where: str) -> dict[str, Any]:
     return checked
 
 
-LOAD_UNITS = {"kN/m2": {"kN/m2": 1.0, "kPa": 1.0, "N/m2": 1e-3, "Pa": 1e-3}, "N": {"N": 1.0, "kN": 1000.0}}
-"""The analysis's load keys' units: a number is in the first (kN/m2 for snow and wind, N for the person), a string
-names its unit (`"750 N/m2"`, `"1 kN"`)."""
-_QUANTITY = re.compile(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z/0-9]+)\s*")
 
 
 def _check_analysis(analysis: dict[str, Any], where: str) -> dict[str, Any]:
@@ -361,18 +357,11 @@ def _check_analysis(analysis: dict[str, Any], where: str) -> dict[str, Any]:
 
 
 def _quantity(value: Any, unit: str, where: str) -> float:
-    """A load in `unit` from a number (in `unit`) or a string with one of LOAD_UNITS[unit]; not negative."""
-    units = LOAD_UNITS[unit]
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        number = float(value)
-    elif isinstance(value, str) and (match := _QUANTITY.fullmatch(value)) and match.group(2) in units:
-        number = float(match.group(1)) * units[match.group(2)]
-    else:
-        raise FablineError(f"{where}: expected a number in {unit} or a string with a unit "
-                           f"({', '.join(units)}), got {value!r}")
-    if not 0.0 <= number < math.inf:
-        raise FablineError(f"{where}: must not be negative, got {value!r}")
-    return number
+    """A load key in `unit` (`fabline.units.parse_load`), its mistake named by `where`."""
+    try:
+        return parse_load(value, unit)
+    except ValueError as exc:
+        raise FablineError(f"{where}: {exc}") from None
 
 
 def _check_plan(survey: dict[str, Any], checked: dict[str, Any], where: str) -> None:
