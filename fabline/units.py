@@ -71,7 +71,7 @@ def parse_load(value: float | str, unit: str) -> float:
     else:
         raise ValueError(f"expected a number in {unit} or a string with a unit ({', '.join(units)}), got {value!r}")
     if not 0.0 <= number < math.inf:
-        raise ValueError(f"must not be negative, got {value!r}")
+        raise ValueError(f"must not be negative, got {value!r}" if number < 0 else f"must be a finite load, got {value!r}")
     return number
 
 

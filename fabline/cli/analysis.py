@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from fabline.cli import positive
+from fabline.cli.units import load_area, load_point
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
 
@@ -21,9 +22,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--supports", choices=("pinned", "fixed"), default="pinned",
                         help="how the support nodes hold the shell")
     parser.add_argument("--stations", type=positive(int, 16), default=2, help="beams per node interval")
-    parser.add_argument("--snow", type=float, default=0.75, metavar="KN_PER_M2", help="snow on the plan area")
-    parser.add_argument("--wind", type=float, default=0.5, metavar="KN_PER_M2", help="wind pressure normal to the shell")
-    parser.add_argument("--person", type=float, default=1000.0, metavar="N", help="a person's point load")
+    parser.add_argument("--snow", type=load_area, default=0.75, metavar="LOAD",
+                        help="snow on the plan area (or with a unit: 0.8kPa, 750 N/m2)")
+    parser.add_argument("--wind", type=load_area, default=0.5, metavar="LOAD",
+                        help="wind pressure normal to the shell (or with a unit)")
+    parser.add_argument("--person", type=load_point, default=1000.0, metavar="LOAD",
+                        help="a person's point load (or with a unit: 1.5kN)")
     parser.add_argument("--no-buckling", action="store_true", help="skip the buckling factor search")
     parser.set_defaults(func=run_analyse)
 

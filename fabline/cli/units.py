@@ -1,4 +1,4 @@
-"""The argparse types of length and size options (`fabline.units` reads the text): a plain number is in the
+"""The argparse types of length, size and load options (`fabline.units` reads the text): a plain number is in the
 option's base unit, which the help names (`HelpFormatter` adds it to the default)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from typing import Callable
 
 from fabline.fileio import MAX_MM
 from fabline.model_units import Length, parse_model_length
-from fabline.units import MM_PER_UNIT, parse_length, parse_size
+from fabline.units import MM_PER_UNIT, parse_length, parse_load, parse_size
 
 
 def length(unit: str) -> Callable[[str], float]:
@@ -18,6 +18,25 @@ def length(unit: str) -> Callable[[str], float]:
     def parse(text: str) -> float:
         try:
             return parse_length(text, unit)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    parse.__name__ = "float"  # argparse names the type in its messages; the campaign test finds number options
+    parse.unit = unit
+    return parse
+
+
+def load(unit: str) -> Callable[[str], float]:
+    """The argparse type of a load option whose plain numbers are in `unit` ('kN/m2' or 'N'), or with a unit as the
+    job file takes them (`0.8kPa`, `750 N/m2`, `1.5kN`)."""
+
+    def parse(text: str) -> float:
+        try:
+            number = float(text)
+        except ValueError:
+            number = text  # a string with a unit, read by parse_load
+        try:
+            return parse_load(number, unit)
         except ValueError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
 
@@ -79,3 +98,5 @@ profile.unit = "mm"
 
 length_mm = length("mm")
 length_m = length("m")
+load_area = load("kN/m2")
+load_point = load("N")

@@ -52,3 +52,26 @@ def test_parts_of_another_model_is_one_line(unrolled, tmp_path, capsys):
     assert main(["analyse", str(model), str(other), "-o", str(tmp_path / "a.json")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "cables: node N999-999 is not in" in err[0]
+
+
+def test_load_options_take_units_as_the_job_file_does():
+    from fabline.cli import build_parser
+
+    args = build_parser().parse_args(["analyse", "m.json", "p.json", "-o", "a.json", "--snow", "750 N/m2",
+                                      "--wind", "0.6kPa", "--person", "1.5kN"])
+    assert (args.snow, args.wind, args.person) == (pytest.approx(0.75), pytest.approx(0.6), pytest.approx(1500.0))
+    plain = build_parser().parse_args(["analyse", "m.json", "p.json", "-o", "a.json", "--snow", "1.2"])
+    assert (plain.snow, plain.wind, plain.person) == (1.2, 0.5, 1000.0)  # plain numbers in kN/m2 and N
+
+
+@pytest.mark.parametrize("option, value, expected", [
+    ("--snow", "2kg", "argument --snow: expected a number in kN/m2 or a string with a unit (kN/m2, kPa, N/m2, Pa), "
+                      "got '2kg'"),
+    ("--person", "-1kN", "argument --person: must not be negative, got '-1kN'"),
+    ("--wind", "inf", "argument --wind: must be a finite load, got inf"),
+])
+def test_a_bad_load_option_is_one_line_naming_it(tmp_path, capsys, option, value, expected):
+    with pytest.raises(SystemExit) as exit_:
+        main(["analyse", "m.json", "p.json", "-o", str(tmp_path / "a.json"), option, value])
+    assert exit_.value.code == 2
+    assert expected in capsys.readouterr().err.splitlines()[0]
