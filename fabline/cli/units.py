@@ -11,38 +11,38 @@ from fabline.model_units import Length, parse_model_length
 from fabline.units import MM_PER_UNIT, parse_length, parse_load, parse_size
 
 
-def length(unit: str) -> Callable[[str], float]:
-    """The argparse type of a length option whose plain numbers are in `unit` ('mm' or 'm'); the option's help
-    names the unit (`HelpFormatter` adds it to the default)."""
+def _option_type(read: Callable[[str], float], unit: str) -> Callable[[str], float]:
+    """An argparse type from a reader of the option's text whose plain numbers are in `unit`: its ValueError becomes
+    argparse's one-line error, and the help names the unit (`HelpFormatter` adds it to the default)."""
 
     def parse(text: str) -> float:
         try:
-            return parse_length(text, unit)
+            return read(text)
         except ValueError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
 
     parse.__name__ = "float"  # argparse names the type in its messages; the campaign test finds number options
     parse.unit = unit
     return parse
+
+
+def length(unit: str) -> Callable[[str], float]:
+    """The argparse type of a length option whose plain numbers are in `unit` ('mm' or 'm')."""
+    return _option_type(lambda text: parse_length(text, unit), unit)
 
 
 def load(unit: str) -> Callable[[str], float]:
     """The argparse type of a load option whose plain numbers are in `unit` ('kN/m2' or 'N'), or with a unit as the
     job file takes them (`0.8kPa`, `750 N/m2`, `1.5kN`)."""
 
-    def parse(text: str) -> float:
+    def read(text: str) -> float:
         try:
             number = float(text)
         except ValueError:
-            number = text  # a string with a unit, read by parse_load
-        try:
-            return parse_load(number, unit)
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
+            return parse_load(text, unit)  # a string with a unit
+        return parse_load(number, unit)
 
-    parse.__name__ = "float"  # argparse names the type in its messages; the campaign test finds number options
-    parse.unit = unit
-    return parse
+    return _option_type(read, unit)
 
 
 def length_model(text: str) -> Length:
