@@ -16,12 +16,12 @@ import os
 import re
 import signal
 import sys
-import threading
 import warnings
 from contextlib import nullcontext
 from typing import Callable
 
 from fabline import __version__
+from fabline.cli.stops import StopSignals, forget_unhandled_interrupt
 from fabline.errors import FablineError, Terminated
 from fabline.fileio import OutputSet
 
@@ -194,12 +194,15 @@ def quiet_stdout() -> None:
 
 
 def _main(argv: list[str] | None) -> int:
-    from fabline.fileio import OutputSet
-
     argv = sys.argv[1:] if argv is None else argv
+    with StopSignals() as stops:
+        return _run(argv, stops)
+
+
+def _run(argv: list[str], stops: StopSignals) -> int:
+    """Parse `argv` and run its command as one output set; a user's mistake or a stop becomes a message and a code."""
     command = argv[0] if argv else None
     module = next((name for name, commands in STAGE_COMMANDS.items() if command in commands), None)
-    previous = _terminate_as_interrupt()
     outputs = OutputSet()
     try:
         args = build_parser((module,) if module else tuple(STAGE_COMMANDS)).parse_args(argv)
@@ -207,7 +210,10 @@ def _main(argv: list[str] | None) -> int:
             # numpy's overflow and invalid-value notes on a user's absurd numbers are not messages for the user:
             # the stages check their inputs and say what is wrong in one line
             warnings.filterwarnings("ignore", category=RuntimeWarning, module="numpy")
-            return int(args.func(args) or 0)
+            code = int(args.func(args) or 0)
+            stops.raise_pending()  # a stop swallowed where it landed: the command unwinds as if it had raised
+        stops.raise_pending()  # swallowed as the outputs were committed: the command says it had finished
+        return code
     except FablineError as exc:
         print(f"fabline {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -219,7 +225,7 @@ def _main(argv: list[str] | None) -> int:
         return 2
     except KeyboardInterrupt as stop:  # Ctrl-C, or SIGTERM (Terminated), also while the command's modules load
         outputs.rollback()  # what the output set's own exit could not (the signal came as it began): put back
-        _forget_unhandled_interrupt()
+        forget_unhandled_interrupt()
         terminated = isinstance(stop, Terminated)
         if command in KEEPS_PARTIAL_OUTPUTS:
             outcome = ""
@@ -230,30 +236,6 @@ def _main(argv: list[str] | None) -> int:
         print(f"fabline {command}: " if command else "fabline: ", f"{'terminated' if terminated else 'interrupted'}"
               f"{outcome}", sep="", file=sys.stderr)
         return 128 + (stop.number if terminated else signal.SIGINT)
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-
-
-def _forget_unhandled_interrupt() -> None:
-    """CPython remembers a KeyboardInterrupt that escaped Python code an extension ran with PyRun_String while it
-    loaded, and at exit kills itself with SIGINT (exit -2, whatever `main` returned); a PyRun call that succeeds
-    clears that memory, so an interrupt handled here exits 130 as it says (seen with Ctrl-C ~0.2 s into unroll)."""
-    import ctypes
-
-    ctypes.pythonapi.PyRun_SimpleString(b"pass")
-
-
-def _terminate_as_interrupt():
-    """Make SIGTERM raise `Terminated` (a KeyboardInterrupt) in the main thread, so that `kill` unwinds a command as
-    Ctrl-C does; returns the handler it replaced (None off the main thread, where none is installed)."""
-    if threading.current_thread() is not threading.main_thread():
-        return None
-
-    def terminate(number, frame):
-        raise Terminated(number)
-
-    return signal.signal(signal.SIGTERM, terminate)
 
 
 if __name__ == "__main__":
