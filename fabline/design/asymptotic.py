@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 from fabline.design.curves import declared_or_given
 from fabline.design.field import Region, flat_curvature, special_regions
 from fabline.errors import FablineError
+from fabline.geometry.offsets import PAIR_SPACING_MM
 from fabline.model.importers.surface import mesh_from_arrays, read_mesh_arrays
 from fabline.model.network import UNIT_TO_MM, Network
 from fabline.design.layout import (CROSSING_TOLERANCE_MM, Layout, SupportRule, build_network, check_on_surface,
@@ -28,6 +29,7 @@ DEGENERATE_AREA = 1e-10  # a face smaller than this fraction of the mean edge le
 NODE_SPACING_MM = (10.0, 10_000.0)
 """Node spacings a gridshell (or its scale model) can have: outside, a number is taken for another unit."""
 TRACING_STEP_MM = (0.1, 10_000.0)
+SLOT_PAIR_THICKNESSES = 4.0  # a slot (unroll's default 2 t wide) and a web of as much between two nodes' slots
 STRIP_STOP = 2.0
 """The tracer stops where a curve turns or twists this many times more than the strip's limit (the combined rule
 with the other effect zero): no strip of the profile follows it there. Up to that, the curve goes on and the
@@ -131,6 +133,7 @@ def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarra
     across = float(np.linalg.norm(np.ptp(surface.vertices, axis=0)))
     step = step or min(spacing / 4.0, 0.05 * across)
     check_tracing_size(across, spacing, step, units, step_given)
+    check_pair_room(spacing, units, SLOT_PAIR_THICKNESSES * strip[1].t)
     k1, k2, _, _ = surface.vertex_curvatures()
     if not np.any((k1 > 0) & (k2 < 0)):
         worst = int(np.argmin(k1 * k2))
@@ -151,11 +154,12 @@ def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarra
     meta = {"design": "asymptotic", "surface": Path(source).name, "spacing": spacing, "seed": seed.round(9).tolist(),
             "seed_curves": len(curves),
             "step": step, "supports": str(rule) if rule else None}
-    network = build_network(surface, layout, spacing, units, rule, Path(source).stem.split(".")[0], meta, source)
+    network = build_network(surface, layout, spacing, units, rule, Path(source).stem.split(".")[0], meta, source,
+                            SLOT_PAIR_THICKNESSES * strip[1].t)
     network.meta["regions"] = [{"kind": r.kind, "centre": r.centre.round(6).tolist(), "vertices": r.vertices,
                                 "extent": r.extent, "area": r.area} for r in regions]
     network.meta["stops"] = layout.stop_records
-    network.meta["dropped"] = {"curves": layout.dropped, "refused": layout.rejected}
+    network.meta["dropped"] = {"curves": layout.dropped, "refused": layout.rejected, "trimmed": layout.trimmed}
     network.meta["quality"] = quality_report(network, surface, spacing, material, profile)
     network.meta["quality"]["coverage"]["left_out"] = float(sum(r.area for r in regions))
     return AsymptoticDesign(network, regions, stop_lines(layout, units), surface, notes)
@@ -163,7 +167,7 @@ def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarra
 
 def stop_lines(layout: Layout, units: str) -> list[str]:
     """The early stops as a designer reads them: per reason, how many curve ends and one place (model units);
-    then the curves dropped (too short to carry two crossings, or refused by the network check)."""
+    then the curves dropped (too short to carry two crossings, or refused by the network check) and cut back."""
     lines = []
     reasons = [r["reason"] for r in layout.stop_records]
     for reason in dict.fromkeys(reasons):
@@ -173,6 +177,9 @@ def stop_lines(layout: Layout, units: str) -> list[str]:
     if layout.dropped:
         lines.append(f"{layout.dropped} traced curve(s) dropped: too short to carry two crossings"
                      + (f" or refused by the network check ({len(layout.rejected)}: {layout.rejected[0]})" if layout.rejected else ""))
+    if layout.trimmed:
+        lines.append(f"{layout.trimmed} curve end(s) cut back before a crossing the strips of a pair could not be "
+                     "slotted at (a curve stopping there, or a neighbour's slots too close)")
     return lines
 
 
@@ -213,6 +220,15 @@ def check_tracing_size(across: float, spacing: float, step: float, units: str, s
         raise FablineError(f"{size} with {stepped} would trace about {lamellas:.0f} lamellas of {points:.0f} points, "
                            f"{lamellas * points:.2g} points in all; the limit is {MAX_TRACED_POINTS:.0e}: give a larger "
                            f"{'--step' if step_given else '--spacing'}")
+
+
+def check_pair_room(spacing: float, units: str, slot_pair: float) -> None:
+    """Refuse a spacing under which two neighbouring lamella pairs' slots overlap even where they cross square."""
+    least = PAIR_SPACING_MM + slot_pair
+    if spacing * UNIT_TO_MM[units] < least:
+        raise FablineError(f"--spacing {spacing:g} {units}: two neighbouring lamella pairs (strips {PAIR_SPACING_MM:g} mm "
+                           f"apart, a slot and a web {slot_pair:g} mm) need nodes at least {least:g} mm apart; give a "
+                           "larger spacing")
 
 
 def _middle(curve: np.ndarray) -> np.ndarray:

@@ -23,13 +23,16 @@ from fabline.design.mesh import SmoothMesh, xyz_text
 from fabline.design.nurbs import NurbsPatch
 from fabline.design.trace import STOP_REASONS, StopRule, TracedCurve, trace_family
 from fabline.errors import FablineError
-from fabline.model.importers.crossings import find_crossings
+from fabline.geometry.offsets import PAIR_SPACING_MM, strip_crossing_offsets
+from fabline.model.importers.crossings import Crossings, find_crossings
 from fabline.model.network import UNIT_TO_MM, Lamella, Network, Node, validate
 
 TracingSurface = SmoothMesh | NurbsPatch
 
 CROSSING_TOLERANCE_MM = 1.0  # traced curves of the two families that pass this close cross
 SAMPLES_PER_STEP = 4  # output samples per tracing step (cubic spline through the traced points, projected)
+SURE_ENDS = ("edge", "closed", "length")  # curve ends past which the surface goes on as the curve's spline does
+SLOT_MARGIN_MM = 2.0  # the tangent-plane estimate of a slot is off by about k d^2: 2 mm where the surface bends at 3/m
 END_MERGE_FRACTION = 0.1  # a crossing this fraction of the spacing from a lamella's end becomes that end
 MAX_EXTENSIONS = 200  # passes of `_extend` at most (each continues one family along one curve)
 REPORTED_STOPS = ("K>=0", "merging", "flat", "bend", "twist", "rough")
@@ -84,10 +87,13 @@ class Layout:
     stop_records: list[dict] = field(default_factory=list)
     rejected: list[str] = field(default_factory=list)
     dropped: int = 0
+    end_reasons: list[list[str]] = field(default_factory=list)  # why each curve ends, at its start and its end
+    trimmed: int = 0  # curves cut back where they ended at a crossing together with another (`_clear_corners`)
     closed_runs: set[tuple[int, int]] = field(default_factory=set)
 
     def add(self, family: str, index: int, curve: TracedCurve, step: float) -> None:
         self.curves.append(_dense(curve, step)[0])
+        self.end_reasons.append(list(curve.stops))
         self.families.append(family)
         self.indices.append(index)
         self.stop_records += [{"curve": f"{family} {index}", "reason": why, "xyz": curve.points[end].round(9).tolist()}
@@ -284,8 +290,9 @@ def _spaced(points: np.ndarray, seed: int, spacing: float, family: str, source: 
 
 
 def build_network(surface: TracingSurface, layout: Layout, spacing: float, units: str, supports: SupportRule | None,
-                  name: str, meta: dict, source: str) -> Network:
-    """Nodes at the crossings of the traced curves, lamellas through them to the edge, validated.
+                  name: str, meta: dict, source: str, slot_pair: float) -> Network:
+    """Nodes at the crossings of the traced curves, lamellas through them to the edge, validated; every crossing a
+    pair of strips can be slotted at (`_clear_corners`, `slot_pair` mm between two nodes' slots on a strip).
 
     A curve that carries fewer than two crossings (with curves that carry two) holds nothing and is dropped, as is
     one the network check would refuse (each is checked alone, so one bad curve never rejects the design);
@@ -294,8 +301,9 @@ def build_network(surface: TracingSurface, layout: Layout, spacing: float, units
     first = {f: min(i for g, i in zip(layout.families, layout.indices) if g == f) for f in set(layout.families)}
     number = [i - first[f] for f, i in zip(layout.families, layout.indices)]
     ids = [f"{f}-{n:03d}" for f, n in zip(layout.families, number)]
-    tolerance = CROSSING_TOLERANCE_MM / UNIT_TO_MM[units]
-    crossings = find_crossings(layout.curves, layout.families, ids, tolerance, source)
+    tolerance, pair = CROSSING_TOLERANCE_MM / UNIT_TO_MM[units], PAIR_SPACING_MM / UNIT_TO_MM[units]
+    crossings = _clear_corners(surface, layout, ids, tolerance, pair, (slot_pair + SLOT_MARGIN_MM) / UNIT_TO_MM[units],
+                               source)
     normals = surface.project(crossings.xyz).normal if len(crossings.xyz) else np.empty((0, 3))
     names = []
     for k, members in enumerate(crossings.members):
@@ -320,7 +328,8 @@ def build_network(surface: TracingSurface, layout: Layout, spacing: float, units
             continue  # a curve fell below two crossings: its crossings go, so others may follow
         lamellas, refused = [], False
         for c in np.flatnonzero(alive):
-            lamella = _lamella(surface, ids[c], layout.families[c], layout.curves[c], sorted(per_curve[c]), nodes, spacing)
+            lamella = _lamella(surface, ids[c], layout.families[c], layout.curves[c], sorted(per_curve[c]), nodes, spacing,
+                               pair)
             try:
                 validate(Network(units, {nid: nodes[nid] for nid in lamella.nodes}, [lamella]), source)
             except FablineError as exc:
@@ -347,6 +356,109 @@ def build_network(surface: TracingSurface, layout: Layout, spacing: float, units
     return validate(Network(units, nodes, sorted(lamellas, key=lambda lam: (lam.family, lam.id.split("-", 1)[1])), name, meta), source)
 
 
+def _clear_corners(surface: TracingSurface, layout: Layout, ids: list[str], tolerance: float, pair: float,
+                   slot_pair: float, source: str) -> Crossings:
+    """The crossings once every one has its curves run on past it to where the strips of a pair (`pair` apart)
+    cross there, unless the curve ends at the surface's edge: past where the tracer stopped those strips would
+    meet only on an extrapolation of the curve, off the surface (unroll refuses it: they pass apart). A curve that stops short is cut back to before that crossing,
+    keeping a run-on past its crossing before (up to 2 pair, at most half-way). So is one of two curves whose
+    crossings with a third leave its strips less than `slot_pair` (a slot and a web) between their slots, or the
+    node marks out of order. Repeated until none is left, counted in `layout.trimmed`."""
+    for _ in range(len(layout.curves) * 4 + 1):
+        crossings = find_crossings(layout.curves, layout.families, ids, tolerance, source)
+        twos = [k for k, members in enumerate(crossings.members) if len(members) == 2]
+        if not twos:
+            return crossings
+        pairs = [crossings.members[k] for k in twos]
+        ci, si = zip(*[members[0] for members in pairs])
+        cj, sj = zip(*[members[1] for members in pairs])
+        arcs = [_arc_lengths(curve) for curve in layout.curves]
+        normals = surface.project(crossings.xyz[twos]).normal
+        t_i, t_j = (np.array([_tangent(layout.curves[c], arcs[c], s) for c, s in zip(cs, ss)]) for cs, ss in
+                    ((ci, si), (cj, sj)))
+        fault = np.zeros((2, len(pairs)), dtype=bool)  # members i and j: a strip crossing lies past an unsure end
+        for o_i, o_j in ((pair / 2, pair / 2), (pair / 2, -pair / 2), (-pair / 2, pair / 2), (-pair / 2, -pair / 2)):
+            a, b = strip_crossing_offsets(t_i, t_j, normals, np.full(len(pairs), o_i), np.full(len(pairs), o_j))
+            fault[0] |= _past_unsure_end(layout, arcs, ci, np.add(si, a))
+            fault[1] |= _past_unsure_end(layout, arcs, cj, np.add(sj, b))
+        faults = [[member for member, bad in zip(pairs[k], fault[:, k]) if bad] for k in range(len(pairs))]
+        for k, m in _crowded_slots(pairs, ci, si, cj, sj, t_i, t_j, normals, pair, slot_pair):
+            faults[m] = faults[m] or list(pairs[m])  # a neighbour's crossing too close: the one that ends sooner goes
+        if not any(faults):
+            return crossings
+        cut_now: set[int] = set()
+        for k in (k for k, fault in enumerate(faults) if fault):
+            _, c, s = min((min(s, arcs[c][-1] - s), c, s) for c, s in faults[k])
+            if cut_now & {d for d, _ in pairs[k]}:
+                continue  # a curve of this crossing changed in this pass: seen again in the next
+            cut_now.add(c)
+            at_end = s > arcs[c][-1] / 2
+            others = [arc for members in crossings.members for d, arc in members if d == c and (arc < s) == at_end
+                      and arc != s]
+            layout.end_reasons[c][int(at_end)] = "cut"
+            if not others:
+                layout.curves[c] = _cut(layout.curves[c], arcs[c], None, at_end)
+            else:
+                before = max(others) if at_end else min(others)
+                run_on = min(2.0 * pair, abs(s - before) / 2.0)
+                layout.curves[c] = _cut(layout.curves[c], arcs[c], before + (run_on if at_end else -run_on), at_end)
+            layout.trimmed += 1
+    raise FablineError(f"{source}: the traced curves keep stopping at their crossings; lower the spacing")
+
+
+def _crowded_slots(pairs, ci, si, cj, sj, t_i, t_j, normals, pair, slot_pair) -> list[tuple[int, int]]:
+    """(k, m): crossings k and m next to each other along a curve whose slots on one of its strips come less than
+    `slot_pair` apart (or whose node marks, midway between their slots, come out of order); m is the later one."""
+    count = len(pairs)
+    rows = []  # (curve, its arc, crossing, its tangent, the partner's tangent) per member of each crossing
+    for k in range(count):
+        rows += [(ci[k], si[k], k, t_i[k], t_j[k]), (cj[k], sj[k], k, t_j[k], t_i[k])]
+    curve = np.array([r[0] for r in rows])
+    arc = np.array([r[1] for r in rows])
+    crossing = np.array([r[2] for r in rows])
+    own, partner = np.array([r[3] for r in rows]), np.array([r[4] for r in rows])
+    normal = normals[crossing]
+    found: list[tuple[int, int]] = []
+    for side in (pair / 2, -pair / 2):
+        slots = np.stack([strip_crossing_offsets(own, partner, normal, np.full(len(rows), side),
+                                                 np.full(len(rows), o))[0] for o in (pair / 2, -pair / 2)], axis=1)
+        slots += arc[:, None]
+        order = np.lexsort((arc, curve))
+        same = curve[order][1:] == curve[order][:-1]
+        first, second = slots[order][:-1], slots[order][1:]
+        tight = (second.min(axis=1) - first.max(axis=1) < slot_pair) | (second.mean(axis=1) <= first.mean(axis=1))
+        for a, b in zip(order[:-1][same & tight], order[1:][same & tight]):
+            found.append((int(crossing[a]), int(crossing[b])))
+    return found
+
+
+def _arc_lengths(points: np.ndarray) -> np.ndarray:
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+
+
+def _tangent(points: np.ndarray, arcs: np.ndarray, s: float) -> np.ndarray:
+    """The unit tangent of a polyline at arc length `s` (of the segment there)."""
+    k = int(np.clip(np.searchsorted(arcs, s) - 1, 0, len(points) - 2))
+    step = points[k + 1] - points[k]
+    return step / np.linalg.norm(step)
+
+
+def _past_unsure_end(layout: Layout, arcs: list[np.ndarray], curves: tuple[int, ...], s: np.ndarray) -> np.ndarray:
+    """Whether arc length s[k] lies off curve curves[k] past an end that is not the surface's: the tracer stopped
+    there, and the surface does not go on as the curve's spline would (past the edge it does, near enough)."""
+    side = [0 if x < 0.0 else 1 if x > arcs[c][-1] else None for c, x in zip(curves, s)]
+    return np.array([end is not None and layout.end_reasons[c][end] not in SURE_ENDS for c, end in zip(curves, side)],
+                    dtype=bool)
+
+
+def _cut(points: np.ndarray, arcs: np.ndarray, at: float | None, keep_start: bool) -> np.ndarray:
+    """The polyline up to (`keep_start`) or from arc length `at`; two points at the near end if there is no `at`."""
+    if at is None:
+        return points[:2] if keep_start else points[-2:]
+    end = np.array([np.interp(at, arcs, points[:, i]) for i in range(3)])
+    return np.vstack([points[arcs < at], end]) if keep_start else np.vstack([end, points[arcs > at]])
+
+
 def _held(members: list[list[tuple[int, float]]], alive: np.ndarray) -> np.ndarray:
     """How many live curves pass each crossing."""
     return np.array([sum(bool(alive[c]) for c, _ in found) for found in members], dtype=int)
@@ -364,7 +476,7 @@ def no_network_reason(layout: Layout, units: str) -> str:
 
 
 def _lamella(surface: TracingSurface, lamella_id: str, family: str, points: np.ndarray, crossings: list[tuple[float, str]],
-             nodes: dict[str, Node], spacing: float) -> Lamella:
+             nodes: dict[str, Node], spacing: float, pair: float) -> Lamella:
     """A lamella through its crossing nodes to both ends of its curve (or cut at a crossing next to an end).
 
     The centreline is the spline of the traced curve resampled between its ends; the crossing nodes lie on
@@ -373,7 +485,7 @@ def _lamella(surface: TracingSurface, lamella_id: str, family: str, points: np.n
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
     arcs = [arc for arc, _ in crossings]
     names = [nid for _, nid in crossings]
-    merge = END_MERGE_FRACTION * spacing
+    merge = max(END_MERGE_FRACTION * spacing, pair)  # nearer, a pair's node mark (o cot(angle) off) passes the end
     ends = []
     for side, (arc_end, nearest) in enumerate(((0.0, arcs[0]), (s[-1], arcs[-1]))):
         if abs(arc_end - nearest) <= merge and len(arcs) > 1:
@@ -383,8 +495,10 @@ def _lamella(surface: TracingSurface, lamella_id: str, family: str, points: np.n
         end = points[0 if side == 0 else -1]
         nodes[nid] = Node(nid, end.copy(), surface.at(end[None]).normal[0], "edge-end")
         ends.append((arc_end, nid))
-    lo = arcs[0] if ends[0] is None else 0.0
-    hi = arcs[-1] if ends[1] is None else s[-1]
+    # past an end node the curve runs on as traced, up to where the strips of a pair crossing there lie (2 d reach
+    # (d/2)(1/sin + |cot|) at the joint's 30 degrees): unroll finds them on the curve, not on an extrapolation of it
+    lo = max(0.0, arcs[0] - 2.0 * pair) if ends[0] is None else 0.0
+    hi = min(s[-1], arcs[-1] + 2.0 * pair) if ends[1] is None else s[-1]
     if ends[0] is None:
         nodes[names[0]].kind = "edge-end"
     if ends[1] is None:

@@ -15,6 +15,22 @@ import numpy as np
 
 from fabline.geometry.darboux import GAUSS_W, GAUSS_X, CurveFit, LamellaGeometry  # the same quadrature
 
+PAIR_SPACING_MM = 25.0  # d: centre distance of a lamella pair's two strips (unroll's default)
+
+
+def strip_crossing_offsets(tangent_i: np.ndarray, tangent_j: np.ndarray, normal: np.ndarray, offset_i: np.ndarray,
+                           offset_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the strip `offset_i` beside curve i (along n x t_i) crosses the strip `offset_j` beside curve j, in the
+    tangent plane of their node: the arc lengths (a along i, b along j) from the node; rows are crossings.
+
+    From c + a t_i + o_i u_i = c + b t_j + o_j u_j: its u_i part gives b, its t_i part a (exact on a plane, within
+    k d^2 on a surface: the start of `closest_approach`, and how far past the node a curve must run for it).
+    """
+    u_i, u_j = np.cross(normal, tangent_i), np.cross(normal, tangent_j)
+    cos_ij, sin_ij = np.einsum("ij,ij->i", tangent_j, tangent_i), np.einsum("ij,ij->i", tangent_j, u_i)
+    b = (offset_i - offset_j * np.einsum("ij,ij->i", u_j, u_i)) / sin_ij
+    return b * cos_ij + offset_j * np.einsum("ij,ij->i", u_j, tangent_i), b
+
 
 class SplineTable:
     """The cubic splines of many lamella fits in one coefficient table, to evaluate (fit, parameter) queries in bulk.

@@ -11,6 +11,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from fabline.errors import FablineError
+from fabline.geometry.offsets import PAIR_SPACING_MM
 from fabline.mechanics.materials import Material, Profile, get_material
 
 SINGULARITY_MODES = ("joint", "slots")
@@ -27,7 +28,7 @@ class UnrollOptions:
 
     profile: Profile = field(default_factory=lambda: Profile(100.0, 1.5))
     material: Material = field(default_factory=_default_material)
-    pair_spacing: float = 25.0          # d: centre distance of a pair's two strips; 0 makes single lamellas
+    pair_spacing: float = PAIR_SPACING_MM  # d: centre distance of a pair's two strips; 0 makes single lamellas
     slot_clearance: float = 1.0         # slot depth = h/2 + this
     slot_width: float | None = None     # default 2 t: lets the joint rotate during assembly
     min_web: float | None = None        # least material between two slots; default the slot width

@@ -16,7 +16,7 @@ import numpy as np
 from fabline.errors import FablineError
 from fabline.geometry.darboux import LamellaGeometry, NetworkGeometry
 from fabline.geometry.offsets import (Location, OffsetCurve, OffsetCurves, SplineTable, closest_approach,
-                                      offset_arc_lengths)
+                                      offset_arc_lengths, strip_crossing_offsets)
 from fabline.mechanics.structure import helix_strains
 from fabline.unroll.options import UnrollOptions
 
@@ -180,13 +180,7 @@ def _solve_crossings(geos: list[LamellaGeometry], geometry: NetworkGeometry, tab
     side_i = np.tile(np.repeat(np.arange(count), count), len(pairs))
     side_j = np.tile(np.tile(np.arange(count), count), len(pairs))
     o_i, o_j = offsets[side_i], offsets[side_j]
-    n, ti, tj = (np.repeat(a, rep, axis=0) for a in (normals, t_i, t_j))
-    u_i, u_j = np.cross(n, ti), np.cross(n, tj)
-    cos_ij, sin_ij = np.einsum("ij,ij->i", tj, ti), np.einsum("ij,ij->i", tj, u_i)
-    along_j = np.einsum("ij,ij->i", u_j, ti)
-    across_j = np.einsum("ij,ij->i", u_j, u_i)
-    b = (o_i - o_j * across_j) / sin_ij
-    a = b * cos_ij + o_j * along_j
+    a, b = strip_crossing_offsets(*(np.repeat(v, rep, axis=0) for v in (t_i, t_j, normals)), o_i, o_j)
     reach = options.end + abs(offsets).max() * 2.0
     near = node_location.take(np.concatenate([np.repeat(row_i, rep), np.repeat(row_j, rep)]))
     tau_i, tau_j, gap, location = closest_approach(table, np.repeat(li, rep), np.repeat(tau_i0, rep) + a, o_i,

@@ -47,10 +47,6 @@ def _unroll(network: Network, options: UnrollOptions, geometry: NetworkGeometry 
         if geometry is None:  # a built-in design's lamellas run on to the edge of its domain
             network = edges_module.extend_to_edge(network, options)
     geometry = geometry if geometry is not None else analyse(network)
-    for lam_id, geo in geometry.lamellas.items():
-        if geo.length < options.overlap:
-            raise FablineError(f"lamella {lam_id}: {geo.length:.1f} mm long (nodes {geo.node_ids[0]}..{geo.node_ids[-1]}), "
-                               f"shorter than one {options.overlap:g} mm seam overlap")
     strips = strip_stations(geometry, options)
     curves, unclamped = [], set()
     if edges_module is not None:

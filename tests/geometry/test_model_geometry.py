@@ -149,3 +149,17 @@ def test_helix_on_a_cylinder_has_the_textbook_curvatures():
     assert np.allclose(np.abs(geo.tau_g[inner]), np.sin(alpha) * np.cos(alpha) / r, rtol=1e-4)
     assert np.abs(geo.k_g[inner]).max() < 1e-8
     assert geo.length == pytest.approx(4 * np.pi * np.hypot(r, pitch / (2 * np.pi)), rel=1e-7)
+
+
+def test_two_strips_beside_lines_crossing_at_60_degrees_cross_where_the_hand_computation_says():
+    # in the plane z = 0: strip i is the line y = 12.5 beside the x axis, strip j runs 12.5 mm to the right of the
+    # line at 60 degrees through the node; they meet at (12.5 sqrt 3, 12.5), 12.5 sqrt 3 from the node along both
+    from fabline.geometry.offsets import strip_crossing_offsets
+
+    t_j = np.array([[0.5, np.sqrt(3) / 2, 0.0]])
+    a, b = strip_crossing_offsets(np.array([[1.0, 0.0, 0.0]]), t_j, np.array([[0.0, 0.0, 1.0]]), np.array([12.5]),
+                                  np.array([-12.5]))
+    assert a[0] == pytest.approx(12.5 * np.sqrt(3)) and b[0] == pytest.approx(12.5 * np.sqrt(3))
+    crossing = np.array([12.5 * np.sqrt(3), 12.5, 0.0])
+    beside_j = np.cross([0.0, 0.0, 1.0], t_j[0])  # u_j = n x t_j, the side +offset lies on
+    assert np.allclose(b[0] * t_j[0] - 12.5 * beside_j, crossing)
