@@ -33,6 +33,9 @@ CROSSING_TOLERANCE_MM = 1.0  # traced curves of the two families that pass this 
 SAMPLES_PER_STEP = 4  # output samples per tracing step (cubic spline through the traced points, projected)
 SURE_ENDS = ("edge", "closed", "length")  # curve ends past which the surface goes on as the curve's spline does
 SLOT_MARGIN_MM = 2.0  # the tangent-plane estimate of a slot is off by about k d^2: 2 mm where the surface bends at 3/m
+RUN_ON_PAIRS = 2.0
+"""Past an end crossing a curve runs on this many pair spacings: to where the strips of the pairs crossing there
+lie, (d/2)(1/sin + |cot|) of the angle, 1.87 d at the joint's 30 degrees."""
 END_MERGE_FRACTION = 0.1  # a crossing this fraction of the spacing from a lamella's end becomes that end
 MAX_EXTENSIONS = 200  # passes of `_extend` at most (each continues one family along one curve)
 REPORTED_STOPS = ("K>=0", "merging", "flat", "bend", "twist", "rough")
@@ -88,7 +91,7 @@ class Layout:
     rejected: list[str] = field(default_factory=list)
     dropped: int = 0
     end_reasons: list[list[str]] = field(default_factory=list)  # why each curve ends, at its start and its end
-    trimmed: int = 0  # curves cut back where they ended at a crossing together with another (`_clear_corners`)
+    trimmed: int = 0  # curve ends cut back before a crossing no pair of strips could be slotted at (`_clear_corners`)
     closed_runs: set[tuple[int, int]] = field(default_factory=set)
 
     def add(self, family: str, index: int, curve: TracedCurve, step: float) -> None:
@@ -175,7 +178,7 @@ def _extend(surface: TracingSurface, layout: Layout, spacing: float, step: float
         family = "B" if layout.families[host] == "A" else "A"
         steps = np.arange(1, int(open_run / spacing - 0.5) + 1)
         points = layout.curves[host]
-        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+        s = _arc_lengths(points)
         starts = np.stack([np.interp(arc + side * steps * spacing, s, points[:, i]) for i in range(3)], axis=1)
         taken = {i for f, i in zip(layout.families, layout.indices) if f == family}
         kin = cKDTree(np.vstack([c for c, f in zip(layout.curves, layout.families) if f == family]))
@@ -250,7 +253,7 @@ def _dense(curve: TracedCurve, step: float) -> tuple[np.ndarray, int]:
     smoother than projecting every sample again would be (the blended surface is only C1 across edges).
     """
     points = curve.points
-    chord = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    chord = _arc_lengths(points)
     keep = np.r_[True, np.diff(chord) > 1e-9 * step]
     points, chord = points[keep], chord[keep]
     seed_chord = chord[min(curve.seed_index, len(chord) - 1)]
@@ -278,7 +281,7 @@ def _ends(curve: TracedCurve | None, units: str) -> str:
 def _spaced(points: np.ndarray, seed: int, spacing: float, family: str, source: str, ends: str = ""
             ) -> tuple[np.ndarray, np.ndarray]:
     """Points at arc lengths k * spacing from the seed along a dense polyline, and their signed indices k."""
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    s = _arc_lengths(points)
     s -= s[seed]
     ks = np.arange(int(np.ceil(s[0] / spacing - 1e-9)), int(np.floor(s[-1] / spacing + 1e-9)) + 1)
     ks = ks[(ks * spacing > s[0] + 1e-9 * spacing) & (ks * spacing < s[-1] - 1e-9 * spacing) | (ks == 0)]
@@ -360,8 +363,9 @@ def _clear_corners(surface: TracingSurface, layout: Layout, ids: list[str], tole
                    slot_pair: float, source: str) -> Crossings:
     """The crossings once every one has its curves run on past it to where the strips of a pair (`pair` apart)
     cross there, unless the curve ends at the surface's edge: past where the tracer stopped those strips would
-    meet only on an extrapolation of the curve, off the surface (unroll refuses it: they pass apart). A curve that stops short is cut back to before that crossing,
-    keeping a run-on past its crossing before (up to 2 pair, at most half-way). So is one of two curves whose
+    meet only on an extrapolation of the curve, off the surface (unroll refuses it: they pass apart). A curve that
+    stops short is cut back to before that crossing, keeping a run-on past its crossing before (RUN_ON_PAIRS,
+    at most half-way). So is one of two curves whose
     crossings with a third leave its strips less than `slot_pair` (a slot and a web) between their slots, or the
     node marks out of order. Repeated until none is left, counted in `layout.trimmed`."""
     for _ in range(len(layout.curves) * 4 + 1):
@@ -382,7 +386,7 @@ def _clear_corners(surface: TracingSurface, layout: Layout, ids: list[str], tole
             fault[0] |= _past_unsure_end(layout, arcs, ci, np.add(si, a))
             fault[1] |= _past_unsure_end(layout, arcs, cj, np.add(sj, b))
         faults = [[member for member, bad in zip(pairs[k], fault[:, k]) if bad] for k in range(len(pairs))]
-        for k, m in _crowded_slots(pairs, ci, si, cj, sj, t_i, t_j, normals, pair, slot_pair):
+        for m in _crowded_slots(ci, si, cj, sj, t_i, t_j, normals, pair, slot_pair):
             faults[m] = faults[m] or list(pairs[m])  # a neighbour's crossing too close: the one that ends sooner goes
         if not any(faults):
             return crossings
@@ -400,39 +404,34 @@ def _clear_corners(surface: TracingSurface, layout: Layout, ids: list[str], tole
                 layout.curves[c] = _cut(layout.curves[c], arcs[c], None, at_end)
             else:
                 before = max(others) if at_end else min(others)
-                run_on = min(2.0 * pair, abs(s - before) / 2.0)
+                run_on = min(RUN_ON_PAIRS * pair, abs(s - before) / 2.0)
                 layout.curves[c] = _cut(layout.curves[c], arcs[c], before + (run_on if at_end else -run_on), at_end)
             layout.trimmed += 1
     raise FablineError(f"{source}: the traced curves keep stopping at their crossings; lower the spacing")
 
 
-def _crowded_slots(pairs, ci, si, cj, sj, t_i, t_j, normals, pair, slot_pair) -> list[tuple[int, int]]:
-    """(k, m): crossings k and m next to each other along a curve whose slots on one of its strips come less than
-    `slot_pair` apart (or whose node marks, midway between their slots, come out of order); m is the later one."""
-    count = len(pairs)
-    rows = []  # (curve, its arc, crossing, its tangent, the partner's tangent) per member of each crossing
-    for k in range(count):
-        rows += [(ci[k], si[k], k, t_i[k], t_j[k]), (cj[k], sj[k], k, t_j[k], t_i[k])]
-    curve = np.array([r[0] for r in rows])
-    arc = np.array([r[1] for r in rows])
-    crossing = np.array([r[2] for r in rows])
-    own, partner = np.array([r[3] for r in rows]), np.array([r[4] for r in rows])
-    normal = normals[crossing]
-    found: list[tuple[int, int]] = []
+def _crowded_slots(ci, si, cj, sj, t_i, t_j, normals, pair, slot_pair) -> set[int]:
+    """The crossings that follow another along a curve so closely that their slots on one of its strips come less
+    than `slot_pair` apart (or the node marks, midway between their slots, come out of order)."""
+    count = len(ci)
+    curve, arc = np.r_[ci, cj], np.r_[si, sj]  # per member of each crossing: i's rows, then j's
+    crossing = np.r_[np.arange(count), np.arange(count)]
+    own, partner, normal = np.vstack([t_i, t_j]), np.vstack([t_j, t_i]), np.vstack([normals, normals])
+    order = np.lexsort((arc, curve))
+    same = curve[order][1:] == curve[order][:-1]
+    found: set[int] = set()
     for side in (pair / 2, -pair / 2):
-        slots = np.stack([strip_crossing_offsets(own, partner, normal, np.full(len(rows), side),
-                                                 np.full(len(rows), o))[0] for o in (pair / 2, -pair / 2)], axis=1)
-        slots += arc[:, None]
-        order = np.lexsort((arc, curve))
-        same = curve[order][1:] == curve[order][:-1]
+        slots = arc[:, None] + np.stack([strip_crossing_offsets(own, partner, normal, np.full(2 * count, side),
+                                                                np.full(2 * count, o))[0] for o in (pair / 2, -pair / 2)],
+                                        axis=1)
         first, second = slots[order][:-1], slots[order][1:]
         tight = (second.min(axis=1) - first.max(axis=1) < slot_pair) | (second.mean(axis=1) <= first.mean(axis=1))
-        for a, b in zip(order[:-1][same & tight], order[1:][same & tight]):
-            found.append((int(crossing[a]), int(crossing[b])))
+        found.update(crossing[order[1:][same & tight]].tolist())
     return found
 
 
 def _arc_lengths(points: np.ndarray) -> np.ndarray:
+    """The arc length of a polyline at each of its points, from 0."""
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
 
 
@@ -482,7 +481,7 @@ def _lamella(surface: TracingSurface, lamella_id: str, family: str, points: np.n
     The centreline is the spline of the traced curve resampled between its ends; the crossing nodes lie on
     it within micrometres and are not inserted as samples, which would kink the spline the geometry fits.
     """
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    s = _arc_lengths(points)
     arcs = [arc for arc, _ in crossings]
     names = [nid for _, nid in crossings]
     merge = max(END_MERGE_FRACTION * spacing, pair)  # nearer, a pair's node mark (o cot(angle) off) passes the end
@@ -495,10 +494,10 @@ def _lamella(surface: TracingSurface, lamella_id: str, family: str, points: np.n
         end = points[0 if side == 0 else -1]
         nodes[nid] = Node(nid, end.copy(), surface.at(end[None]).normal[0], "edge-end")
         ends.append((arc_end, nid))
-    # past an end node the curve runs on as traced, up to where the strips of a pair crossing there lie (2 d reach
-    # (d/2)(1/sin + |cot|) at the joint's 30 degrees): unroll finds them on the curve, not on an extrapolation of it
-    lo = max(0.0, arcs[0] - 2.0 * pair) if ends[0] is None else 0.0
-    hi = min(s[-1], arcs[-1] + 2.0 * pair) if ends[1] is None else s[-1]
+    # past an end node the curve runs on as traced (RUN_ON_PAIRS): unroll finds the strips of the pairs crossing
+    # there on the curve, not on an extrapolation of it
+    lo = max(0.0, arcs[0] - RUN_ON_PAIRS * pair) if ends[0] is None else 0.0
+    hi = min(s[-1], arcs[-1] + RUN_ON_PAIRS * pair) if ends[1] is None else s[-1]
     if ends[0] is None:
         nodes[names[0]].kind = "edge-end"
     if ends[1] is None:
