@@ -94,6 +94,22 @@ class Frame:
         z /= np.linalg.norm(z, axis=1)[:, None]
         return np.stack([x, np.cross(z, x), z], axis=1)
 
+    def rigid_motions(self) -> int:
+        """How many rigid-body motions (of 6: 3 slides, 3 turns) the supports leave free: the rank the support flags'
+        constraints on u = a + theta x (x - centre) fall short of. Two pinned supports leave the turn about the line
+        through them."""
+        centre = self.xyz.mean(axis=0)
+        scale = max(float(np.abs(self.xyz - centre).max()), 1e-9)
+        rows = []
+        for node, flags in self.supports.items():
+            x, y, z = (self.xyz[node] - centre) / scale
+            held = np.array([[1, 0, 0, 0, z, -y], [0, 1, 0, -z, 0, x], [0, 0, 1, y, -x, 0],
+                             [0, 0, 0, 1, 0, 0], [0, 0, 0, 0, 1, 0], [0, 0, 0, 0, 0, 1]], dtype=float)
+            rows.append(held[np.asarray(flags, dtype=bool)])
+        if not rows:
+            return 6
+        return 6 - int(np.linalg.matrix_rank(np.vstack(rows), tol=1e-9))
+
     def mass_per_node(self) -> np.ndarray:
         """Each node's share (kg) of its beams' steel: half of every beam at each end (self-weight, lumped)."""
         kg = self.section.A * self.lengths * self.section.density * 1e-9

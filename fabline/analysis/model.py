@@ -22,7 +22,8 @@ CABLE_E = 120000.0   # N/mm2 on the metallic area: a 1x19 stainless strand (EN 1
 @dataclass(frozen=True)
 class ModelOptions:
     """What shapes the frame: beams per node interval, the pair's centre distance (0: single strips), the supports'
-    kind, the cables' node runs, strand and pretension strain."""
+    kind, the cables' node runs, strand and pretension strain, and the shear blocks' intervals (lamella, node, next
+    node: `fabline.unroll.couplers`), each a link between the pair's strips at the interval's middle station."""
 
     stations: int = 2
     pair_spacing: float = 25.0
@@ -30,6 +31,7 @@ class ModelOptions:
     cables: tuple[tuple[str, ...], ...] = ()
     cable: Cable | None = None
     cable_prestrain: float = 0.0
+    couplers: tuple[tuple[str, str, str], ...] = ()
 
 
 @dataclass
@@ -78,11 +80,15 @@ def build(geometry: NetworkGeometry, section: Section, options: ModelOptions) ->
                 joints[nid] = point
                 if network.nodes[nid].kind == "support":
                     supports[point] = SUPPORT_KINDS[options.supports]
+        coupled = [at_node[lam.nodes.index(a)] + m // 2 for lamella, a, b in options.couplers
+                   if lamella == lam.id and m > 1 and len(sides) == 2]
+        middles = []
         for offset, side in sides:
             strip = f"{lam.id}-{side}" if side else lam.id
             points = centre + offset * options.pair_spacing / 2.0 * frame_at["u"]
             index = [centres[k] if not offset and k in centres else add(p, f"{strip}:{k}") for k, p in enumerate(points)]
             links += [(point, index[k]) for k, point in centres.items() if offset]
+            middles.append([index[k] for k in coupled])
             for e in range(len(s) - 1):
                 beams.append((index[e], index[e + 1]))
                 beam_z.append(mid["n"][e])
@@ -91,6 +97,8 @@ def build(geometry: NetworkGeometry, section: Section, options: ModelOptions) ->
                 beam_lamella.append(lam.id)
                 beam_interval.append(e // m)
                 design.append((mid["k_g"][e], mid["tau_g"][e]))
+        if coupled:
+            links += list(zip(*middles))
     frame = Frame(np.array(xyz), names, np.array(beams, dtype=int), np.array(beam_z), section, np.array(strains),
                   tags, links, hinges, supports=supports)
     runs = [[joints[nid] for nid in run if nid in joints] for run in options.cables]

@@ -1,4 +1,5 @@
-"""The analysis from what the unroll stage left: the network and its parts' profile, material, pair spacing and cables,
+"""The analysis from what the unroll stage left: the network and its parts' profile, material, pair spacing, cables and
+couplers,
 checked, built into the frame's options and solved; shared by `fabline analyse` and the job's `analyse` stage."""
 
 from __future__ import annotations
@@ -32,16 +33,31 @@ def analyse_parts(network, partset, settings: LoadSettings, supports: str = "pin
         raise FablineError(f"{model_name}: no node is a support (node kind 'support'): the frame would float")
     options = ModelOptions(stations=stations, pair_spacing=float(unrolled.get("pair_spacing_mm", 25.0)),
                            supports=supports, cables=runs, cable=load_catalogue().cable,
-                           cable_prestrain=float(unrolled.get("cable_pretension_mm_per_m", 0.0)) / 1000.0)
+                           cable_prestrain=float(unrolled.get("cable_pretension_mm_per_m", 0.0)) / 1000.0,
+                           couplers=tuple((c["lamella"], *c["nodes"]) for c in partset.couplers))
     return analyse(geometry_of(network), material, profile, options, settings, buckling=buckling)
 
 
 def case_lines(record: dict) -> list[str]:
-    """One line per load case (max deflection, largest reaction, utilisation) and the buckling factor's line."""
+    """One line per load case (max deflection, largest reaction, utilisation, buckling factor), the erection's and the
+    lowest buckling factor's lines."""
+    factors = record.get("buckling", {}).get("factors", {})
     lines = [f"{name:<32} max deflection {case['max_deflection_mm']:8.2f} mm at {case['max_deflection_node']:<10} "
              f"largest reaction {case['max_reaction_kN']:7.3f} kN  utilisation {100 * case['max_utilisation']:6.1f} %"
+             + (f"  buckling {_factor(factors[name])}" if name in factors else "")
              + ("" if case["converged"] else "  (NOT CONVERGED)") for name, case in record["cases"].items()]
+    lines.append(f"erection: {factor_text(record['erection'])} on its own residual stress")
     if "buckling" in record:
-        lines.append(f"buckling factor {record['buckling']['factor']:.3f} on {record['buckling']['case']} "
-                     f"(mode largest at {record['buckling']['mode_peak_node']})")
+        lines.append(f"buckling: lowest {factor_text(record['buckling'])} on {record['buckling']['case']}")
     return lines
+
+
+def _factor(value: float | None) -> str:
+    return "none" if value is None else f"{value:.3f}"
+
+
+def factor_text(entry: dict) -> str:
+    """A buckling record entry in words: the factor and where its mode is largest, or that there is none."""
+    if entry["factor"] is None:
+        return "no buckling factor (the load only stiffens the frame)"
+    return f"factor {entry['factor']:.3f} (mode largest at {entry['mode_peak_node']})"

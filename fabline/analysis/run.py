@@ -1,5 +1,6 @@
-"""The analysis of one gridshell: its frame, the erection's residual stress alone, every default combination on top,
-and the buckling factor of the governing one; the figures per case as the JSON record (analysis.json) holds them."""
+"""The analysis of one gridshell: its frame, whether it stands under the erection's residual stress alone (refused
+below a buckling factor of 1, with what to change), every default combination on top, and each one's buckling factor;
+the figures per case as the JSON record (analysis.json) holds them."""
 
 from __future__ import annotations
 
@@ -12,30 +13,37 @@ from fabline.analysis.loads import LoadSettings, basic_cases, combinations, pers
 from fabline.analysis.model import GridshellFrame, ModelOptions, build
 from fabline.analysis.results import summary, utilisation
 from fabline.analysis.solve import Model
+from fabline.analysis.stability import case_buckling, erection_stability, rounded
 from fabline.geometry.darboux import NetworkGeometry
 from fabline.mechanics.materials import Material, Profile
 
 
 def analyse(geometry: NetworkGeometry, material: Material, profile: Profile, options: ModelOptions,
             settings: LoadSettings = LoadSettings(), buckling: bool = True) -> dict:
-    """Build, solve and summarise: the residual case (no load), each combination, the person at the joint that moved
-    most under the one-sided snow (the search's candidate), and the buckling factor of the combination with the
-    largest deflection (the residual stress included), with seconds per step."""
+    """Build, check and solve: the erection's stability (refused below 1), the residual case (no load), each
+    combination, the person at the joint that moved most under the one-sided snow (the search's candidate), and each
+    combination's linear buckling factor about the residual state, with seconds per step."""
     timings = {}
     start = time.perf_counter()
     section = Section.of(material, profile)
     grid = build(geometry, section, options)
     frame = grid.frame
-    model = Model(frame)
     timings["build"] = time.perf_counter() - start
+    t0 = time.perf_counter()
+    erection = erection_stability(frame)
+    timings["erection stability"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    model = Model(frame)
+    timings["build"] += time.perf_counter() - t0
     beam_names = [f"{strip} beam {k}" for strip, k in frame.beam_tags]
     joints = np.array(list(grid.joints.values()))
     base = basic_cases(frame, joints, settings)
     cases = {"residual": np.zeros((len(frame.xyz), 6)), **combinations(base, settings)}
     results, solutions = {}, {}
+    last = None
     for name, loads in cases.items():
-        t0 = time.perf_counter()
-        solutions[name] = model.solve(loads) if not solutions else model.next_case(loads)
+        t0 = time.perf_counter()  # from the last case's equilibrium; after one Newton failed, from the start
+        solutions[name] = last = model.next_case(loads) if last and last.converged else model.solve(loads)
         timings[name] = time.perf_counter() - t0
         results[name] = summary(solutions[name], section, material.f_y, frame.names, grid.joints, beam_names)
     snow_side = next(n for n in cases if n.endswith("S one-sided"))
@@ -43,24 +51,21 @@ def analyse(geometry: NetworkGeometry, material: Material, profile: Profile, opt
     name = f"{settings.gamma_g:g} G + {settings.gamma_q:g} P at {results[snow_side]['max_deflection_node']}"
     cases[name] = cases[f"{settings.gamma_g:g} G"] + settings.gamma_q * person(frame, spot, settings)
     t0 = time.perf_counter()
-    solutions[name] = model.next_case(cases[name])
+    solutions[name] = model.next_case(cases[name]) if last.converged else model.solve(cases[name])
     timings[name] = time.perf_counter() - t0
     results[name] = summary(solutions[name], section, material.f_y, frame.names, grid.joints, beam_names)
     record = {"model": {"nodes": len(frame.xyz), "beams": len(frame.beams), "links": len(frame.links),
                         "hinges": len(frame.hinges), "cables": len(frame.cables), "supports": len(frame.supports),
                         "dofs": 6 * len(frame.xyz), "stations": options.stations,
-                        "pair_spacing_mm": options.pair_spacing, "support_kind": options.supports},
+                        "pair_spacing_mm": options.pair_spacing, "support_kind": options.supports,
+                        "couplers": len(options.couplers) if options.stations > 1 else 0},
               "loads": settings.__dict__, "cases": results,
+              "erection": {"factor": rounded(erection.factor), "mode_peak_node": frame.names[erection.peak()]},
               "residual_check": residual_check(grid, solutions["residual"], material)}
     if buckling:
-        governing = max((n for n in cases if n != "residual"), key=lambda n: results[n]["max_deflection_mm"])
         t0 = time.perf_counter()
-        factor, mode = model.buckling_factor(cases[governing], residual=True)
+        record["buckling"] = case_buckling(grid, cases)
         timings["buckling"] = time.perf_counter() - t0
-        shape = np.linalg.norm(mode[:, :3], axis=1)
-        record["buckling"] = {"case": governing, "factor": round(float(factor), 4),
-                              "mode_peak_node": frame.names[int(np.argmax(shape))],
-                              "mode": dict(zip(grid.joints, np.round(shape[list(grid.joints.values())] / shape.max(), 4).tolist()))}
     record["seconds"] = {k: round(v, 3) for k, v in timings.items()}
     return record
 

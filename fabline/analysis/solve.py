@@ -1,6 +1,6 @@
-"""A Frame on OpenSees (openseespy): elasticBeamColumn elements on corotational transformations, rigid beam links,
-zeroLength scissor hinges, tension-only trusses for the cables; a static solve (Newton, load steps) of the initial strains
-and a load case together, and the buckling factor of a load case from the tangent stiffness's eigenvalues."""
+"""A Frame on OpenSees (openseespy): elasticBeamColumn elements on corotational (or, for the linear solve the buckling
+eigenproblem starts from, linear) transformations, stiff beam links, zeroLength scissor hinges, tension-only trusses for
+the cables; a static solve (Newton, load steps) of the initial strains and a load case together."""
 
 from __future__ import annotations
 
@@ -9,11 +9,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from fabline.analysis.frame import Frame
+from fabline.analysis.stiffness import HINGE_STIFFNESS, LINK_STIFFNESS
 from fabline.analysis.strains import fixed_end_forces, strain_loads
 from fabline.errors import FablineError
 
-HINGE_STIFFNESS = (1e8, 1e13)   # N/mm and N mm/rad of a bolt's tied DOFs: 1e3 to 1e5 times a strip's own
-LINK_STIFFNESS = 1e3            # a washer link's moduli over the strip's (with the strip's strong-axis inertia)
 STEPS = 2
 RETRY_STEPS = 8                 # a case that does not converge from the last one's state: from the start in 8 steps
 TOLERANCE = 1e-8                # displacement increment norm, mm
@@ -50,9 +49,10 @@ class Solution:
 
 
 class Model:
-    """One Frame built in OpenSees; `solve` runs a case on it from the unstressed start."""
+    """One Frame built in OpenSees; `solve` runs a case on it from the unstressed start. `linear`: small-displacement
+    beams (Linear transformations), for the prebuckling forces of a linear buckling analysis."""
 
-    def __init__(self, frame: Frame):
+    def __init__(self, frame: Frame, linear: bool = False):
         self.frame = frame
         self.ops = ops = opensees()
         ops.wipe()
@@ -64,7 +64,7 @@ class Model:
         sec = frame.section
         axes = frame.axes()
         for e, (i, j) in enumerate(frame.beams):
-            ops.geomTransf("Corotational", e + 1, *map(float, axes[e, 2]))
+            ops.geomTransf("Linear" if linear else "Corotational", e + 1, *map(float, axes[e, 2]))
             ops.element("elasticBeamColumn", e + 1, int(i) + 1, int(j) + 1, sec.A, sec.E, sec.G, sec.J,
                         sec.I_strong, sec.I_weak, e + 1)
         tag = len(frame.beams)
@@ -148,55 +148,3 @@ class Model:
         if ops.analyze(1) == 0:
             return self._read(True, residual)
         return self._read(self._apply(loads, residual, RETRY_STEPS), residual)  # from the start, in smaller steps
-
-    def lowest_eigenvalue(self, loads: np.ndarray, factor: float, residual: bool) -> float:
-        """The smallest eigenvalue of the tangent stiffness (against unit lumped masses) under factor x loads, solved
-        from the unstressed start: started from the last step's state instead, the pavilion's search followed another
-        equilibrium past the bifurcation and reported 8.99 for 2.56."""
-        if not self._apply(factor * loads, residual):
-            return -np.inf
-        return float(self.ops.eigen("-genBandArpack", 1)[0])
-
-    def buckling_factor(self, loads: np.ndarray, residual: bool = True, tolerance: float = 1e-3,
-                        guess: float = 1.0) -> tuple[float, np.ndarray]:
-        """The load factor at which the tangent stiffness of the loaded frame turns singular (its lowest eigenvalue,
-        against unit lumped masses, passes zero) and the mode shape there (N, 6). Past the first zero the shift-invert
-        eigen solver may report a later mode, so the search never jumps far beyond: from `guess` (quartered until the
-        eigenvalue lies between 0 and the unloaded one) secant steps of at most 3x, then regula falsi (Illinois) on the
-        bracket."""
-        ops = self.ops
-        for k in self.free:
-            ops.mass(k, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
-        f0 = self.lowest_eigenvalue(loads, 0.0, residual)
-        if not f0 > 0.0:
-            raise FablineError("analysis: the frame is unstable unloaded (its tangent stiffness is singular): "
-                               "a mechanism, check the supports and joints")
-        lo, f_lo, hi = 0.0, f0, guess
-        f_hi = self.lowest_eigenvalue(loads, hi, residual)
-        while not 0.0 < f_hi < f0 and hi > 1e-9 * guess:
-            hi /= 4.0
-            f_hi = self.lowest_eigenvalue(loads, hi, residual)
-        while f_hi > 0.0:
-            lo, f_lo, hi = hi, f_hi, min(hi - f_hi * (hi - lo) / (f_hi - f_lo), 3.0 * hi) if f_hi < f_lo else 3.0 * hi
-            f_hi = self.lowest_eigenvalue(loads, hi, residual)
-            if hi > 1e6 * guess:
-                return np.inf, np.zeros((len(self.frame.xyz), 6))
-        side = 0
-        while hi - lo > tolerance * hi:
-            mid = hi - f_hi * (hi - lo) / (f_hi - f_lo) if np.isfinite(f_hi) else (lo + hi) / 2.0
-            mid = min(max(mid, lo + 0.01 * (hi - lo)), hi - 0.01 * (hi - lo))
-            f_mid = self.lowest_eigenvalue(loads, mid, residual)
-            if f_mid > 0.0:
-                lo, f_lo = mid, f_mid
-                if side == 1 and np.isfinite(f_hi):
-                    f_hi /= 2.0
-                side = 1
-            else:
-                hi, f_hi = mid, f_mid
-                if side == -1:
-                    f_lo /= 2.0
-                side = -1
-        factor = lo - f_lo * (hi - lo) / (f_hi - f_lo) if np.isfinite(f_hi) else lo
-        self.lowest_eigenvalue(loads, lo, residual)
-        mode = np.array([ops.nodeEigenvector(k + 1, 1) for k in range(len(self.frame.xyz))])
-        return factor, mode

@@ -63,13 +63,23 @@ RESIDUAL_TRUST_PCT = 2.0
 
 def _warn_unverified(record: dict) -> None:
     """Say on stderr when the figures above rest on a frame that does not carry the erection's stresses as the
-    geometric check computes them (a model that does not reproduce its own unloaded state), or did not converge."""
+    geometric check computes them (a model that does not reproduce its own unloaded state), that cannot buckle between
+    joints, or did not converge, and which cases buckle."""
     bending = record["residual_check"]["bending"]
     failed = [name for name, case in record["cases"].items() if not case["converged"]]
     if bending["deviation_median_pct"] > RESIDUAL_TRUST_PCT:
         print(f"warning: the unloaded frame's weak-axis bending differs from the geometric check by "
               f"{bending['deviation_median_pct']:.1f} % at the median beam ({bending['deviation_max_pct']:.0f} % at "
               f"the worst): this frame does not reproduce the erected state, so its figures are unverified",
+              file=sys.stderr)
+    if record["model"]["stations"] == 1:
+        print("warning: with one beam per node interval (--stations 1) a strip cannot buckle between its joints: the "
+              "buckling factors are upper bounds (the pavilion's erection factor: 162 with 1, 8.7 with 4)", file=sys.stderr)
+    factors = record.get("buckling", {}).get("factors", {})
+    buckles = [name for name, factor in factors.items() if factor is not None and factor <= 1.0]
+    if buckles:
+        print(f"warning: {len(buckles)} load case(s) buckle (linear buckling factor at most 1: "
+              f"{', '.join(f'{name} {factors[name]:.3f}' for name in buckles)}): the shell does not carry them",
               file=sys.stderr)
     if failed:
         print(f"warning: {len(failed)} load case(s) did not converge ({', '.join(failed)}): their figures are the last "

@@ -6,6 +6,7 @@ from __future__ import annotations
 import html
 from typing import Any
 
+from fabline.analysis.parts import factor_text
 from fabline.jobs.pictures import value_plan_svg
 
 ANALYSIS_NAME = "analysis.json"
@@ -21,6 +22,7 @@ def analysis_data(record: dict[str, Any] | None, path: str) -> dict[str, Any] | 
     if not record:
         return None
     return {"file": path, "model": record["model"], "loads": record["loads"], "buckling": _buckling(record),
+            "erection": record["erection"],
             "cases": {name: {key: case.get(key) for key in CASE_FIGURES} for name, case in record["cases"].items()},
             "residual_check": record["residual_check"], "seconds": record["seconds"]}
 
@@ -46,7 +48,8 @@ def analysis_section(network, record: dict[str, Any] | None, data: dict[str, Any
             "<th>max utilisation %</th><th>at</th><th>buckling factor</th><th>converged</th></tr>")
     rows = []
     for name, case in record["cases"].items():
-        factor = f"{buckling['factor']:.3f}" if buckling and buckling["case"] == name else ""
+        factor = buckling["factors"].get(name) if buckling else None
+        factor = "" if factor is None else f"<span{' class=fail' if factor <= 1.0 else ''}>{factor:.3f}</span>"
         rows.append(f"<tr{'' if case['converged'] else ' class=fail'}><td>{e(name)}</td>"
                     f"<td>{case['max_deflection_mm']:.2f}</td><td>{e(case['max_deflection_node'])}</td>"
                     f"<td>{case['max_reaction_kN']:.3f}</td><td>{100 * case['max_utilisation']:.1f}</td>"
@@ -60,8 +63,9 @@ def analysis_section(network, record: dict[str, Any] | None, data: dict[str, Any
     said = (f"Snow {loads['snow']:g} kN/m2 on the plan, wind {loads['wind']:g} kN/m2 normal to the shell, a person "
             f"{loads['person']:g} N at the joint the one-sided snow moved most; partial factors {loads['gamma_g']:g} "
             f"(self-weight) and {loads['gamma_q']:g} (the variable load); the erection's residual stress in every case. "
-            + (f"Buckling factor {buckling['factor']:.3f} on {e(buckling['case'])} (mode largest at "
-               f"{e(buckling['mode_peak_node'])})." if buckling else "Buckling not computed (analysis.buckling = false).")
+            + f"Erection: {e(factor_text(data['erection']))} on its own residual stress. "
+            + (f"Buckling: lowest {e(factor_text(buckling))} on {e(buckling['case'])} (each case's in the table)."
+               if buckling else "Buckling not computed (analysis.buckling = false).")
             + f" {record['model']['nodes']} frame nodes, {record['model']['beams']} beams; every node's deflection and "
             f"every reaction in {e(data['file'])}.")
     unconverged = [n for n, c in record["cases"].items() if not c["converged"]]

@@ -17,6 +17,7 @@ JOB = GOOD.replace('name = "small"', 'name = "small"\nstages = ["unroll", "analy
 snow = "900 N/m2"
 person = "1.2 kN"
 stations = 1
+supports = "fixed"   # the small design has two support nodes: pinned, it would turn about the line through them
 buckling = false
 """
 SVG = "{http://www.w3.org/2000/svg}"
