@@ -7,7 +7,7 @@ import json
 import math
 
 from fabline.cli.choices import BOUNDARIES, MODEL_UNITS
-from fabline.cli.units import length_m, length_model, profile, size
+from fabline.cli.units import length_m, length_mm, length_model, profile, size
 from fabline.errors import FablineError
 from fabline.fileio import check_outputs
 
@@ -60,6 +60,11 @@ def _register_surface_designs(kinds: argparse._SubParsersAction) -> None:
     traced.add_argument("--material", default="steel-s235", help="lamella material for the limits")
     traced.add_argument("--profile", type=profile, default="100x1.5", metavar="HxT",
                         help="lamella profile height x thickness in mm for the limits")
+    traced.add_argument("--pair-spacing", type=length_mm, default=25.0, metavar="MM",
+                        help="the unroll's distance of a pair's two strips, mm or with a unit (its --pair-spacing): "
+                             "every crossing handed over leaves them room for their slots")
+    traced.add_argument("--slot-width", type=length_mm, metavar="MM",
+                        help="the unroll's slot width, mm (its --slot-width; default twice the thickness)")
     traced.add_argument("--json", action="store_true", help="print the quality report as JSON")
     traced.add_argument("-o", "--output", required=True, help="network JSON to write")
     traced.set_defaults(func=run_asymptotic)
@@ -96,7 +101,8 @@ def run_asymptotic(args: argparse.Namespace) -> int:
             raise FablineError(f"{args.seed_curves}: {len(found)} curves; give one (the rail) or two (rail and middle curve)")
         curves = [points for points, _ in found]
     design = design_asymptotic(args.surface, args.spacing, args.seed, args.supports, args.units, args.step,
-                               args.material, args.profile, curves)
+                               args.material, args.profile, curves, args.pair_spacing,
+                               None if args.slot_width is None else 2.0 * args.slot_width)
     network = design.network
     save_network(network, args.output)
     report = network.meta["quality"]

@@ -111,9 +111,13 @@ def check_mesh(vertices: np.ndarray, faces: np.ndarray, source: str) -> trimesh.
 
 def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarray | None = None, supports: str | None = None,
                       units: str | None = None, step: float | Length | None = None, material: str = "steel-s235",
-                      profile: str = "100x1.5", seed_curves: list[np.ndarray] | None = None) -> AsymptoticDesign:
+                      profile: str = "100x1.5", seed_curves: list[np.ndarray] | None = None,
+                      pair_spacing: float = PAIR_SPACING_MM, slot_pair: float | None = None) -> AsymptoticDesign:
     """Trace an asymptotic network at `spacing` (model units, or a `Length` with a unit) on the surface in `path`;
     seed defaults to the centre. A spacing or step implausible in the surface's units is refused.
+
+    `pair_spacing` and `slot_pair` (mm) are the unroll's: its pair's strip distance and a slot plus the web it leaves
+    between two nodes' slots (default its own, 2 t and 2 t), so that every crossing handed over can be slotted.
 
     `seed_curves` (one or two polylines on the surface, model units) replace the rail and the middle curve;
     the seed then defaults to the middle of the first.
@@ -133,7 +137,8 @@ def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarra
     across = float(np.linalg.norm(np.ptp(surface.vertices, axis=0)))
     step = step or min(spacing / 4.0, 0.05 * across)
     check_tracing_size(across, spacing, step, units, step_given)
-    check_pair_room(spacing, units, SLOT_PAIR_THICKNESSES * strip[1].t)
+    slot_pair = SLOT_PAIR_THICKNESSES * strip[1].t if slot_pair is None else slot_pair
+    check_pair_room(spacing, units, pair_spacing, slot_pair)
     k1, k2, _, _ = surface.vertex_curvatures()
     if not np.any((k1 > 0) & (k2 < 0)):
         worst = int(np.argmin(k1 * k2))
@@ -155,7 +160,7 @@ def design_asymptotic(path: str | Path, spacing: float | Length, seed: np.ndarra
             "seed_curves": len(curves),
             "step": step, "supports": str(rule) if rule else None}
     network = build_network(surface, layout, spacing, units, rule, Path(source).stem.split(".")[0], meta, source,
-                            SLOT_PAIR_THICKNESSES * strip[1].t)
+                            pair_spacing, slot_pair)
     network.meta["regions"] = [{"kind": r.kind, "centre": r.centre.round(6).tolist(), "vertices": r.vertices,
                                 "extent": r.extent, "area": r.area} for r in regions]
     network.meta["stops"] = layout.stop_records
@@ -222,11 +227,11 @@ def check_tracing_size(across: float, spacing: float, step: float, units: str, s
                            f"{'--step' if step_given else '--spacing'}")
 
 
-def check_pair_room(spacing: float, units: str, slot_pair: float) -> None:
+def check_pair_room(spacing: float, units: str, pair_spacing: float, slot_pair: float) -> None:
     """Refuse a spacing under which two neighbouring lamella pairs' slots overlap even where they cross square."""
-    least = PAIR_SPACING_MM + slot_pair
+    least = pair_spacing + slot_pair
     if spacing * UNIT_TO_MM[units] < least:
-        raise FablineError(f"--spacing {spacing:g} {units}: two neighbouring lamella pairs (strips {PAIR_SPACING_MM:g} mm "
+        raise FablineError(f"--spacing {spacing:g} {units}: two neighbouring lamella pairs (strips {pair_spacing:g} mm "
                            f"apart, a slot and a web {slot_pair:g} mm) need nodes at least {least:g} mm apart; give a "
                            "larger spacing")
 

@@ -23,7 +23,7 @@ from fabline.design.mesh import SmoothMesh, xyz_text
 from fabline.design.nurbs import NurbsPatch
 from fabline.design.trace import STOP_REASONS, StopRule, TracedCurve, trace_family
 from fabline.errors import FablineError
-from fabline.geometry.offsets import PAIR_SPACING_MM, strip_crossing_offsets
+from fabline.geometry.offsets import strip_crossing_offsets
 from fabline.model.importers.crossings import Crossings, find_crossings
 from fabline.model.network import UNIT_TO_MM, Lamella, Network, Node, validate
 
@@ -293,9 +293,10 @@ def _spaced(points: np.ndarray, seed: int, spacing: float, family: str, source: 
 
 
 def build_network(surface: TracingSurface, layout: Layout, spacing: float, units: str, supports: SupportRule | None,
-                  name: str, meta: dict, source: str, slot_pair: float) -> Network:
+                  name: str, meta: dict, source: str, pair_spacing: float, slot_pair: float) -> Network:
     """Nodes at the crossings of the traced curves, lamellas through them to the edge, validated; every crossing a
-    pair of strips can be slotted at (`_clear_corners`, `slot_pair` mm between two nodes' slots on a strip).
+    pair of strips `pair_spacing` mm apart can be slotted at (`_clear_corners`, `slot_pair` mm between two nodes'
+    slots on a strip).
 
     A curve that carries fewer than two crossings (with curves that carry two) holds nothing and is dropped, as is
     one the network check would refuse (each is checked alone, so one bad curve never rejects the design);
@@ -304,7 +305,7 @@ def build_network(surface: TracingSurface, layout: Layout, spacing: float, units
     first = {f: min(i for g, i in zip(layout.families, layout.indices) if g == f) for f in set(layout.families)}
     number = [i - first[f] for f, i in zip(layout.families, layout.indices)]
     ids = [f"{f}-{n:03d}" for f, n in zip(layout.families, number)]
-    tolerance, pair = CROSSING_TOLERANCE_MM / UNIT_TO_MM[units], PAIR_SPACING_MM / UNIT_TO_MM[units]
+    tolerance, pair = CROSSING_TOLERANCE_MM / UNIT_TO_MM[units], pair_spacing / UNIT_TO_MM[units]
     crossings = _clear_corners(surface, layout, ids, tolerance, pair, (slot_pair + SLOT_MARGIN_MM) / UNIT_TO_MM[units],
                                source)
     normals = surface.project(crossings.xyz).normal if len(crossings.xyz) else np.empty((0, 3))

@@ -80,15 +80,18 @@ def build_network(spec: JobSpec) -> "Network":
 
 
 def _traced(spec: JobSpec) -> "Network":
-    """model.mesh traced with its options, as `fabline design asymptotic` would with the job's strip."""
+    """model.mesh traced with its options, as `fabline design asymptotic` would with the job's strip and the unroll
+    stage's pair spacing, slot width and web (so that every crossing it hands over can be slotted)."""
     from fabline.design import design_asymptotic
-    from fabline.jobs.jobfile import mesh_length
+    from fabline.jobs.jobfile import mesh_length, unroll_options
 
     options, where = spec.model["options"], f"{spec.path.name}: model.options"
     step = mesh_length(options["step"], f"{where}.step") if "step" in options else None
+    unrolled = unroll_options(spec.lamella, spec.unroll, spec.stock, spec.nest)
     return design_asymptotic(spec.model["mesh"], mesh_length(options["spacing"], f"{where}.spacing"), options.get("seed"),
                              options.get("supports"), options.get("units"), step, spec.lamella["material"],
-                             spec.lamella["profile"]).network
+                             spec.lamella["profile"], pair_spacing=unrolled.pair_spacing,
+                             slot_pair=unrolled.slot + unrolled.web).network
 
 
 def prepare_job(job: str | os.PathLike | JobSpec, say: Say = lambda text: None) -> JobResult:

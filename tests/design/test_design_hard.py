@@ -166,3 +166,28 @@ def test_a_hard_mesh_goes_on_to_nested_parts_in_dxf(tmp_path, cli, name):
         assert not doc.audit().has_errors, sheet
         inserted |= {insert.dxf.name for insert in doc.modelspace().query("INSERT")}
     assert inserted == {p["id"] for p in parts}
+
+
+@pytest.mark.parametrize("name", ["dome-centre", "folded-centre"])
+def test_the_design_slots_every_crossing_for_the_unrolls_own_pair_spacing(tmp_path, cli, name):
+    """Pairs 60 mm apart with 4 mm slots: traced for the default 25 mm pair, unroll (at 60) finds strips that pass
+    apart instead of crossing (measured: 298.6 mm at N010-010 on dome-centre, 3.4 mm at N005-010 on folded-centre);
+    traced with --pair-spacing 60 --slot-width 4, every crossing it hands over unrolls."""
+    path, units = mesh_file(tmp_path, name)
+    unroll = ["--no-hardware", "--pair-spacing", "60", "--slot-width", "4"]
+    for design, expected in (([], 2), (["--pair-spacing", "60mm", "--slot-width", "4mm"], 0)):
+        out = tmp_path / f"{len(design)}.network.json"
+        code, _, stderr = cli("design", "asymptotic", "--surface", path, "--units", units, "--spacing", "70 mm",
+                              *design, "-o", out)
+        assert code == 0, stderr
+        code, _, stderr = cli("unroll", out, *unroll, "-o", tmp_path / f"{len(design)}.parts.json")
+        assert code == expected, stderr
+        if expected:
+            assert "instead of crossing" in stderr and stderr.count("\n") == 1, stderr
+
+
+def test_a_pair_spacing_too_wide_for_the_node_spacing_is_refused_saying_the_least(tmp_path, cli):
+    path, _ = mesh_file(tmp_path, "coarse")
+    code, _, stderr = cli("design", "asymptotic", "--surface", path, "--units", "m", "--spacing", "70 mm",
+                          "--pair-spacing", "66mm", "-o", tmp_path / "out.network.json")
+    assert code == 2 and "(strips 66 mm apart, a slot and a web 6 mm) need nodes at least 72 mm apart" in stderr, stderr

@@ -74,3 +74,16 @@ def test_a_mesh_job_mistake_is_one_line_naming_the_key(tmp_path, cli, neck, old,
     assert code == 2 and err.count("\n") == 1, err
     assert f"job.toml: {message}" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_mesh_job_traces_for_its_unroll_stages_pair_spacing(tmp_path, cli):
+    """unroll.pair_spacing 60 mm and slot_width 4 mm reach the design: the traced network unrolls with them (traced
+    for the default 25 mm pair, unroll at 60 mm refuses this mesh: tests/design/test_design_hard.py)."""
+    vertices, faces, _ = hard_mesh("folded-centre")
+    write_mesh(tmp_path / "neck.obj", vertices, faces)
+    job = JOB.replace('stages = ["report"]', 'stages = ["unroll"]').replace(
+        "[output]", '[unroll]\npair_spacing = "60 mm"\nslot_width = "4 mm"\nhardware = false\n[output]')
+    code, out, err = cli("run", write(tmp_path, job))
+    assert code == 0, err
+    parts = json.loads((tmp_path / "out" / "parts.json").read_text())
+    assert parts["report"]["options"]["pair_spacing_mm"] == 60.0 and parts["parts"]
