@@ -126,6 +126,21 @@ PROGRESS_INTERVAL = 0.2
 """Seconds between the progress messages a sheet's process sends to `fabline run`."""
 
 
+class StopOnce:
+    """A stop signal's handler that stops once: a stop comes twice (the process group's SIGTERM and `fabline run`'s
+    SIGINT to each link), and a second handler run inside the first, while it holds the abort event's lock, waited on
+    that lock for ever (seen: a link process hung after its sheet's abort line)."""
+
+    def __init__(self, stop) -> None:
+        self.stop, self.stopping = stop, False
+
+    def __call__(self, signum=None, frame=None) -> None:
+        if self.stopping:
+            return
+        self.stopping = True
+        self.stop()
+
+
 def stream_in_process(port: str, program: str, resume: bool, identity: dict[str, str], connection,
                       from_line: int | None = None) -> None:
     """Process target: stream one sheet (continuing its journal with `resume`, from file line `from_line` if
@@ -146,8 +161,9 @@ def stream_in_process(port: str, program: str, resume: bool, identity: dict[str,
             connection.send(("progress", done, stream.total, stream.eta))
 
     stream = SheetStream(port, program, progress, resume=resume, from_line=from_line, identity=identity)
+    stop = StopOnce(stream.stop)
     for number in STOP_SIGNALS:
-        signal.signal(number, lambda signum, frame: stream.stop())
+        signal.signal(number, stop)
     signal.signal(signal.SIGUSR1, lambda signum, frame: stream.resume())
     signal.pthread_sigmask(signal.SIG_UNBLOCK, set(STOP_SIGNALS))  # blocked by the parent until the handlers are in place
     try:
